@@ -1,0 +1,287 @@
+//! On-disk records of archive format version 1.
+//!
+//! Every type here is `#[repr(C)]`, made of little-endian `u32`/`u64`/`f32`
+//! fields with no implicit padding, and is read zero-copy with `bytemuck`
+//! after validation. Sizes are asserted at compile time. The normative
+//! description is `format-spec/archive.md`; section numbers below refer to it.
+
+use bytemuck::{Pod, Zeroable};
+
+/// File magic, bytes 0..8 (§3).
+pub const MAGIC: [u8; 8] = *b"ILLUMNET";
+/// The format version this code writes (§3, `version_write`).
+pub const VERSION_WRITE: u32 = 1;
+/// The oldest reader version able to read what this code writes (§3, `version_read`).
+pub const VERSION_READ: u32 = 1;
+/// The highest `version_read` this code can read (§6).
+pub const READER_VERSION: u32 = 1;
+/// Header size in bytes (§3).
+pub const HEADER_SIZE: usize = 128;
+/// Section table entry size in bytes (§4).
+pub const ENTRY_SIZE: usize = 64;
+/// Every section starts at a multiple of this (§2).
+pub const SECTION_ALIGN: u64 = 64;
+/// Sections of at least [`LARGE_SECTION`] bytes start at a multiple of this (§2).
+pub const PAGE_ALIGN: u64 = 4096;
+/// Size from which a section is page-aligned (§2).
+pub const LARGE_SECTION: u64 = 64 * 1024;
+
+/// Section compression codes (§4).
+pub mod compression {
+    /// Stored as is; readable zero-copy.
+    pub const NONE: u32 = 0;
+    /// One zstd frame.
+    pub const ZSTD: u32 = 1;
+}
+
+/// Material model codes (§5.4).
+pub mod model {
+    /// Lambertian; `params[0..3]` is the RGB reflectance.
+    pub const DIFFUSE: u32 = 0;
+}
+
+/// Link-merging policies recorded in [`BuildRecord::link_merge`] (§5.1).
+pub mod merge {
+    /// One entry per ray.
+    pub const NONE: u32 = 0;
+    /// Parallel rays of one direction joining the same two patches are one
+    /// entry whose weight is their count.
+    pub const PATCH_PAIR_DIRECTION: u32 = 1;
+}
+
+/// A section tag: four ASCII bytes, stored as is (§4).
+pub type Tag = [u8; 4];
+
+/// Section tags of version 1 (§5).
+pub mod tag {
+    use super::Tag;
+    /// Build parameters and counts (§5.1).
+    pub const BUILD: Tag = *b"BILD";
+    /// The camera (§5.2).
+    pub const CAMERA: Tag = *b"CAMR";
+    /// Surfaces (§5.3).
+    pub const SURFACES: Tag = *b"SURF";
+    /// Materials (§5.4).
+    pub const MATERIALS: Tag = *b"MATL";
+    /// Primitives and their patch grids (§5.5).
+    pub const PRIMITIVES: Tag = *b"PRIM";
+    /// Geodesic directions with neighbours (§5.6).
+    pub const DIRECTIONS: Tag = *b"DIRS";
+    /// Patch centres (§5.7).
+    pub const PATCH_CENTRE: Tag = *b"PCEN";
+    /// Patch normals (§5.7).
+    pub const PATCH_NORMAL: Tag = *b"PNRM";
+    /// Patch areas (§5.7).
+    pub const PATCH_AREA: Tag = *b"PARE";
+    /// Patch primitive ids (§5.7).
+    pub const PATCH_PRIMITIVE: Tag = *b"PPRM";
+    /// Patch corner vertex ids (§5.7).
+    pub const PATCH_CORNERS: Tag = *b"PCOR";
+    /// Patch ray-hit counts `H_p` (§5.7).
+    pub const PATCH_HITS: Tag = *b"PHIT";
+    /// Patch expected hit counts from geometry (§5.7).
+    pub const PATCH_EXPECTED_HITS: Tag = *b"PEXP";
+    /// Vertex positions (§5.8).
+    pub const VERTEX_POSITION: Tag = *b"VPOS";
+    /// Patch adjacency offsets (§5.9).
+    pub const ADJACENCY_OFFSETS: Tag = *b"ADJO";
+    /// Patch adjacency ids (§5.9).
+    pub const ADJACENCY: Tag = *b"ADJI";
+    /// Link-end offsets per patch (§5.10).
+    pub const LINK_OFFSETS: Tag = *b"LOFF";
+    /// Link-end other patch (§5.10).
+    pub const LINK_OTHER: Tag = *b"LOTH";
+    /// Link-end weight (§5.10).
+    pub const LINK_WEIGHT: Tag = *b"LWGT";
+    /// Link-end outgoing direction (§5.10).
+    pub const LINK_DIRECTION: Tag = *b"LDIR";
+    /// Names and provenance, rkyv + zstd (§5.11).
+    pub const META: Tag = *b"META";
+}
+
+/// The file header at offset 0 (§3).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Pod, Zeroable)]
+pub struct HeaderRecord {
+    /// [`MAGIC`].
+    pub magic: [u8; 8],
+    /// Format version of the writer.
+    pub version_write: u32,
+    /// Lowest reader version that can read the file.
+    pub version_read: u32,
+    /// [`HEADER_SIZE`].
+    pub header_size: u32,
+    /// Reserved, zero.
+    pub flags: u32,
+    /// Total file length in bytes.
+    pub file_length: u64,
+    /// Offset of the section table.
+    pub table_offset: u64,
+    /// Number of section table entries.
+    pub section_count: u32,
+    /// [`ENTRY_SIZE`].
+    pub entry_size: u32,
+    /// XXH3-64 (seed 0) of the section table bytes.
+    pub table_checksum: u64,
+    /// Reserved, zero.
+    pub reserved: [u64; 8],
+    /// XXH3-64 (seed 0) of header bytes 0..120.
+    pub header_checksum: u64,
+}
+
+/// One section table entry (§4).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Pod, Zeroable)]
+pub struct SectionEntry {
+    /// Four ASCII bytes naming the section.
+    pub tag: Tag,
+    /// [`compression`] code.
+    pub compression: u32,
+    /// Offset of the stored bytes from the start of the file.
+    pub offset: u64,
+    /// Stored (possibly compressed) length in bytes.
+    pub stored_length: u64,
+    /// Length after decompression (equal to `stored_length` when stored as is).
+    pub length: u64,
+    /// Number of records.
+    pub count: u64,
+    /// Size of one record in bytes (0 for unstructured sections such as META).
+    pub record_size: u32,
+    /// Reserved, zero.
+    pub flags: u32,
+    /// XXH3-64 (seed 0) of the stored bytes.
+    pub checksum: u64,
+    /// Reserved, zero.
+    pub reserved: u64,
+}
+
+/// Build parameters and totals (§5.1).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Default, Pod, Zeroable)]
+pub struct BuildRecord {
+    /// Geodesic frequency `f`.
+    pub frequency: u32,
+    /// Number of directions, `10f² + 2`.
+    pub direction_count: u32,
+    /// Number of patches.
+    pub patch_count: u32,
+    /// Number of patch vertices.
+    pub vertex_count: u32,
+    /// Number of primitives.
+    pub primitive_count: u32,
+    /// Number of surfaces.
+    pub surface_count: u32,
+    /// Number of materials.
+    pub material_count: u32,
+    /// Link-merging policy ([`merge`]).
+    pub link_merge: u32,
+    /// Distance between parallel rays `δ` (m).
+    pub ray_spacing_m: f32,
+    /// Target patch size used (m).
+    pub patch_size_m: f32,
+    /// Reserved, zero.
+    pub reserved0: [u32; 2],
+    /// Rays traced (one per ray line; each serves both directions of a pair).
+    pub ray_count: u64,
+    /// Undirected links before merging (one per facing hit pair on a ray).
+    pub link_count: u64,
+    /// Link ends stored (two per merged link).
+    pub link_end_count: u64,
+    /// Sum of all patch hit counts.
+    pub hit_count: u64,
+    /// Reserved, zero.
+    pub reserved1: [u64; 6],
+}
+
+/// The pinhole camera (§5.2).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Default, Pod, Zeroable)]
+pub struct CameraRecord {
+    /// Eye position (m).
+    pub position: [f32; 3],
+    /// Point looked at (m).
+    pub look_at: [f32; 3],
+    /// Up vector.
+    pub up: [f32; 3],
+    /// Vertical field of view (degrees).
+    pub fov_y_deg: f32,
+    /// Image width (pixels).
+    pub width: u32,
+    /// Image height (pixels).
+    pub height: u32,
+}
+
+/// A surface (§5.3).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Default, Pod, Zeroable)]
+pub struct SurfaceRecord {
+    /// Material index.
+    pub material: u32,
+    /// First primitive index.
+    pub first_primitive: u32,
+    /// Number of primitives.
+    pub primitive_count: u32,
+    /// Reserved, zero.
+    pub reserved0: u32,
+    /// Emitted radiance, linear RGB (W·sr⁻¹·m⁻²).
+    pub emission: [f32; 3],
+    /// Reserved, zero.
+    pub reserved1: f32,
+}
+
+/// A material (§5.4).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Default, Pod, Zeroable)]
+pub struct MaterialRecord {
+    /// [`model`] code.
+    pub model: u32,
+    /// Reserved, zero.
+    pub reserved: u32,
+    /// Model parameters; unused ones are zero.
+    pub params: [f32; 14],
+}
+
+/// A primitive and its patch grid (§5.5).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Default, Pod, Zeroable)]
+pub struct PrimitiveRecord {
+    /// 0 = quad, 1 = triangle.
+    pub kind: u32,
+    /// Surface index.
+    pub surface: u32,
+    /// Grid cells along u (triangles: subdivision k).
+    pub grid_u: u32,
+    /// Grid cells along v (triangles: equal to `grid_u`).
+    pub grid_v: u32,
+    /// Global id of the first patch.
+    pub first_patch: u32,
+    /// Global id of the first vertex.
+    pub first_vertex: u32,
+    /// Reserved, zero.
+    pub reserved: [u32; 2],
+    /// Corners (m); the fourth equals the third for triangles.
+    pub corners: [[f32; 3]; 4],
+}
+
+/// A direction of the geodesic set (§5.6).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Default, Pod, Zeroable)]
+pub struct DirectionRecord {
+    /// Unit vector.
+    pub direction: [f32; 3],
+    /// Solid angle of the direction's spherical Voronoi cell (sr).
+    pub solid_angle_sr: f32,
+    /// Neighbour ids counter-clockwise seen from outside; `u32::MAX` = none.
+    pub neighbours: [u32; 6],
+}
+
+const _: () = {
+    assert!(size_of::<HeaderRecord>() == HEADER_SIZE);
+    assert!(size_of::<SectionEntry>() == ENTRY_SIZE);
+    assert!(size_of::<BuildRecord>() == 128);
+    assert!(size_of::<CameraRecord>() == 48);
+    assert!(size_of::<SurfaceRecord>() == 32);
+    assert!(size_of::<MaterialRecord>() == 64);
+    assert!(size_of::<PrimitiveRecord>() == 80);
+    assert!(size_of::<DirectionRecord>() == 40);
+};

@@ -1,0 +1,158 @@
+//! The I-net archive: one versioned, checksummed, memory-mapped file.
+//!
+//! Layout (normative text: `format-spec/archive.md`): a 128-byte header, then
+//! section payloads (64-byte aligned; page-aligned from 64 KiB), then a
+//! section table written last (single-pass writing). Every section has a
+//! checksum in the table, outside the bytes it covers. Hot columns (patches,
+//! links) are raw little-endian struct-of-arrays read zero-copy; the cold
+//! `META` section is rkyv, zstd-compressed.
+//!
+//! [`write`] writes to a temporary file in the destination directory and
+//! renames it into place, so a crash never leaves a half-written archive
+//! under the final name. [`Archive::open`] maps the file and validates every
+//! byte that later code trusts (checksums, bounds, alignment, index ranges)
+//! before any zero-copy view is handed out: a corrupt or truncated file is an
+//! [`ArchiveError`], never a panic.
+//!
+//! Architecture invariant: this module knows nothing about how the data was
+//! produced (build) or consumed (distribute, render).
+
+pub mod layout;
+mod read;
+mod write;
+
+use std::fmt;
+use std::path::PathBuf;
+
+pub use read::{Archive, InetView};
+pub use write::{write, write_to_vec};
+
+use layout::{
+    BuildRecord, CameraRecord, DirectionRecord, MaterialRecord, PrimitiveRecord, SurfaceRecord, Tag,
+};
+
+/// Names and provenance: small, structured, cold. Stored with rkyv (validated
+/// with bytecheck on read) inside a zstd frame.
+#[derive(
+    Debug, Clone, PartialEq, Eq, Default, rkyv::Archive, rkyv::Serialize, rkyv::Deserialize,
+)]
+pub struct ArchiveMeta {
+    /// Program and version that wrote the file.
+    pub generator: String,
+    /// Scene name.
+    pub scene: String,
+    /// One name per surface.
+    pub surface_names: Vec<String>,
+    /// One name per material.
+    pub material_names: Vec<String>,
+}
+
+/// Everything an archive holds, as owned columns: what a build produces and
+/// [`write`] stores. Field docs give the section each becomes.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct ArchiveContents {
+    /// `BILD`.
+    pub build: BuildRecord,
+    /// `CAMR`.
+    pub camera: CameraRecord,
+    /// `SURF`.
+    pub surfaces: Vec<SurfaceRecord>,
+    /// `MATL`.
+    pub materials: Vec<MaterialRecord>,
+    /// `PRIM`.
+    pub primitives: Vec<PrimitiveRecord>,
+    /// `DIRS`.
+    pub directions: Vec<DirectionRecord>,
+    /// `PCEN`.
+    pub patch_centre: Vec<[f32; 3]>,
+    /// `PNRM`.
+    pub patch_normal: Vec<[f32; 3]>,
+    /// `PARE`.
+    pub patch_area: Vec<f32>,
+    /// `PPRM`.
+    pub patch_primitive: Vec<u32>,
+    /// `PCOR`.
+    pub patch_corners: Vec<[u32; 4]>,
+    /// `PHIT`.
+    pub patch_hits: Vec<u32>,
+    /// `PEXP`.
+    pub patch_expected_hits: Vec<f32>,
+    /// `VPOS`.
+    pub vertex_position: Vec<[f32; 3]>,
+    /// `ADJO`.
+    pub adjacency_offsets: Vec<u32>,
+    /// `ADJI`.
+    pub adjacency: Vec<u32>,
+    /// `LOFF`.
+    pub link_offsets: Vec<u64>,
+    /// `LOTH`.
+    pub link_other: Vec<u32>,
+    /// `LWGT`.
+    pub link_weight: Vec<f32>,
+    /// `LDIR`.
+    pub link_direction: Vec<u32>,
+    /// `META`.
+    pub meta: ArchiveMeta,
+}
+
+/// Why an archive could not be written or opened.
+#[derive(Debug)]
+pub enum ArchiveError {
+    /// Reading or writing the file failed.
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The OS error.
+        source: std::io::Error,
+    },
+    /// The bytes do not form a valid archive; the message says where.
+    Corrupt(String),
+    /// The file needs a newer reader.
+    UnsupportedVersion {
+        /// `version_read` in the file.
+        needs: u32,
+        /// What this build reads.
+        supports: u32,
+    },
+}
+
+impl ArchiveError {
+    pub(crate) fn corrupt(msg: impl Into<String>) -> Self {
+        Self::Corrupt(msg.into())
+    }
+}
+
+impl fmt::Display for ArchiveError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Self::Io { path, source } => write!(f, "{}: {source}", path.display()),
+            Self::Corrupt(m) => write!(f, "corrupt archive: {m}"),
+            Self::UnsupportedVersion { needs, supports } => write!(
+                f,
+                "archive needs reader version {needs}, this illumnet reads up to version {supports}: upgrade illumnet"
+            ),
+        }
+    }
+}
+
+impl std::error::Error for ArchiveError {
+    fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
+        match self {
+            Self::Io { source, .. } => Some(source),
+            _ => None,
+        }
+    }
+}
+
+/// Printable form of a tag (`b"LOTH"` → `LOTH`; non-ASCII bytes escaped).
+pub fn tag_name(tag: Tag) -> String {
+    tag.iter()
+        .map(|&b| {
+            if b.is_ascii_graphic() {
+                (b as char).to_string()
+            } else {
+                format!("\\x{b:02x}")
+            }
+        })
+        .collect()
+}

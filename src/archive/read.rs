@@ -1,0 +1,649 @@
+//! Opening archives: map, validate everything, then hand out zero-copy views.
+
+use std::path::Path;
+
+use bytemuck::{Pod, pod_read_unaligned};
+use xxhash_rust::xxh3::xxh3_64;
+
+use super::layout::{
+    self, BuildRecord, CameraRecord, DirectionRecord, HeaderRecord, MaterialRecord,
+    PrimitiveRecord, SectionEntry, SurfaceRecord, Tag, compression, tag,
+};
+use super::{ArchiveError, ArchiveMeta, tag_name};
+
+enum Storage {
+    Mapped(memmap2::Mmap),
+    /// `u64` words keep owned bytes 8-byte aligned, as mapped pages are.
+    Owned(Vec<u64>, usize),
+}
+
+impl Storage {
+    fn bytes(&self) -> &[u8] {
+        match self {
+            Storage::Mapped(m) => m,
+            Storage::Owned(words, len) => &bytemuck::cast_slice(words)[..*len],
+        }
+    }
+}
+
+/// An opened, fully validated archive.
+pub struct Archive {
+    storage: Storage,
+    header: HeaderRecord,
+    entries: Vec<SectionEntry>,
+    meta: ArchiveMeta,
+}
+
+/// Zero-copy, typed views of a validated archive's sections.
+#[derive(Clone, Copy)]
+pub struct InetView<'a> {
+    /// `BILD`.
+    pub build: &'a BuildRecord,
+    /// `CAMR`.
+    pub camera: &'a CameraRecord,
+    /// `SURF`.
+    pub surfaces: &'a [SurfaceRecord],
+    /// `MATL`.
+    pub materials: &'a [MaterialRecord],
+    /// `PRIM`.
+    pub primitives: &'a [PrimitiveRecord],
+    /// `DIRS`.
+    pub directions: &'a [DirectionRecord],
+    /// `PCEN`.
+    pub patch_centre: &'a [[f32; 3]],
+    /// `PNRM`.
+    pub patch_normal: &'a [[f32; 3]],
+    /// `PARE`.
+    pub patch_area: &'a [f32],
+    /// `PPRM`.
+    pub patch_primitive: &'a [u32],
+    /// `PCOR`.
+    pub patch_corners: &'a [[u32; 4]],
+    /// `PHIT`.
+    pub patch_hits: &'a [u32],
+    /// `PEXP`.
+    pub patch_expected_hits: &'a [f32],
+    /// `VPOS`.
+    pub vertex_position: &'a [[f32; 3]],
+    /// `ADJO`.
+    pub adjacency_offsets: &'a [u32],
+    /// `ADJI`.
+    pub adjacency: &'a [u32],
+    /// `LOFF`.
+    pub link_offsets: &'a [u64],
+    /// `LOTH`.
+    pub link_other: &'a [u32],
+    /// `LWGT`.
+    pub link_weight: &'a [f32],
+    /// `LDIR`.
+    pub link_direction: &'a [u32],
+}
+
+impl<'a> InetView<'a> {
+    /// Number of patches.
+    pub fn patch_count(&self) -> usize {
+        self.patch_area.len()
+    }
+
+    /// Link ends of patch `p`: `(other patch, weight, outgoing direction)` columns.
+    pub fn link_ends(&self, p: usize) -> (&'a [u32], &'a [f32], &'a [u32]) {
+        let (a, b) = (
+            self.link_offsets[p] as usize,
+            self.link_offsets[p + 1] as usize,
+        );
+        (
+            &self.link_other[a..b],
+            &self.link_weight[a..b],
+            &self.link_direction[a..b],
+        )
+    }
+}
+
+fn bad(msg: impl Into<String>) -> ArchiveError {
+    ArchiveError::corrupt(msg)
+}
+
+/// Required sections: tag, record size, compression.
+const REQUIRED: [(Tag, u32, u32); 21] = [
+    (
+        tag::BUILD,
+        size_of::<BuildRecord>() as u32,
+        compression::NONE,
+    ),
+    (
+        tag::CAMERA,
+        size_of::<CameraRecord>() as u32,
+        compression::NONE,
+    ),
+    (
+        tag::MATERIALS,
+        size_of::<MaterialRecord>() as u32,
+        compression::NONE,
+    ),
+    (
+        tag::SURFACES,
+        size_of::<SurfaceRecord>() as u32,
+        compression::NONE,
+    ),
+    (
+        tag::PRIMITIVES,
+        size_of::<PrimitiveRecord>() as u32,
+        compression::NONE,
+    ),
+    (
+        tag::DIRECTIONS,
+        size_of::<DirectionRecord>() as u32,
+        compression::NONE,
+    ),
+    (tag::PATCH_CENTRE, 12, compression::NONE),
+    (tag::PATCH_NORMAL, 12, compression::NONE),
+    (tag::PATCH_AREA, 4, compression::NONE),
+    (tag::PATCH_PRIMITIVE, 4, compression::NONE),
+    (tag::PATCH_CORNERS, 16, compression::NONE),
+    (tag::PATCH_HITS, 4, compression::NONE),
+    (tag::PATCH_EXPECTED_HITS, 4, compression::NONE),
+    (tag::VERTEX_POSITION, 12, compression::NONE),
+    (tag::ADJACENCY_OFFSETS, 4, compression::NONE),
+    (tag::ADJACENCY, 4, compression::NONE),
+    (tag::LINK_OFFSETS, 8, compression::NONE),
+    (tag::LINK_OTHER, 4, compression::NONE),
+    (tag::LINK_WEIGHT, 4, compression::NONE),
+    (tag::LINK_DIRECTION, 4, compression::NONE),
+    (tag::META, 0, compression::ZSTD),
+];
+
+impl Archive {
+    /// Maps and validates the archive at `path`.
+    pub fn open(path: &Path) -> Result<Self, ArchiveError> {
+        let io = |e: std::io::Error| ArchiveError::Io {
+            path: path.into(),
+            source: e,
+        };
+        let file = std::fs::File::open(path).map_err(io)?;
+        let len = file.metadata().map_err(io)?.len();
+        if len < layout::HEADER_SIZE as u64 {
+            return Err(bad(format!(
+                "file is {len} bytes, shorter than the {}-byte header (truncated?)",
+                layout::HEADER_SIZE
+            )));
+        }
+        // SAFETY: the map is read-only and private to this process. Another
+        // process truncating or rewriting the file while it is mapped would
+        // break the validation below (SIGBUS or changed bytes); archives are
+        // written once to a temporary file and renamed, never modified in
+        // place, so this does not happen with files illumnet writes.
+        #[allow(unsafe_code)]
+        let map = unsafe { memmap2::Mmap::map(&file) }.map_err(io)?;
+        Self::from_storage(Storage::Mapped(map))
+    }
+
+    /// Validates an archive held in memory (the bytes are copied once into
+    /// an aligned buffer).
+    pub fn from_bytes(bytes: &[u8]) -> Result<Self, ArchiveError> {
+        let mut words = vec![0u64; bytes.len().div_ceil(8)];
+        bytemuck::cast_slice_mut::<u64, u8>(&mut words)[..bytes.len()].copy_from_slice(bytes);
+        Self::from_storage(Storage::Owned(words, bytes.len()))
+    }
+
+    fn from_storage(storage: Storage) -> Result<Self, ArchiveError> {
+        let bytes = storage.bytes();
+        let (header, entries) = validate_structure(bytes)?;
+        let mut archive = Self {
+            storage,
+            header,
+            entries,
+            meta: ArchiveMeta::default(),
+        };
+        archive.meta = archive.read_meta()?;
+        validate_contents(&archive.view_unchecked()?, &archive.meta)?;
+        Ok(archive)
+    }
+
+    /// The header.
+    pub fn header(&self) -> &HeaderRecord {
+        &self.header
+    }
+
+    /// The section table, in file order.
+    pub fn sections(&self) -> &[SectionEntry] {
+        &self.entries
+    }
+
+    /// Names and provenance.
+    pub fn meta(&self) -> &ArchiveMeta {
+        &self.meta
+    }
+
+    /// Total file size in bytes.
+    pub fn file_length(&self) -> u64 {
+        self.header.file_length
+    }
+
+    fn entry(&self, t: Tag) -> Result<&SectionEntry, ArchiveError> {
+        self.entries
+            .iter()
+            .find(|e| e.tag == t)
+            .ok_or_else(|| bad(format!("section {} is missing", tag_name(t))))
+    }
+
+    fn stored(&self, e: &SectionEntry) -> &[u8] {
+        &self.storage.bytes()[e.offset as usize..(e.offset + e.stored_length) as usize]
+    }
+
+    fn column<T: Pod>(&self, t: Tag) -> Result<&[T], ArchiveError> {
+        let e = self.entry(t)?;
+        bytemuck::try_cast_slice(self.stored(e))
+            .map_err(|err| bad(format!("section {}: {err:?}", tag_name(t))))
+    }
+
+    fn one<T: Pod>(&self, t: Tag) -> Result<&T, ArchiveError> {
+        self.column::<T>(t)?
+            .first()
+            .ok_or_else(|| bad(format!("section {} is empty", tag_name(t))))
+    }
+
+    fn read_meta(&self) -> Result<ArchiveMeta, ArchiveError> {
+        let e = self.entry(tag::META)?;
+        if e.length > 64 << 20 {
+            return Err(bad(format!(
+                "META claims {} bytes uncompressed, more than 64 MiB",
+                e.length
+            )));
+        }
+        let raw = zstd::bulk::decompress(self.stored(e), e.length as usize)
+            .map_err(|err| bad(format!("META does not decompress: {err}")))?;
+        if raw.len() as u64 != e.length {
+            return Err(bad(format!(
+                "META decompresses to {} bytes, the table says {}",
+                raw.len(),
+                e.length
+            )));
+        }
+        let mut aligned = rkyv::util::AlignedVec::<16>::with_capacity(raw.len());
+        aligned.extend_from_slice(&raw);
+        let archived = rkyv::access::<super::ArchivedArchiveMeta, rkyv::rancor::Error>(&aligned)
+            .map_err(|err| bad(format!("META fails validation: {err}")))?;
+        rkyv::deserialize::<ArchiveMeta, rkyv::rancor::Error>(archived)
+            .map_err(|err| bad(format!("META: {err}")))
+    }
+
+    fn view_unchecked(&self) -> Result<InetView<'_>, ArchiveError> {
+        Ok(InetView {
+            build: self.one(tag::BUILD)?,
+            camera: self.one(tag::CAMERA)?,
+            surfaces: self.column(tag::SURFACES)?,
+            materials: self.column(tag::MATERIALS)?,
+            primitives: self.column(tag::PRIMITIVES)?,
+            directions: self.column(tag::DIRECTIONS)?,
+            patch_centre: self.column(tag::PATCH_CENTRE)?,
+            patch_normal: self.column(tag::PATCH_NORMAL)?,
+            patch_area: self.column(tag::PATCH_AREA)?,
+            patch_primitive: self.column(tag::PATCH_PRIMITIVE)?,
+            patch_corners: self.column(tag::PATCH_CORNERS)?,
+            patch_hits: self.column(tag::PATCH_HITS)?,
+            patch_expected_hits: self.column(tag::PATCH_EXPECTED_HITS)?,
+            vertex_position: self.column(tag::VERTEX_POSITION)?,
+            adjacency_offsets: self.column(tag::ADJACENCY_OFFSETS)?,
+            adjacency: self.column(tag::ADJACENCY)?,
+            link_offsets: self.column(tag::LINK_OFFSETS)?,
+            link_other: self.column(tag::LINK_OTHER)?,
+            link_weight: self.column(tag::LINK_WEIGHT)?,
+            link_direction: self.column(tag::LINK_DIRECTION)?,
+        })
+    }
+
+    /// Typed zero-copy views of every section.
+    pub fn view(&self) -> InetView<'_> {
+        self.view_unchecked()
+            .expect("sections were validated when the archive was opened")
+    }
+}
+
+fn validate_structure(bytes: &[u8]) -> Result<(HeaderRecord, Vec<SectionEntry>), ArchiveError> {
+    let len = bytes.len() as u64;
+    if bytes.len() < layout::HEADER_SIZE {
+        return Err(bad(format!(
+            "file is {len} bytes, shorter than the header (truncated?)"
+        )));
+    }
+    let header: HeaderRecord = pod_read_unaligned(&bytes[..layout::HEADER_SIZE]);
+    if header.magic != layout::MAGIC {
+        return Err(bad(format!(
+            "not an illumnet archive (magic {:02x?})",
+            header.magic
+        )));
+    }
+    let sum = xxh3_64(&bytes[..120]);
+    if sum != header.header_checksum {
+        return Err(bad(format!(
+            "header checksum mismatch (stored {:#018x}, computed {sum:#018x})",
+            header.header_checksum
+        )));
+    }
+    if header.version_read > layout::READER_VERSION {
+        return Err(ArchiveError::UnsupportedVersion {
+            needs: header.version_read,
+            supports: layout::READER_VERSION,
+        });
+    }
+    if header.header_size as usize != layout::HEADER_SIZE
+        || header.entry_size as usize != layout::ENTRY_SIZE
+    {
+        return Err(bad(format!(
+            "unexpected header size {} or entry size {}",
+            header.header_size, header.entry_size
+        )));
+    }
+    if header.flags != 0 || header.reserved != [0; 8] {
+        return Err(bad("reserved header fields are not zero"));
+    }
+    if header.file_length != len {
+        return Err(bad(format!(
+            "header says the file is {} bytes but it is {len} (truncated or appended to)",
+            header.file_length
+        )));
+    }
+    let table_len = header.section_count as u64 * layout::ENTRY_SIZE as u64;
+    let table_end = header
+        .table_offset
+        .checked_add(table_len)
+        .ok_or_else(|| bad("section table offset overflows"))?;
+    if header.table_offset < layout::HEADER_SIZE as u64
+        || header.table_offset % 8 != 0
+        || table_end > len
+    {
+        return Err(bad(format!(
+            "section table ({} entries at offset {}) lies outside the file ({len} bytes)",
+            header.section_count, header.table_offset
+        )));
+    }
+    let table = &bytes[header.table_offset as usize..table_end as usize];
+    let sum = xxh3_64(table);
+    if sum != header.table_checksum {
+        return Err(bad(format!(
+            "section table checksum mismatch (stored {:#018x}, computed {sum:#018x})",
+            header.table_checksum
+        )));
+    }
+    let entries: Vec<SectionEntry> = table
+        .chunks_exact(layout::ENTRY_SIZE)
+        .map(pod_read_unaligned::<SectionEntry>)
+        .collect();
+    let mut spans: Vec<(u64, u64, Tag)> = Vec::new();
+    for (i, e) in entries.iter().enumerate() {
+        let name = tag_name(e.tag);
+        let end = e
+            .offset
+            .checked_add(e.stored_length)
+            .ok_or_else(|| bad(format!("section {name}: length overflows")))?;
+        if e.offset < layout::HEADER_SIZE as u64 || end > header.table_offset {
+            return Err(bad(format!(
+                "section {name}: bytes {}..{end} lie outside the data area {}..{}",
+                e.offset,
+                layout::HEADER_SIZE,
+                header.table_offset
+            )));
+        }
+        if e.offset % layout::SECTION_ALIGN != 0 {
+            return Err(bad(format!(
+                "section {name}: offset {} is not {}-byte aligned",
+                e.offset,
+                layout::SECTION_ALIGN
+            )));
+        }
+        if entries[..i].iter().any(|o| o.tag == e.tag) {
+            return Err(bad(format!("section {name} appears twice")));
+        }
+        match e.compression {
+            compression::NONE if e.length != e.stored_length => {
+                return Err(bad(format!(
+                    "section {name}: uncompressed but length {} ≠ stored {}",
+                    e.length, e.stored_length
+                )));
+            }
+            compression::NONE | compression::ZSTD => {}
+            c => return Err(bad(format!("section {name}: unknown compression code {c}"))),
+        }
+        if e.record_size > 0 && e.count.checked_mul(e.record_size as u64) != Some(e.length) {
+            return Err(bad(format!(
+                "section {name}: {} records of {} bytes ≠ length {}",
+                e.count, e.record_size, e.length
+            )));
+        }
+        let sum = xxh3_64(&bytes[e.offset as usize..end as usize]);
+        if sum != e.checksum {
+            return Err(bad(format!(
+                "section {name}: checksum mismatch (stored {:#018x}, computed {sum:#018x})",
+                e.checksum
+            )));
+        }
+        spans.push((e.offset, end, e.tag));
+    }
+    spans.sort_unstable();
+    for w in spans.windows(2) {
+        if w[1].0 < w[0].1 {
+            return Err(bad(format!(
+                "sections {} and {} overlap",
+                tag_name(w[0].2),
+                tag_name(w[1].2)
+            )));
+        }
+    }
+    for (t, size, comp) in REQUIRED {
+        let e = entries
+            .iter()
+            .find(|e| e.tag == t)
+            .ok_or_else(|| bad(format!("section {} is missing", tag_name(t))))?;
+        if e.record_size != size || e.compression != comp {
+            return Err(bad(format!(
+                "section {}: record size {} / compression {} (expected {size} / {comp})",
+                tag_name(t),
+                e.record_size,
+                e.compression
+            )));
+        }
+    }
+    Ok((header, entries))
+}
+
+fn check(ok: bool, msg: impl FnOnce() -> String) -> Result<(), ArchiveError> {
+    if ok { Ok(()) } else { Err(bad(msg())) }
+}
+
+fn finite(v: &[f32]) -> bool {
+    v.iter().all(|x| x.is_finite())
+}
+
+/// Checks counts and every stored index, so that later code can index
+/// without bounds surprises.
+fn validate_contents(v: &InetView<'_>, meta: &ArchiveMeta) -> Result<(), ArchiveError> {
+    let b = v.build;
+    let (p, nv, nd) = (
+        b.patch_count as usize,
+        b.vertex_count as usize,
+        b.direction_count as usize,
+    );
+    let count = |name: &str, got: usize, want: usize| {
+        check(got == want, || {
+            format!("section {name}: {got} records, expected {want}")
+        })
+    };
+    count("SURF", v.surfaces.len(), b.surface_count as usize)?;
+    count("MATL", v.materials.len(), b.material_count as usize)?;
+    count("PRIM", v.primitives.len(), b.primitive_count as usize)?;
+    count("DIRS", v.directions.len(), nd)?;
+    let f = b.frequency as u64;
+    check(
+        f >= 1 && f <= crate::geodesic::MAX_FREQUENCY as u64 && nd as u64 == 10 * f * f + 2,
+        || format!("BILD: frequency {f} does not give {nd} directions"),
+    )?;
+    for (name, n) in [
+        ("PCEN", v.patch_centre.len()),
+        ("PNRM", v.patch_normal.len()),
+        ("PARE", v.patch_area.len()),
+        ("PPRM", v.patch_primitive.len()),
+        ("PCOR", v.patch_corners.len()),
+        ("PHIT", v.patch_hits.len()),
+        ("PEXP", v.patch_expected_hits.len()),
+    ] {
+        count(name, n, p)?;
+    }
+    count("VPOS", v.vertex_position.len(), nv)?;
+    count("ADJO", v.adjacency_offsets.len(), p + 1)?;
+    count("LOFF", v.link_offsets.len(), p + 1)?;
+    count(
+        "META surface names",
+        meta.surface_names.len(),
+        v.surfaces.len(),
+    )?;
+    count(
+        "META material names",
+        meta.material_names.len(),
+        v.materials.len(),
+    )?;
+    check(b.ray_spacing_m.is_finite() && b.ray_spacing_m > 0.0, || {
+        "BILD: ray spacing must be positive".into()
+    })?;
+
+    let c = v.camera;
+    check(
+        finite(&c.position) && finite(&c.look_at) && finite(&c.up),
+        || "CAMR: non-finite vector".into(),
+    )?;
+    check(c.fov_y_deg > 0.0 && c.fov_y_deg < 180.0, || {
+        format!("CAMR: field of view {}", c.fov_y_deg)
+    })?;
+    check(
+        (1..=16384).contains(&c.width) && (1..=16384).contains(&c.height),
+        || "CAMR: image size out of range".into(),
+    )?;
+
+    for (i, m) in v.materials.iter().enumerate() {
+        check(m.model == layout::model::DIFFUSE, || {
+            format!("MATL[{i}]: unknown model {}", m.model)
+        })?;
+        check(
+            m.params[..3].iter().all(|r| (0.0..=1.0).contains(r)),
+            || format!("MATL[{i}]: reflectance outside [0, 1]"),
+        )?;
+    }
+    for (i, s) in v.surfaces.iter().enumerate() {
+        check((s.material as usize) < v.materials.len(), || {
+            format!("SURF[{i}]: material {} out of range", s.material)
+        })?;
+        check(
+            s.emission.iter().all(|e| e.is_finite() && *e >= 0.0),
+            || format!("SURF[{i}]: bad emission"),
+        )?;
+        check(
+            s.first_primitive as u64 + s.primitive_count as u64 <= v.primitives.len() as u64,
+            || format!("SURF[{i}]: primitives out of range"),
+        )?;
+    }
+    let (mut next_patch, mut next_vertex) = (0u64, 0u64);
+    for (i, r) in v.primitives.iter().enumerate() {
+        check(r.kind <= 1, || {
+            format!("PRIM[{i}]: unknown kind {}", r.kind)
+        })?;
+        check((r.surface as usize) < v.surfaces.len(), || {
+            format!("PRIM[{i}]: surface out of range")
+        })?;
+        check(r.corners.iter().all(|c| finite(c)), || {
+            format!("PRIM[{i}]: non-finite corner")
+        })?;
+        let (gu, gv) = (r.grid_u as u64, r.grid_v as u64);
+        check(
+            gu >= 1 && gv >= 1 && gu <= 1 << 16 && gv <= 1 << 16 && (r.kind == 0 || gu == gv),
+            || format!("PRIM[{i}]: bad grid {gu}×{gv}"),
+        )?;
+        let (cells, verts) = if r.kind == 0 {
+            (gu * gv, (gu + 1) * (gv + 1))
+        } else {
+            (gu * gu, (gu + 1) * (gu + 2) / 2)
+        };
+        check(
+            r.first_patch as u64 == next_patch && r.first_vertex as u64 == next_vertex,
+            || format!("PRIM[{i}]: patches or vertices not contiguous"),
+        )?;
+        next_patch += cells;
+        next_vertex += verts;
+    }
+    check(next_patch == p as u64 && next_vertex == nv as u64, || {
+        "PRIM: grids do not cover all patches and vertices".into()
+    })?;
+    for (i, d) in v.directions.iter().enumerate() {
+        check(finite(&d.direction), || format!("DIRS[{i}]: non-finite"))?;
+        check(
+            d.neighbours
+                .iter()
+                .all(|&n| n == u32::MAX || (n as usize) < nd),
+            || format!("DIRS[{i}]: neighbour out of range"),
+        )?;
+    }
+    for i in 0..p {
+        check(
+            finite(&v.patch_centre[i])
+                && finite(&v.patch_normal[i])
+                && v.patch_area[i].is_finite()
+                && v.patch_area[i] >= 0.0,
+            || format!("patch {i}: non-finite geometry"),
+        )?;
+        check((v.patch_primitive[i] as usize) < v.primitives.len(), || {
+            format!("PPRM[{i}]: out of range")
+        })?;
+        check(
+            v.patch_corners[i]
+                .iter()
+                .all(|&c| c == u32::MAX || (c as usize) < nv),
+            || format!("PCOR[{i}]: out of range"),
+        )?;
+        check(
+            v.patch_expected_hits[i].is_finite() && v.patch_expected_hits[i] >= 0.0,
+            || format!("PEXP[{i}]: bad value"),
+        )?;
+    }
+    check(v.vertex_position.iter().all(|x| finite(x)), || {
+        "VPOS: non-finite vertex".into()
+    })?;
+    csr(
+        "ADJO",
+        v.adjacency_offsets.iter().map(|&x| x as u64),
+        v.adjacency.len(),
+    )?;
+    check(v.adjacency.iter().all(|&a| (a as usize) < p), || {
+        "ADJI: patch id out of range".into()
+    })?;
+    let ends = v.link_other.len();
+    count("LWGT", v.link_weight.len(), ends)?;
+    count("LDIR", v.link_direction.len(), ends)?;
+    check(b.link_end_count == ends as u64, || {
+        "BILD: link end count disagrees with LOTH".into()
+    })?;
+    csr("LOFF", v.link_offsets.iter().copied(), ends)?;
+    check(v.link_other.iter().all(|&o| (o as usize) < p), || {
+        "LOTH: patch id out of range".into()
+    })?;
+    check(
+        v.link_weight.iter().all(|&w| w.is_finite() && w >= 0.0),
+        || "LWGT: weight negative or non-finite".into(),
+    )?;
+    check(v.link_direction.iter().all(|&d| (d as usize) < nd), || {
+        "LDIR: direction out of range".into()
+    })?;
+    Ok(())
+}
+
+fn csr(name: &str, offsets: impl Iterator<Item = u64>, len: usize) -> Result<(), ArchiveError> {
+    let mut prev = 0u64;
+    let mut first = true;
+    for o in offsets {
+        check(if first { o == 0 } else { o >= prev }, || {
+            format!("{name}: offsets must start at 0 and never decrease")
+        })?;
+        prev = o;
+        first = false;
+    }
+    check(prev == len as u64, || {
+        format!("{name}: last offset {prev} ≠ {len} entries")
+    })
+}

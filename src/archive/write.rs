@@ -1,0 +1,193 @@
+//! Single-pass archive writer: header placeholder, sections, table, header.
+
+use std::io::{Seek, SeekFrom, Write};
+use std::path::Path;
+
+use bytemuck::{Pod, bytes_of, cast_slice};
+use xxhash_rust::xxh3::{Xxh3, xxh3_64};
+
+use super::layout::{self, HeaderRecord, SectionEntry, Tag, compression, tag};
+use super::{ArchiveContents, ArchiveError};
+
+/// Writes sections one after another, then the table and the header.
+struct SectionWriter<W: Write + Seek> {
+    out: W,
+    position: u64,
+    entries: Vec<SectionEntry>,
+}
+
+impl<W: Write + Seek> SectionWriter<W> {
+    fn new(mut out: W) -> std::io::Result<Self> {
+        out.write_all(&[0u8; layout::HEADER_SIZE])?;
+        Ok(Self {
+            out,
+            position: layout::HEADER_SIZE as u64,
+            entries: Vec::new(),
+        })
+    }
+
+    fn pad_to(&mut self, align: u64) -> std::io::Result<()> {
+        let pad = self.position.next_multiple_of(align) - self.position;
+        const ZEROS: [u8; 4096] = [0; 4096];
+        self.out.write_all(&ZEROS[..pad as usize])?;
+        self.position += pad;
+        Ok(())
+    }
+
+    /// Stores one section as is: `records` zero-copy readable.
+    fn column<T: Pod>(&mut self, tag: Tag, records: &[T]) -> std::io::Result<()> {
+        let bytes: &[u8] = cast_slice(records);
+        self.raw(
+            tag,
+            compression::NONE,
+            bytes,
+            bytes.len() as u64,
+            records.len() as u64,
+            size_of::<T>() as u32,
+        )
+    }
+
+    fn raw(
+        &mut self,
+        tag: Tag,
+        comp: u32,
+        stored: &[u8],
+        length: u64,
+        count: u64,
+        record_size: u32,
+    ) -> std::io::Result<()> {
+        let align = if stored.len() as u64 >= layout::LARGE_SECTION {
+            layout::PAGE_ALIGN
+        } else {
+            layout::SECTION_ALIGN
+        };
+        self.pad_to(align)?;
+        let mut hasher = Xxh3::new();
+        // Large columns are written in chunks so the hash streams with the write.
+        for chunk in stored.chunks(1 << 20) {
+            hasher.update(chunk);
+            self.out.write_all(chunk)?;
+        }
+        self.entries.push(SectionEntry {
+            tag,
+            compression: comp,
+            offset: self.position,
+            stored_length: stored.len() as u64,
+            length,
+            count,
+            record_size,
+            flags: 0,
+            checksum: hasher.digest(),
+            reserved: 0,
+        });
+        self.position += stored.len() as u64;
+        Ok(())
+    }
+
+    fn finish(mut self) -> std::io::Result<W> {
+        self.pad_to(layout::SECTION_ALIGN)?;
+        let table_offset = self.position;
+        let table: &[u8] = cast_slice(&self.entries);
+        self.out.write_all(table)?;
+        self.position += table.len() as u64;
+        let mut header = HeaderRecord {
+            magic: layout::MAGIC,
+            version_write: layout::VERSION_WRITE,
+            version_read: layout::VERSION_READ,
+            header_size: layout::HEADER_SIZE as u32,
+            flags: 0,
+            file_length: self.position,
+            table_offset,
+            section_count: self.entries.len() as u32,
+            entry_size: layout::ENTRY_SIZE as u32,
+            table_checksum: xxh3_64(table),
+            reserved: [0; 8],
+            header_checksum: 0,
+        };
+        header.header_checksum = xxh3_64(&bytes_of(&header)[..120]);
+        self.out.seek(SeekFrom::Start(0))?;
+        self.out.write_all(bytes_of(&header))?;
+        self.out.flush()?;
+        Ok(self.out)
+    }
+}
+
+fn write_all<W: Write + Seek>(out: W, c: &ArchiveContents) -> Result<W, ArchiveError> {
+    let io = |e: std::io::Error| ArchiveError::Io {
+        path: "<archive>".into(),
+        source: e,
+    };
+    let meta = rkyv::to_bytes::<rkyv::rancor::Error>(&c.meta)
+        .map_err(|e| ArchiveError::corrupt(format!("cannot serialise META: {e}")))?;
+    let meta_z = zstd::bulk::compress(&meta, 3).map_err(io)?;
+    let mut w = SectionWriter::new(out).map_err(io)?;
+    let mut sections = || -> std::io::Result<()> {
+        w.column(tag::BUILD, std::slice::from_ref(&c.build))?;
+        w.column(tag::CAMERA, std::slice::from_ref(&c.camera))?;
+        w.column(tag::MATERIALS, &c.materials)?;
+        w.column(tag::SURFACES, &c.surfaces)?;
+        w.column(tag::PRIMITIVES, &c.primitives)?;
+        w.column(tag::DIRECTIONS, &c.directions)?;
+        w.column(tag::PATCH_CENTRE, &c.patch_centre)?;
+        w.column(tag::PATCH_NORMAL, &c.patch_normal)?;
+        w.column(tag::PATCH_AREA, &c.patch_area)?;
+        w.column(tag::PATCH_PRIMITIVE, &c.patch_primitive)?;
+        w.column(tag::PATCH_CORNERS, &c.patch_corners)?;
+        w.column(tag::PATCH_HITS, &c.patch_hits)?;
+        w.column(tag::PATCH_EXPECTED_HITS, &c.patch_expected_hits)?;
+        w.column(tag::VERTEX_POSITION, &c.vertex_position)?;
+        w.column(tag::ADJACENCY_OFFSETS, &c.adjacency_offsets)?;
+        w.column(tag::ADJACENCY, &c.adjacency)?;
+        w.column(tag::LINK_OFFSETS, &c.link_offsets)?;
+        w.column(tag::LINK_OTHER, &c.link_other)?;
+        w.column(tag::LINK_WEIGHT, &c.link_weight)?;
+        w.column(tag::LINK_DIRECTION, &c.link_direction)?;
+        w.raw(
+            tag::META,
+            compression::ZSTD,
+            &meta_z,
+            meta.len() as u64,
+            1,
+            0,
+        )?;
+        Ok(())
+    };
+    sections().map_err(io)?;
+    w.finish().map_err(io)
+}
+
+/// Writes `contents` to `path` atomically: into a temporary file in the same
+/// directory, flushed and synced, then renamed over `path`. Returns the file
+/// size in bytes.
+pub fn write(path: &Path, contents: &ArchiveContents) -> Result<u64, ArchiveError> {
+    let dir = match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => Path::new("."),
+    };
+    let io = |e: std::io::Error| ArchiveError::Io {
+        path: path.into(),
+        source: e,
+    };
+    let tmp = tempfile::Builder::new()
+        .prefix(".illumnet-")
+        .suffix(".tmp")
+        .tempfile_in(dir)
+        .map_err(io)?;
+    let (file, tmp_path) = tmp.into_parts();
+    let buffered = std::io::BufWriter::with_capacity(1 << 20, file);
+    let buffered = write_all(buffered, contents).map_err(|e| match e {
+        ArchiveError::Io { source, .. } => io(source),
+        other => other,
+    })?;
+    let file = buffered.into_inner().map_err(|e| io(e.into_error()))?;
+    file.sync_all().map_err(io)?;
+    let len = file.metadata().map_err(io)?.len();
+    drop(file);
+    tmp_path.persist(path).map_err(|e| io(e.error))?;
+    Ok(len)
+}
+
+/// Serialises `contents` to bytes (the same bytes [`write`] stores).
+pub fn write_to_vec(contents: &ArchiveContents) -> Result<Vec<u8>, ArchiveError> {
+    Ok(write_all(std::io::Cursor::new(Vec::new()), contents)?.into_inner())
+}

@@ -1,0 +1,69 @@
+//! Build settings and their defaults.
+
+use crate::scene::{BuildHints, Scene};
+
+/// Resolution of an I-net build.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BuildSettings {
+    /// Target patch edge length (m).
+    pub patch_size: f32,
+    /// Geodesic frequency `f` (`10f² + 2` directions).
+    pub frequency: u32,
+    /// Distance `δ` between parallel rays (m).
+    pub ray_spacing: f32,
+}
+
+/// Default frequency: 2 562 directions, ~4.1° apart.
+pub const DEFAULT_FREQUENCY: u32 = 16;
+/// Default patch size as a fraction of the scene's bounding-box diagonal.
+pub const DEFAULT_PATCH_FRACTION: f32 = 1.0 / 64.0;
+/// Default ray spacing as a fraction of the scene's bounding-box diagonal.
+pub const DEFAULT_SPACING_FRACTION: f32 = 1.0 / 128.0;
+
+impl BuildSettings {
+    /// Settings for `scene`: explicit `overrides` first, then the scene's
+    /// `[build]` table, then defaults scaled to the scene's size, so that a
+    /// scene costs the same to build whatever its units.
+    pub fn resolve(scene: &Scene, overrides: BuildHints) -> Self {
+        let (lo, hi) = scene.bounds();
+        let diagonal = (hi - lo).length().max(f32::MIN_POSITIVE);
+        Self {
+            patch_size: overrides
+                .patch_size
+                .or(scene.build.patch_size)
+                .unwrap_or(diagonal * DEFAULT_PATCH_FRACTION),
+            frequency: overrides
+                .frequency
+                .or(scene.build.frequency)
+                .unwrap_or(DEFAULT_FREQUENCY),
+            ray_spacing: overrides
+                .ray_spacing
+                .or(scene.build.ray_spacing)
+                .unwrap_or(diagonal * DEFAULT_SPACING_FRACTION),
+        }
+    }
+
+    /// Rejects settings no build can use.
+    pub fn validate(&self) -> Result<(), String> {
+        if !(self.patch_size.is_finite() && self.patch_size > 0.0) {
+            return Err(format!(
+                "patch size must be a positive length, got {}",
+                self.patch_size
+            ));
+        }
+        if !(self.ray_spacing.is_finite() && self.ray_spacing > 0.0) {
+            return Err(format!(
+                "ray spacing must be a positive length, got {}",
+                self.ray_spacing
+            ));
+        }
+        if !(1..=crate::geodesic::MAX_FREQUENCY).contains(&self.frequency) {
+            return Err(format!(
+                "frequency must be in 1..={}, got {}",
+                crate::geodesic::MAX_FREQUENCY,
+                self.frequency
+            ));
+        }
+        Ok(())
+    }
+}

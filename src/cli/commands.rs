@@ -1,0 +1,238 @@
+//! The subcommands.
+
+use std::path::Path;
+use std::time::Instant;
+
+use anyhow::{Context, Result, bail};
+use illumnet::archive::{self, Archive, tag_name};
+use illumnet::build::{self, BuildSettings};
+use illumnet::distribute::{self, DistributeOptions};
+use illumnet::progress::Progress;
+use illumnet::render::{self, RenderOptions, image_io};
+use illumnet::scene::{BuildHints, Scene};
+
+use super::{BuildArgs, RenderArgs};
+
+fn hints(a: BuildArgs) -> BuildHints {
+    BuildHints {
+        patch_size: a.patch_size,
+        frequency: a.frequency,
+        ray_spacing: a.ray_spacing,
+    }
+}
+
+fn build_scene(
+    scene: &Scene,
+    output: &Path,
+    args: BuildArgs,
+    progress: &dyn Progress,
+) -> Result<()> {
+    let settings = BuildSettings::resolve(scene, hints(args));
+    let t = Instant::now();
+    let (contents, stats) = build::build(scene, &settings, progress).map_err(anyhow::Error::msg)?;
+    let bytes = archive::write(output, &contents)?;
+    let secs = t.elapsed().as_secs_f64();
+    println!(
+        "built {}: {} patches, {} directions, {} rays ({:.1} M rays/s), {} links ({} ends), {:.1} MB, {:.2} s",
+        output.display(),
+        stats.patches,
+        stats.directions,
+        stats.rays,
+        stats.rays as f64 / stats.trace_s.max(1e-9) / 1e6,
+        stats.links,
+        stats.link_ends,
+        bytes as f64 / 1e6,
+        secs
+    );
+    Ok(())
+}
+
+pub fn build(scene: &Path, output: &Path, args: BuildArgs, progress: &dyn Progress) -> Result<()> {
+    let scene = Scene::from_file(scene)?;
+    build_scene(&scene, output, args, progress)
+}
+
+pub fn render(
+    path: &Path,
+    png: &Path,
+    exr: Option<&Path>,
+    args: RenderArgs,
+    progress: &dyn Progress,
+) -> Result<()> {
+    if !(args.tolerance > 0.0 && args.tolerance < 1.0) {
+        bail!("--tolerance must be in (0, 1), got {}", args.tolerance);
+    }
+    if !(1..=64).contains(&args.samples) {
+        bail!("--samples must be in 1..=64, got {}", args.samples);
+    }
+    let t = Instant::now();
+    let archive = Archive::open(path).with_context(|| format!("cannot open {}", path.display()))?;
+    let view = archive.view();
+    let t_open = t.elapsed().as_secs_f64();
+    let opts = DistributeOptions {
+        tolerance: args.tolerance,
+        ..Default::default()
+    };
+    let t1 = Instant::now();
+    let solution = distribute::distribute(&view, &opts, progress);
+    let t_dist = t1.elapsed().as_secs_f64();
+    let b = &solution.balance;
+    let sum = |a: &[f64; 3]| a.iter().sum::<f64>();
+    println!(
+        "energy balance: emitted {:.4} W, absorbed {:.4} W, escaped {:.4} W, residual {:.2e} W (imbalance {:.1e}), {} iterations{}",
+        sum(&b.emitted),
+        sum(&b.absorbed),
+        sum(&b.escaped),
+        sum(&b.residual),
+        b.imbalance(),
+        b.iterations,
+        if b.converged {
+            ""
+        } else {
+            " (NOT converged: raise the iteration limit or the tolerance)"
+        }
+    );
+    let t2 = Instant::now();
+    let image = render::render(
+        &view,
+        &solution.radiance,
+        &RenderOptions {
+            samples_per_axis: args.samples,
+        },
+    );
+    let t_render = t2.elapsed().as_secs_f64();
+    image_io::write_png(&image, png, args.exposure).map_err(anyhow::Error::msg)?;
+    if let Some(exr) = exr {
+        image_io::write_exr(&image, exr).map_err(anyhow::Error::msg)?;
+    }
+    let ends = view.link_other.len() as f64 * b.iterations as f64;
+    println!(
+        "rendered {}{}: {}×{}, open {:.3} s, distribution {:.3} s ({:.0} M link ends/s), render {:.3} s",
+        png.display(),
+        exr.map(|e| format!(" and {}", e.display()))
+            .unwrap_or_default(),
+        image.width,
+        image.height,
+        t_open,
+        t_dist,
+        ends / t_dist.max(1e-9) / 1e6,
+        t_render
+    );
+    Ok(())
+}
+
+pub fn inspect(path: &Path, json: bool) -> Result<()> {
+    let archive = Archive::open(path).with_context(|| format!("cannot open {}", path.display()))?;
+    let v = archive.view();
+    let h = archive.header();
+    let b = v.build;
+    let meta = archive.meta();
+    if json {
+        let sections: Vec<serde_json::Value> = archive
+            .sections()
+            .iter()
+            .map(|e| {
+                serde_json::json!({
+                    "tag": tag_name(e.tag),
+                    "offset": e.offset,
+                    "stored_length": e.stored_length,
+                    "length": e.length,
+                    "count": e.count,
+                    "record_size": e.record_size,
+                    "compression": match e.compression { 0 => "none", 1 => "zstd", _ => "unknown" },
+                    "checksum": format!("{:016x}", e.checksum),
+                })
+            })
+            .collect();
+        let out = serde_json::json!({
+            "format_version": h.version_write,
+            "version_read": h.version_read,
+            "file_length": h.file_length,
+            "generator": meta.generator,
+            "scene": meta.scene,
+            "frequency": b.frequency,
+            "directions": b.direction_count,
+            "patches": b.patch_count,
+            "vertices": b.vertex_count,
+            "primitives": b.primitive_count,
+            "surfaces": meta.surface_names,
+            "materials": meta.material_names,
+            "ray_spacing_m": b.ray_spacing_m,
+            "patch_size_m": b.patch_size_m,
+            "rays": b.ray_count,
+            "hits": b.hit_count,
+            "links": b.link_end_count / 2,
+            "links_unmerged": b.link_count,
+            "link_ends": b.link_end_count,
+            "sections": sections,
+        });
+        println!("{}", serde_json::to_string_pretty(&out)?);
+        return Ok(());
+    }
+    println!(
+        "{}: illumnet archive, format version {} (readable by version {}+)",
+        path.display(),
+        h.version_write,
+        h.version_read
+    );
+    println!(
+        "  written by {}, scene `{}`, {} bytes",
+        meta.generator, meta.scene, h.file_length
+    );
+    println!(
+        "  {} directions (f = {}), {} patches, {} vertices, {} primitives, {} surfaces, {} materials",
+        b.direction_count,
+        b.frequency,
+        b.patch_count,
+        b.vertex_count,
+        b.primitive_count,
+        b.surface_count,
+        b.material_count
+    );
+    println!(
+        "  {} rays at δ = {} m, {} hits, {} links ({} before merging parallel rays), {} link ends",
+        b.ray_count,
+        b.ray_spacing_m,
+        b.hit_count,
+        b.link_end_count / 2,
+        b.link_count,
+        b.link_end_count
+    );
+    println!("  sections:");
+    println!(
+        "    {:4}  {:>12}  {:>12}  {:>12}  {:>6}  {:4}  checksum",
+        "tag", "offset", "stored", "records", "size", "comp"
+    );
+    for e in archive.sections() {
+        println!(
+            "    {:4}  {:>12}  {:>12}  {:>12}  {:>6}  {:4}  {:016x}",
+            tag_name(e.tag),
+            e.offset,
+            e.stored_length,
+            e.count,
+            e.record_size,
+            if e.compression == 1 { "zstd" } else { "none" },
+            e.checksum
+        );
+    }
+    Ok(())
+}
+
+pub fn demo(
+    dir: &Path,
+    build_args: BuildArgs,
+    render_args: RenderArgs,
+    progress: &dyn Progress,
+) -> Result<()> {
+    std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    let scene = Scene::cornell_box();
+    let archive = dir.join("cornell_box.inet");
+    build_scene(&scene, &archive, build_args, progress)?;
+    render(
+        &archive,
+        &dir.join("cornell_box.png"),
+        Some(&dir.join("cornell_box.exr")),
+        render_args,
+        progress,
+    )
+}

@@ -1,0 +1,140 @@
+//! Command-line interface: argument parsing, progress bars and summaries.
+//! Only this module prints; the library reports through return values and
+//! the [`illumnet::progress::Progress`] trait.
+
+mod commands;
+mod progress_bar;
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use clap::{Args, Parser, Subcommand};
+
+/// Geodesic illumination networks: build an I-net archive once, render it many times.
+#[derive(Parser)]
+#[command(name = "illumnet", version, about, long_about = None)]
+struct Cli {
+    /// No progress bars (summaries and errors still print).
+    #[arg(short, long, global = true)]
+    quiet: bool,
+    /// Worker threads (default: all cores). Output does not depend on it.
+    #[arg(long, global = true, value_name = "N")]
+    threads: Option<usize>,
+    #[command(subcommand)]
+    command: Command,
+}
+
+/// Build resolution overrides (default: the scene's `[build]` table, then
+/// sizes scaled to the scene: patch = diagonal/64, spacing = diagonal/128,
+/// frequency 16).
+#[derive(Args, Clone, Copy, Default)]
+struct BuildArgs {
+    /// Target patch edge length in metres.
+    #[arg(long, value_name = "M")]
+    patch_size: Option<f32>,
+    /// Geodesic subdivision frequency f (10f²+2 directions).
+    #[arg(long, value_name = "F")]
+    frequency: Option<u32>,
+    /// Distance between parallel rays in metres.
+    #[arg(long, value_name = "M")]
+    ray_spacing: Option<f32>,
+}
+
+#[derive(Args, Clone, Copy)]
+struct RenderArgs {
+    /// Stop distributing when unshot power falls below this fraction of the emitted power.
+    #[arg(long, default_value_t = 1e-4, value_name = "FRACTION")]
+    tolerance: f64,
+    /// Samples per pixel along each axis (N×N per pixel, box filter).
+    #[arg(long, default_value_t = 4, value_name = "N")]
+    samples: u32,
+    /// Multiply radiance by this before sRGB encoding the PNG.
+    #[arg(long, default_value_t = 1.0, value_name = "X")]
+    exposure: f32,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Build an I-net archive from a scene file.
+    Build {
+        /// Scene file (TOML, see format-spec/scene.md).
+        scene: PathBuf,
+        /// Archive to write.
+        #[arg(short, long, value_name = "ARCHIVE")]
+        output: PathBuf,
+        #[command(flatten)]
+        settings: BuildArgs,
+    },
+    /// Distribute light over an archive's links and render its camera view.
+    Render {
+        /// Archive written by `illumnet build`.
+        archive: PathBuf,
+        /// PNG image to write (sRGB, 8-bit).
+        #[arg(short, long, value_name = "IMAGE.png")]
+        output: PathBuf,
+        /// Also write linear radiance as OpenEXR.
+        #[arg(long, value_name = "IMAGE.exr")]
+        exr: Option<PathBuf>,
+        #[command(flatten)]
+        render: RenderArgs,
+    },
+    /// Validate an archive and print its header, sections and counts.
+    Inspect {
+        /// Archive to read.
+        archive: PathBuf,
+        /// Print JSON instead of text.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Build and render the embedded Cornell box.
+    Demo {
+        /// Directory for cornell_box.inet, .png and .exr.
+        #[arg(short, long, default_value = "demo-output", value_name = "DIR")]
+        output: PathBuf,
+        #[command(flatten)]
+        settings: BuildArgs,
+        #[command(flatten)]
+        render: RenderArgs,
+    },
+}
+
+/// Runs the CLI; errors print as `illumnet: error: …` and exit with 1.
+pub fn main() -> ExitCode {
+    let cli = Cli::parse();
+    if let Some(n) = cli.threads {
+        if let Err(e) = rayon::ThreadPoolBuilder::new()
+            .num_threads(n)
+            .build_global()
+        {
+            eprintln!("illumnet: error: cannot start {n} threads: {e}");
+            return ExitCode::FAILURE;
+        }
+    }
+    let progress = progress_bar::BarProgress::new(cli.quiet);
+    let result = match cli.command {
+        Command::Build {
+            scene,
+            output,
+            settings,
+        } => commands::build(&scene, &output, settings, &progress),
+        Command::Render {
+            archive,
+            output,
+            exr,
+            render,
+        } => commands::render(&archive, &output, exr.as_deref(), render, &progress),
+        Command::Inspect { archive, json } => commands::inspect(&archive, json),
+        Command::Demo {
+            output,
+            settings,
+            render,
+        } => commands::demo(&output, settings, render, &progress),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("illumnet: error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}

@@ -1,0 +1,236 @@
+//! Distribution: light spreads along the links until the energy balance
+//! converges (§3.1, §3.4).
+//!
+//! Every patch `p` holds unshot power `U_p` (W, per RGB band), initially its
+//! emission `π·L_e·A_p`. One iteration sends every patch's unshot power out
+//! along its link ends, each end carrying the share `U_p / H_p`: a patch hit
+//! by `H_p` rays in the build stands for `H_p` equal beams, so the share
+//! already holds the cosine of §3.3 and the patch-size correction `H_p/H_u` of
+//! §3.4, and the power sent out equals the power removed, exactly. Ends with
+//! no link (the ray left the scene or met a back face) lose their share:
+//! that power has escaped. Each patch then reflects `ρ` of what it received
+//! (diffuse: outgoing radiance `ρE/π`) as its new unshot power and absorbs
+//! the rest. Iterations stop when the unshot power falls below `tolerance`
+//! times the emitted power. (A Jacobi iteration of progressive radiosity.)
+//!
+//! Radiance for display is `L = L_e + ρ·Φ_in/(π·A_eff)` with
+//! `A_eff = A_p·H_p/E[H_p]`, the area the rays "saw".
+//!
+//! The hot loop is a gather over the CSR link-end columns (`LOFF`, `LOTH`,
+//! `LWGT`: 8 bytes per end), parallel over blocks of patches; the per-patch
+//! state it gathers from is 16 bytes per patch, cache-resident for scenes of
+//! up to ~10⁵ patches.
+
+use rayon::prelude::*;
+
+use crate::archive::InetView;
+use crate::archive::layout::model;
+use crate::progress::Progress;
+
+/// Options for [`distribute`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DistributeOptions {
+    /// Stop when unshot power ≤ `tolerance` × emitted power (summed over bands).
+    pub tolerance: f64,
+    /// Stop after this many iterations even if not converged.
+    pub max_iterations: u32,
+    /// Use the `H_p/H_u` patch-size correction of §3.4 (default on). Off, each
+    /// link carries `U_p/E[H_p]` and irradiance uses the geometric area: the
+    /// uncorrected method, kept for measurement.
+    pub patch_size_correction: bool,
+}
+
+impl Default for DistributeOptions {
+    fn default() -> Self {
+        Self {
+            tolerance: 1e-4,
+            max_iterations: 1000,
+            patch_size_correction: true,
+        }
+    }
+}
+
+/// Where the emitted power went, per RGB band (W).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct EnergyBalance {
+    /// Power emitted by all emitters.
+    pub emitted: [f64; 3],
+    /// Power absorbed by surfaces.
+    pub absorbed: [f64; 3],
+    /// Power that left the scene (rays that met nothing or a back face).
+    pub escaped: [f64; 3],
+    /// Power still unshot when iteration stopped.
+    pub residual: [f64; 3],
+    /// Iterations run.
+    pub iterations: u32,
+    /// Whether the tolerance was reached.
+    pub converged: bool,
+}
+
+impl EnergyBalance {
+    /// `emitted − absorbed − escaped − residual` relative to emitted, summed
+    /// over bands: zero up to rounding when energy is conserved.
+    pub fn imbalance(&self) -> f64 {
+        let s = |a: &[f64; 3]| a.iter().sum::<f64>();
+        let e = s(&self.emitted);
+        if e == 0.0 {
+            0.0
+        } else {
+            (e - s(&self.absorbed) - s(&self.escaped) - s(&self.residual)) / e
+        }
+    }
+}
+
+/// The converged light of a scene.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Solution {
+    /// Outgoing radiance per patch (W·sr⁻¹·m⁻², RGB).
+    pub radiance: Vec<[f32; 3]>,
+    /// Total power received per patch over all iterations (W, RGB).
+    pub received: Vec<[f32; 3]>,
+    /// Energy bookkeeping.
+    pub balance: EnergyBalance,
+}
+
+/// Per-patch reflectance and emitted radiance, from primitive → surface → material.
+pub fn patch_materials(v: &InetView<'_>) -> (Vec<[f32; 3]>, Vec<[f32; 3]>) {
+    let n = v.patch_count();
+    let mut rho = Vec::with_capacity(n);
+    let mut emit = Vec::with_capacity(n);
+    for &prim in v.patch_primitive {
+        let s = &v.surfaces[v.primitives[prim as usize].surface as usize];
+        let m = &v.materials[s.material as usize];
+        debug_assert_eq!(m.model, model::DIFFUSE);
+        rho.push([m.params[0], m.params[1], m.params[2]]);
+        emit.push(s.emission);
+    }
+    (rho, emit)
+}
+
+/// Patches per parallel task: large enough to amortise scheduling, small
+/// enough to balance two to dozens of cores.
+const BLOCK: usize = 512;
+
+/// Gathers `recv[q] = Σ w·shoot[other]` over each patch's link ends.
+fn gather(
+    offsets: &[u64],
+    other: &[u32],
+    weight: &[f32],
+    shoot: &[[f32; 4]],
+    recv: &mut [[f32; 4]],
+) {
+    recv.par_chunks_mut(BLOCK)
+        .enumerate()
+        .for_each(|(block, out)| {
+            let first = block * BLOCK;
+            for (i, r) in out.iter_mut().enumerate() {
+                let q = first + i;
+                let (a, b) = (offsets[q] as usize, offsets[q + 1] as usize);
+                let mut acc = [0.0f32; 4];
+                for (&o, &w) in other[a..b].iter().zip(&weight[a..b]) {
+                    let s = shoot[o as usize];
+                    for c in 0..4 {
+                        acc[c] += w * s[c];
+                    }
+                }
+                *r = acc;
+            }
+        });
+}
+
+/// Runs the energy balance on an archive's links.
+pub fn distribute(v: &InetView<'_>, opts: &DistributeOptions, progress: &dyn Progress) -> Solution {
+    let n = v.patch_count();
+    let (rho, emit) = patch_materials(v);
+    // Share of a patch's power each link end carries, and the area used for irradiance.
+    let mut share = vec![0.0f32; n];
+    let mut area_eff = vec![0.0f32; n];
+    let mut linked = vec![0.0f64; n];
+    for p in 0..n {
+        let (h, hx, a) = (
+            v.patch_hits[p] as f32,
+            v.patch_expected_hits[p],
+            v.patch_area[p],
+        );
+        if opts.patch_size_correction {
+            share[p] = if h > 0.0 { 1.0 / h } else { 0.0 };
+            area_eff[p] = if h > 0.0 && hx > 0.0 { a * h / hx } else { a };
+        } else {
+            share[p] = if hx > 0.0 { 1.0 / hx } else { 0.0 };
+            area_eff[p] = a;
+        }
+        let (_, w, _) = v.link_ends(p);
+        linked[p] = w.iter().map(|&x| x as f64).sum();
+    }
+    let mut unshot: Vec<[f32; 4]> = (0..n)
+        .map(|p| {
+            let k = std::f32::consts::PI * v.patch_area[p];
+            [emit[p][0] * k, emit[p][1] * k, emit[p][2] * k, 0.0]
+        })
+        .collect();
+    let mut bal = EnergyBalance::default();
+    for u in &unshot {
+        for c in 0..3 {
+            bal.emitted[c] += u[c] as f64;
+        }
+    }
+    let emitted_total: f64 = bal.emitted.iter().sum();
+    let mut total_recv = vec![[0.0f32; 4]; n];
+    let mut shoot = vec![[0.0f32; 4]; n];
+    let mut recv = vec![[0.0f32; 4]; n];
+    progress.start("distributing light", 0);
+    let mut residual_total = emitted_total;
+    while residual_total > opts.tolerance * emitted_total && bal.iterations < opts.max_iterations {
+        for p in 0..n {
+            let s = share[p];
+            let escape = 1.0 - linked[p] * s as f64;
+            for c in 0..3 {
+                shoot[p][c] = unshot[p][c] * s;
+                bal.escaped[c] += unshot[p][c] as f64 * escape;
+            }
+        }
+        gather(
+            v.link_offsets,
+            v.link_other,
+            v.link_weight,
+            &shoot,
+            &mut recv,
+        );
+        residual_total = 0.0;
+        for p in 0..n {
+            for c in 0..3 {
+                let r = recv[p][c];
+                total_recv[p][c] += r;
+                let reflected = r * rho[p][c];
+                unshot[p][c] = reflected;
+                bal.absorbed[c] += (r - reflected) as f64;
+                residual_total += reflected as f64;
+            }
+        }
+        bal.iterations += 1;
+        progress.advance(1);
+    }
+    progress.finish();
+    for u in &unshot {
+        for c in 0..3 {
+            bal.residual[c] += u[c] as f64;
+        }
+    }
+    bal.converged = residual_total <= opts.tolerance * emitted_total;
+    let radiance = (0..n)
+        .map(|p| {
+            let k = if area_eff[p] > 0.0 {
+                1.0 / (std::f32::consts::PI * area_eff[p])
+            } else {
+                0.0
+            };
+            [0, 1, 2].map(|c| emit[p][c] + rho[p][c] * total_recv[p][c] * k)
+        })
+        .collect();
+    let received = total_recv.iter().map(|r| [r[0], r[1], r[2]]).collect();
+    Solution {
+        radiance,
+        received,
+        balance: bal,
+    }
+}

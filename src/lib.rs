@@ -1,0 +1,47 @@
+//! # illumnet: geodesic illumination networks
+//!
+//! An energy-balance global-illumination renderer after Buckalew & Fussell,
+//! *An Energy-Balance Method for Animation* (1990). The pipeline runs one way:
+//!
+//! ```text
+//! scene (TOML, OBJ) ──► patch + geodesic ──► build (trace bundles, links)
+//!        ──► archive::write ──► file ──► archive::Archive::open (mmap, validate)
+//!        ──► distribute (energy balance over links) ──► render (image)
+//! ```
+//!
+//! * [`scene`] parses scene files into plain data with file/line errors.
+//! * [`geometry`] holds the few original primitives (quads, triangles), their
+//!   ray intersection and their patch grids; both build and render use it.
+//! * [`geodesic`] builds the global direction set (§3.3 of the paper).
+//! * [`patch`] cuts primitives into patches with shared vertices.
+//! * [`build`] traces one bundle of parallel rays per direction pair and turns
+//!   consecutive facing hits into links (§2, §3.3).
+//! * [`archive`] is the versioned, checksummed, memory-mapped file format
+//!   (specified byte by byte in `format-spec/archive.md`). It is the only
+//!   interface between build and render.
+//! * [`distribute`] spreads light along links until the energy balance
+//!   converges (§3.1, §3.4).
+//! * [`render`] turns patch radiance into images (§3.5).
+//!
+//! `ARCHITECTURE.md` at the repository root states what may depend on what.
+#![deny(missing_docs)]
+#![deny(unsafe_op_in_unsafe_fn)]
+
+#[cfg(not(target_endian = "little"))]
+compile_error!(
+    "illumnet archives are little-endian and read zero-copy: big-endian targets are not supported"
+);
+
+pub mod archive;
+pub mod build;
+pub mod distribute;
+pub mod geodesic;
+pub mod geometry;
+pub mod patch;
+pub mod progress;
+pub mod render;
+pub mod scene;
+
+/// The Cornell box scene embedded in the binary (`scenes/cornell_box.toml`),
+/// used by `illumnet demo` and the tests.
+pub const CORNELL_BOX_TOML: &str = include_str!("../scenes/cornell_box.toml");

@@ -1,0 +1,105 @@
+//! Writing images: linear OpenEXR and sRGB-encoded PNG, each written to a
+//! temporary file and renamed into place.
+
+use std::io::BufWriter;
+use std::path::Path;
+
+use image::{ImageFormat, Rgb32FImage, RgbImage};
+
+use super::Image;
+
+/// The sRGB transfer function (IEC 61966-2-1) of a linear value in `[0, 1]`.
+pub fn srgb_encode(linear: f32) -> f32 {
+    let x = linear.clamp(0.0, 1.0);
+    if x <= 0.003_130_8 {
+        12.92 * x
+    } else {
+        1.055 * x.powf(1.0 / 2.4) - 0.055
+    }
+}
+
+fn save_atomic(
+    path: &Path,
+    write: impl FnOnce(&mut BufWriter<&mut std::fs::File>) -> image::ImageResult<()>,
+) -> Result<(), String> {
+    let dir = match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => Path::new("."),
+    };
+    let err = |e: &dyn std::fmt::Display| format!("{}: {e}", path.display());
+    let mut tmp = tempfile::Builder::new()
+        .prefix(".illumnet-")
+        .suffix(".tmp")
+        .tempfile_in(dir)
+        .map_err(|e| err(&e))?;
+    {
+        let mut w = BufWriter::new(tmp.as_file_mut());
+        write(&mut w).map_err(|e| err(&e))?;
+        use std::io::Write;
+        w.flush().map_err(|e| err(&e))?;
+    }
+    tmp.persist(path).map_err(|e| err(&e.error))?;
+    Ok(())
+}
+
+/// Writes linear radiance as a 32-bit float RGB OpenEXR file.
+pub fn write_exr(image: &Image, path: &Path) -> Result<(), String> {
+    let data: Vec<f32> = image.pixels.iter().flatten().copied().collect();
+    let img =
+        Rgb32FImage::from_raw(image.width, image.height, data).ok_or("image size mismatch")?;
+    save_atomic(path, |w| img.write_to(w, ImageFormat::OpenExr))
+}
+
+/// Writes an 8-bit sRGB PNG: radiance times `exposure`, clamped to `[0, 1]`,
+/// sRGB-encoded.
+pub fn write_png(image: &Image, path: &Path, exposure: f32) -> Result<(), String> {
+    let data: Vec<u8> = image
+        .pixels
+        .iter()
+        .flatten()
+        .map(|&v| (srgb_encode(v * exposure) * 255.0 + 0.5) as u8)
+        .collect();
+    let img = RgbImage::from_raw(image.width, image.height, data).ok_or("image size mismatch")?;
+    save_atomic(path, |w| img.write_to(w, ImageFormat::Png))
+}
+
+/// Reads an OpenEXR file as linear RGB (for comparisons with references).
+pub fn read_exr(path: &Path) -> Result<Image, String> {
+    let img = image::open(path)
+        .map_err(|e| format!("{}: {e}", path.display()))?
+        .into_rgb32f();
+    let (width, height) = img.dimensions();
+    let pixels = img
+        .into_raw()
+        .chunks_exact(3)
+        .map(|c| [c[0], c[1], c[2]])
+        .collect();
+    Ok(Image {
+        width,
+        height,
+        pixels,
+    })
+}
+
+/// Relative L2 error ‖a − ref‖ / ‖ref‖ over the RGB values of pixels whose
+/// reference is below `1.0` in every channel (emitters seen directly are
+/// left out), the measure used against path-traced references.
+pub fn relative_l2(image: &Image, reference: &Image) -> Result<f64, String> {
+    if (image.width, image.height) != (reference.width, reference.height) {
+        return Err(format!(
+            "image is {}×{}, reference {}×{}",
+            image.width, image.height, reference.width, reference.height
+        ));
+    }
+    let (mut num, mut den) = (0.0f64, 0.0f64);
+    for (a, r) in image.pixels.iter().zip(&reference.pixels) {
+        if r.iter().all(|&x| x < 1.0) {
+            for c in 0..3 {
+                let d = (a[c] - r[c]) as f64;
+                num += d * d;
+                den += (r[c] as f64).powi(2);
+            }
+        }
+    }
+    Ok((num / den.max(f64::MIN_POSITIVE)).sqrt())
+}

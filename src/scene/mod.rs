@@ -1,0 +1,150 @@
+//! Scene descriptions: what the user wrote, resolved into plain data.
+//!
+//! A scene is materials, surfaces (each a list of [`Primitive`]s with one
+//! material and an optional emission), a pinhole camera and optional build
+//! settings. The text format is TOML, specified field by field in
+//! `format-spec/scene.md`; [`parse`] turns text into a [`Scene`] or a
+//! [`SceneError`] naming the file, line, column and field.
+
+mod parse;
+
+use std::path::Path;
+
+use glam::Vec3;
+
+pub use parse::SceneError;
+
+use crate::geometry::Primitive;
+
+/// How a material reflects light. Only diffuse exists so far; the enum (and
+/// the scene format's `type` key) leaves room for other reflectance functions.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum ReflectanceModel {
+    /// Lambertian: `f = ρ/π`, with `ρ` the linear-RGB reflectance in `[0, 1]`.
+    Diffuse {
+        /// Linear RGB reflectance.
+        reflectance: [f32; 3],
+    },
+}
+
+/// A named material.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Material {
+    /// Name used by surfaces to refer to it.
+    pub name: String,
+    /// Its reflectance function.
+    pub model: ReflectanceModel,
+}
+
+/// A named surface: primitives sharing a material and an emission.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Surface {
+    /// Name, for messages and inspection.
+    pub name: String,
+    /// Index into [`Scene::materials`].
+    pub material: u32,
+    /// Emitted radiance (W·sr⁻¹·m⁻², linear RGB) from the front face.
+    pub emission: [f32; 3],
+    /// The surface's primitives, in world space.
+    pub primitives: Vec<Primitive>,
+}
+
+/// A pinhole camera.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Camera {
+    /// Eye position (m).
+    pub position: Vec3,
+    /// Point looked at (m).
+    pub look_at: Vec3,
+    /// Up vector (need not be orthogonal to the view direction).
+    pub up: Vec3,
+    /// Vertical field of view in degrees.
+    pub fov_y_deg: f32,
+    /// Image width in pixels.
+    pub width: u32,
+    /// Image height in pixels.
+    pub height: u32,
+}
+
+/// Build settings given in the scene file; `None` means "use the default".
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct BuildHints {
+    /// Target patch edge length (m).
+    pub patch_size: Option<f32>,
+    /// Geodesic subdivision frequency.
+    pub frequency: Option<u32>,
+    /// Distance between parallel rays (m).
+    pub ray_spacing: Option<f32>,
+}
+
+/// A parsed, validated scene.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Scene {
+    /// Name (the file stem), recorded in archives.
+    pub name: String,
+    /// Materials, referred to by index.
+    pub materials: Vec<Material>,
+    /// Surfaces.
+    pub surfaces: Vec<Surface>,
+    /// The camera.
+    pub camera: Camera,
+    /// Build settings from the `[build]` table.
+    pub build: BuildHints,
+}
+
+impl Scene {
+    /// Reads and parses a scene file; OBJ paths resolve relative to it.
+    pub fn from_file(path: &Path) -> Result<Self, SceneError> {
+        let text = std::fs::read_to_string(path).map_err(|e| SceneError::io(path, e))?;
+        let name = path
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        parse::parse(&text, path, path.parent().unwrap_or(Path::new(".")), name)
+    }
+
+    /// Parses scene text; `origin` names it in errors and `base_dir` resolves
+    /// OBJ paths.
+    pub fn from_toml(text: &str, origin: &Path, base_dir: &Path) -> Result<Self, SceneError> {
+        let name = origin
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        parse::parse(text, origin, base_dir, name)
+    }
+
+    /// The embedded Cornell box (`scenes/cornell_box.toml`).
+    pub fn cornell_box() -> Self {
+        Self::from_toml(
+            crate::CORNELL_BOX_TOML,
+            Path::new("cornell_box.toml"),
+            Path::new("."),
+        )
+        .expect("the embedded Cornell box parses")
+    }
+
+    /// Every primitive with its surface index, in surface order.
+    pub fn primitives(&self) -> impl Iterator<Item = (u32, &Primitive)> {
+        self.surfaces
+            .iter()
+            .enumerate()
+            .flat_map(|(s, surf)| surf.primitives.iter().map(move |p| (s as u32, p)))
+    }
+
+    /// Axis-aligned bounds of all primitives.
+    pub fn bounds(&self) -> (Vec3, Vec3) {
+        let mut lo = Vec3::splat(f32::MAX);
+        let mut hi = Vec3::splat(f32::MIN);
+        for (_, p) in self.primitives() {
+            let (a, b) = p.bounds();
+            lo = lo.min(a);
+            hi = hi.max(b);
+        }
+        (lo, hi)
+    }
+
+    /// Total surface area (m²).
+    pub fn total_area(&self) -> f64 {
+        self.primitives().map(|(_, p)| p.area() as f64).sum()
+    }
+}

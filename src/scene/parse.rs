@@ -1,0 +1,634 @@
+//! TOML scene text → [`Scene`], with errors that name file, line and field.
+
+use std::fmt;
+use std::ops::Range;
+use std::path::{Path, PathBuf};
+
+use glam::{Mat3, Vec3};
+use serde::Deserialize;
+use toml::Spanned;
+
+use super::{BuildHints, Camera, Material, ReflectanceModel, Scene, Surface};
+use crate::geometry::{Primitive, PrimitiveKind};
+
+/// A scene that could not be read: where, which field, and why.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SceneError {
+    /// The scene file.
+    pub file: PathBuf,
+    /// 1-based line (0 when unknown, e.g. the file could not be read).
+    pub line: usize,
+    /// 1-based column (0 when unknown).
+    pub column: usize,
+    /// The offending field, e.g. `surface[3].quad` (empty when unknown).
+    pub field: String,
+    /// What is wrong.
+    pub message: String,
+}
+
+impl SceneError {
+    pub(super) fn io(path: &Path, e: std::io::Error) -> Self {
+        Self {
+            file: path.into(),
+            line: 0,
+            column: 0,
+            field: String::new(),
+            message: format!("cannot read: {e}"),
+        }
+    }
+}
+
+impl fmt::Display for SceneError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}", self.file.display())?;
+        if self.line > 0 {
+            write!(f, ":{}:{}", self.line, self.column)?;
+        }
+        if !self.field.is_empty() {
+            write!(f, ": field `{}`", self.field)?;
+        }
+        write!(f, ": {}", self.message)
+    }
+}
+
+impl std::error::Error for SceneError {}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawScene {
+    camera: Spanned<RawCamera>,
+    build: Option<Spanned<RawBuild>>,
+    #[serde(default)]
+    material: Vec<Spanned<RawMaterial>>,
+    #[serde(default)]
+    surface: Vec<Spanned<RawSurface>>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawCamera {
+    position: [f32; 3],
+    look_at: [f32; 3],
+    #[serde(default = "default_up")]
+    up: [f32; 3],
+    fov_y_deg: Spanned<f32>,
+    width: Spanned<u32>,
+    height: Spanned<u32>,
+}
+
+fn default_up() -> [f32; 3] {
+    [0.0, 1.0, 0.0]
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawBuild {
+    patch_size: Option<Spanned<f32>>,
+    frequency: Option<Spanned<u32>>,
+    ray_spacing: Option<Spanned<f32>>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawMaterial {
+    name: Spanned<String>,
+    #[serde(rename = "type")]
+    kind: Spanned<String>,
+    reflectance: Option<Spanned<[f32; 3]>>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawSurface {
+    name: Spanned<String>,
+    material: Spanned<String>,
+    emission: Option<Spanned<[f32; 3]>>,
+    quad: Option<Spanned<[[f32; 3]; 4]>>,
+    quads: Option<Spanned<Vec<[[f32; 3]; 4]>>>,
+    #[serde(rename = "box")]
+    cuboid: Option<Spanned<RawBox>>,
+    mesh: Option<Spanned<String>>,
+    transform: Option<Spanned<RawTransform>>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawBox {
+    min: [f32; 3],
+    max: [f32; 3],
+    #[serde(default)]
+    inward: bool,
+    #[serde(default)]
+    omit: Vec<String>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawTransform {
+    scale: Option<[f32; 3]>,
+    rotate_deg: Option<[f32; 3]>,
+    translate: Option<[f32; 3]>,
+}
+
+struct Ctx<'a> {
+    text: &'a str,
+    file: &'a Path,
+}
+
+impl Ctx<'_> {
+    fn err(
+        &self,
+        span: Range<usize>,
+        field: impl Into<String>,
+        message: impl Into<String>,
+    ) -> SceneError {
+        let (line, column) = line_col(self.text, span.start);
+        SceneError {
+            file: self.file.into(),
+            line,
+            column,
+            field: field.into(),
+            message: message.into(),
+        }
+    }
+}
+
+fn line_col(text: &str, offset: usize) -> (usize, usize) {
+    let offset = offset.min(text.len());
+    let before = &text.as_bytes()[..offset];
+    let line = before.iter().filter(|&&b| b == b'\n').count() + 1;
+    let column = offset
+        - before
+            .iter()
+            .rposition(|&b| b == b'\n')
+            .map_or(0, |p| p + 1)
+        + 1;
+    (line, column)
+}
+
+fn finite3(v: &[f32; 3]) -> bool {
+    v.iter().all(|x| x.is_finite())
+}
+
+pub(super) fn parse(
+    text: &str,
+    file: &Path,
+    base_dir: &Path,
+    name: String,
+) -> Result<Scene, SceneError> {
+    let cx = Ctx { text, file };
+    let raw: RawScene = toml::from_str(text).map_err(|e| {
+        let span = e.span().unwrap_or(0..0);
+        let msg = e.message().trim().to_string();
+        cx.err(span, "", msg)
+    })?;
+
+    // Camera.
+    let c = raw.camera.get_ref();
+    let cspan = raw.camera.span();
+    if !finite3(&c.position) || !finite3(&c.look_at) || !finite3(&c.up) {
+        return Err(cx.err(cspan, "camera", "position, look_at and up must be finite"));
+    }
+    let (position, look_at, up) = (
+        Vec3::from(c.position),
+        Vec3::from(c.look_at),
+        Vec3::from(c.up),
+    );
+    let forward = look_at - position;
+    if forward.length() <= 0.0 || forward.normalize().cross(up).length() < 1e-6 {
+        return Err(cx.err(
+            cspan,
+            "camera.up",
+            "look_at must differ from position, and up must not be parallel to the view direction",
+        ));
+    }
+    let fov = *c.fov_y_deg.get_ref();
+    if !(fov > 0.0 && fov < 180.0) {
+        return Err(cx.err(
+            c.fov_y_deg.span(),
+            "camera.fov_y_deg",
+            format!("must be in (0, 180) degrees, got {fov}"),
+        ));
+    }
+    for (v, f) in [(&c.width, "camera.width"), (&c.height, "camera.height")] {
+        if !(1..=16384).contains(v.get_ref()) {
+            return Err(cx.err(
+                v.span(),
+                f,
+                format!("must be in 1..=16384 pixels, got {}", v.get_ref()),
+            ));
+        }
+    }
+    let camera = Camera {
+        position,
+        look_at,
+        up,
+        fov_y_deg: fov,
+        width: *c.width.get_ref(),
+        height: *c.height.get_ref(),
+    };
+
+    // Build hints.
+    let mut build = BuildHints::default();
+    if let Some(b) = &raw.build {
+        let b = b.get_ref();
+        if let Some(p) = &b.patch_size {
+            if !(p.get_ref().is_finite() && *p.get_ref() > 0.0) {
+                return Err(cx.err(
+                    p.span(),
+                    "build.patch_size",
+                    "must be a positive length in metres",
+                ));
+            }
+            build.patch_size = Some(*p.get_ref());
+        }
+        if let Some(r) = &b.ray_spacing {
+            if !(r.get_ref().is_finite() && *r.get_ref() > 0.0) {
+                return Err(cx.err(
+                    r.span(),
+                    "build.ray_spacing",
+                    "must be a positive length in metres",
+                ));
+            }
+            build.ray_spacing = Some(*r.get_ref());
+        }
+        if let Some(f) = &b.frequency {
+            if !(1..=crate::geodesic::MAX_FREQUENCY).contains(f.get_ref()) {
+                return Err(cx.err(
+                    f.span(),
+                    "build.frequency",
+                    format!("must be in 1..={}", crate::geodesic::MAX_FREQUENCY),
+                ));
+            }
+            build.frequency = Some(*f.get_ref());
+        }
+    }
+
+    // Materials.
+    let mut materials: Vec<Material> = Vec::new();
+    for (i, m) in raw.material.iter().enumerate() {
+        let m = m.get_ref();
+        let field = |f: &str| format!("material[{i}].{f}");
+        if materials.iter().any(|x| x.name == *m.name.get_ref()) {
+            return Err(cx.err(
+                m.name.span(),
+                field("name"),
+                format!("duplicate material name `{}`", m.name.get_ref()),
+            ));
+        }
+        let model = match m.kind.get_ref().as_str() {
+            "diffuse" => {
+                let r = m.reflectance.as_ref().ok_or_else(|| {
+                    cx.err(
+                        m.kind.span(),
+                        field("reflectance"),
+                        "a diffuse material needs `reflectance = [r, g, b]`",
+                    )
+                })?;
+                if !r.get_ref().iter().all(|x| (0.0..=1.0).contains(x)) {
+                    return Err(cx.err(
+                        r.span(),
+                        field("reflectance"),
+                        "each component must be in [0, 1]",
+                    ));
+                }
+                ReflectanceModel::Diffuse {
+                    reflectance: *r.get_ref(),
+                }
+            }
+            other => {
+                return Err(cx.err(
+                    m.kind.span(),
+                    field("type"),
+                    format!("unknown material type `{other}` (known: diffuse)"),
+                ));
+            }
+        };
+        materials.push(Material {
+            name: m.name.get_ref().clone(),
+            model,
+        });
+    }
+
+    // Surfaces.
+    let mut surfaces: Vec<Surface> = Vec::new();
+    for (i, s) in raw.surface.iter().enumerate() {
+        let sspan = s.span();
+        let s = s.get_ref();
+        let field = |f: &str| format!("surface[{i}].{f}");
+        let name = s.name.get_ref().clone();
+        if surfaces.iter().any(|x| x.name == name) {
+            return Err(cx.err(
+                s.name.span(),
+                field("name"),
+                format!("duplicate surface name `{name}`"),
+            ));
+        }
+        let material = materials
+            .iter()
+            .position(|m| m.name == *s.material.get_ref())
+            .ok_or_else(|| {
+                let known: Vec<&str> = materials.iter().map(|m| m.name.as_str()).collect();
+                cx.err(
+                    s.material.span(),
+                    field("material"),
+                    format!(
+                        "no material named `{}` (known: {})",
+                        s.material.get_ref(),
+                        known.join(", ")
+                    ),
+                )
+            })? as u32;
+        let emission = match &s.emission {
+            Some(e) => {
+                if !e.get_ref().iter().all(|x| x.is_finite() && *x >= 0.0) {
+                    return Err(cx.err(
+                        e.span(),
+                        field("emission"),
+                        "each component must be finite and non-negative",
+                    ));
+                }
+                *e.get_ref()
+            }
+            None => [0.0; 3],
+        };
+        let given = [
+            s.quad.is_some(),
+            s.quads.is_some(),
+            s.cuboid.is_some(),
+            s.mesh.is_some(),
+        ];
+        if given.iter().filter(|&&g| g).count() != 1 {
+            return Err(cx.err(
+                sspan,
+                field("quad"),
+                "give exactly one of `quad`, `quads`, `box` or `mesh`",
+            ));
+        }
+        let mut prims: Vec<Primitive> = Vec::new();
+        let mut geometry_span = sspan.clone();
+        let mut geometry_field = field("quad");
+        if let Some(q) = &s.quad {
+            prims.push(Primitive::quad(q.get_ref().map(Vec3::from)));
+            geometry_span = q.span();
+        }
+        if let Some(qs) = &s.quads {
+            prims.extend(
+                qs.get_ref()
+                    .iter()
+                    .map(|q| Primitive::quad(q.map(Vec3::from))),
+            );
+            geometry_span = qs.span();
+            geometry_field = field("quads");
+        }
+        if let Some(b) = &s.cuboid {
+            geometry_span = b.span();
+            geometry_field = field("box");
+            prims.extend(box_quads(b.get_ref()).map_err(|m| cx.err(b.span(), field("box"), m))?);
+        }
+        if let Some(m) = &s.mesh {
+            geometry_span = m.span();
+            geometry_field = field("mesh");
+            let path = base_dir.join(m.get_ref());
+            prims.extend(load_obj(&path).map_err(|msg| cx.err(m.span(), field("mesh"), msg))?);
+        }
+        if let Some(t) = &s.transform {
+            let m = transform_matrix(t.get_ref())
+                .map_err(|msg| cx.err(t.span(), field("transform"), msg))?;
+            let mirrored = m.0.determinant() < 0.0;
+            for p in &mut prims {
+                for v in &mut p.p {
+                    *v = m.0 * *v + m.1;
+                }
+                if mirrored {
+                    // A mirroring scale reverses the winding: restore the front side.
+                    *p = match p.kind {
+                        PrimitiveKind::Quad => Primitive::quad([p.p[3], p.p[2], p.p[1], p.p[0]]),
+                        PrimitiveKind::Triangle => Primitive::triangle(p.p[0], p.p[2], p.p[1]),
+                    };
+                }
+            }
+        }
+        for (k, p) in prims.iter().enumerate() {
+            check_primitive(p).map_err(|msg| {
+                cx.err(
+                    geometry_span.clone(),
+                    geometry_field.clone(),
+                    format!("primitive {k}: {msg}"),
+                )
+            })?;
+        }
+        if prims.is_empty() {
+            return Err(cx.err(
+                geometry_span,
+                geometry_field,
+                "the surface has no primitives",
+            ));
+        }
+        surfaces.push(Surface {
+            name,
+            material,
+            emission,
+            primitives: prims,
+        });
+    }
+    if surfaces.is_empty() {
+        return Err(cx.err(0..0, "surface", "the scene has no surfaces"));
+    }
+    Ok(Scene {
+        name,
+        materials,
+        surfaces,
+        camera,
+        build,
+    })
+}
+
+/// Rejects non-finite, degenerate, non-planar and non-convex primitives.
+fn check_primitive(p: &Primitive) -> Result<(), String> {
+    let n = p.corner_count();
+    if !p.p[..n].iter().all(|v| v.is_finite()) {
+        return Err("coordinates must be finite".into());
+    }
+    let (lo, hi) = p.bounds();
+    let size = (hi - lo).length();
+    if !(p.area() > 1e-12 * size.max(1e-3) * size.max(1e-3)) || size == 0.0 {
+        return Err("degenerate (zero area)".into());
+    }
+    if n == 4 {
+        let nrm = p.normal();
+        let off = (p.p[3] - p.p[0])
+            .dot(nrm)
+            .abs()
+            .max((p.p[1] - p.p[0]).dot(nrm).abs());
+        if off > 1e-4 * size {
+            return Err(format!(
+                "quad is not planar (a corner is {off:.3e} m off its plane)"
+            ));
+        }
+        for k in 0..4 {
+            let e0 = p.p[(k + 1) % 4] - p.p[k];
+            let e1 = p.p[(k + 2) % 4] - p.p[(k + 1) % 4];
+            if e0.cross(e1).dot(nrm) <= 0.0 {
+                return Err("quad is not convex, or its corners are not in order around it".into());
+            }
+        }
+    }
+    Ok(())
+}
+
+fn box_quads(b: &RawBox) -> Result<Vec<Primitive>, String> {
+    let (lo, hi) = (Vec3::from(b.min), Vec3::from(b.max));
+    if !(lo.is_finite() && hi.is_finite()) || lo.cmpge(hi).any() {
+        return Err("min must be below max on every axis".into());
+    }
+    const FACES: [&str; 6] = ["-x", "+x", "-y", "+y", "-z", "+z"];
+    for o in &b.omit {
+        if !FACES.contains(&o.as_str()) {
+            return Err(format!(
+                "unknown face `{o}` in omit (known: {})",
+                FACES.join(", ")
+            ));
+        }
+    }
+    let mut out = Vec::new();
+    for axis in 0..3 {
+        for positive in [false, true] {
+            let label = FACES[axis * 2 + positive as usize];
+            if b.omit.iter().any(|o| o == label) {
+                continue;
+            }
+            let (bx, cx) = ((axis + 1) % 3, (axis + 2) % 3);
+            let corner = |s: bool, t: bool| {
+                let mut v = Vec3::ZERO;
+                v[axis] = if positive { hi[axis] } else { lo[axis] };
+                v[bx] = if s { hi[bx] } else { lo[bx] };
+                v[cx] = if t { hi[cx] } else { lo[cx] };
+                v
+            };
+            // e_b × e_c = +e_axis: this order faces +axis.
+            let mut q = [
+                corner(false, false),
+                corner(true, false),
+                corner(true, true),
+                corner(false, true),
+            ];
+            if positive == b.inward {
+                q.reverse();
+            }
+            out.push(Primitive::quad(q));
+        }
+    }
+    Ok(out)
+}
+
+fn transform_matrix(t: &RawTransform) -> Result<(Mat3, Vec3), String> {
+    let s = Vec3::from(t.scale.unwrap_or([1.0; 3]));
+    let r = Vec3::from(t.rotate_deg.unwrap_or([0.0; 3]));
+    let tr = Vec3::from(t.translate.unwrap_or([0.0; 3]));
+    if !(s.is_finite() && r.is_finite() && tr.is_finite()) || s.cmpeq(Vec3::ZERO).any() {
+        return Err("scale must be non-zero; all values finite".into());
+    }
+    let rot = Mat3::from_rotation_z(r.z.to_radians())
+        * Mat3::from_rotation_y(r.y.to_radians())
+        * Mat3::from_rotation_x(r.x.to_radians());
+    Ok((rot * Mat3::from_diagonal(s), tr))
+}
+
+fn load_obj(path: &Path) -> Result<Vec<Primitive>, String> {
+    let opts = tobj::LoadOptions {
+        triangulate: true,
+        single_index: true,
+        ..Default::default()
+    };
+    let (models, _) = tobj::load_obj(path, &opts)
+        .map_err(|e| format!("cannot load OBJ `{}`: {e}", path.display()))?;
+    let mut out = Vec::new();
+    for m in models {
+        let pos = &m.mesh.positions;
+        let vert = |i: u32| -> Result<Vec3, String> {
+            let i = i as usize * 3;
+            pos.get(i..i + 3)
+                .map(|p| Vec3::new(p[0], p[1], p[2]))
+                .ok_or_else(|| format!("OBJ `{}`: face index out of range", path.display()))
+        };
+        for f in m.mesh.indices.chunks_exact(3) {
+            out.push(Primitive::triangle(vert(f[0])?, vert(f[1])?, vert(f[2])?));
+        }
+    }
+    if out.is_empty() {
+        return Err(format!("OBJ `{}` has no faces", path.display()));
+    }
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn parse_str(s: &str) -> Result<Scene, SceneError> {
+        parse(s, Path::new("t.toml"), Path::new("."), "t".into())
+    }
+
+    const CAM: &str =
+        "[camera]\nposition=[0,0,-1]\nlook_at=[0,0,0]\nfov_y_deg=40\nwidth=8\nheight=8\n";
+
+    #[test]
+    fn errors_name_line_and_field() {
+        let s = format!(
+            "{CAM}[[material]]\nname='w'\ntype='diffuse'\nreflectance=[0.5,0.5,0.5]\n[[surface]]\nname='a'\nmaterial='nope'\nquad=[[0,0,0],[1,0,0],[1,1,0],[0,1,0]]\n"
+        );
+        let e = parse_str(&s).unwrap_err();
+        assert_eq!(e.line, 13, "{e}");
+        assert_eq!(e.field, "surface[0].material");
+        assert!(e.to_string().starts_with("t.toml:13:"), "{e}");
+
+        let e = parse_str(&s.replace("reflectance=[0.5,0.5,0.5]", "reflectance=[1.5,0.5,0.5]"))
+            .unwrap_err();
+        assert_eq!(
+            (e.line, e.field.as_str()),
+            (10, "material[0].reflectance"),
+            "{e}"
+        );
+
+        let e =
+            parse_str(&s.replace("'nope'", "'w'").replace("[0,1,0]]", "[0,1,0.5]]")).unwrap_err();
+        assert!(e.message.contains("not planar"), "{e}");
+
+        let e = parse_str(&s.replace("fov_y_deg=40", "fov_y_deg=400")).unwrap_err();
+        assert_eq!((e.line, e.field.as_str()), (4, "camera.fov_y_deg"), "{e}");
+
+        // Syntax errors carry a position too.
+        let e = parse_str(&s.replace("name='a'", "name=")).unwrap_err();
+        assert!(e.line >= 11, "{e}");
+    }
+
+    #[test]
+    fn boxes_face_outwards_or_inwards() {
+        let s = format!(
+            "{CAM}[[material]]\nname='w'\ntype='diffuse'\nreflectance=[0.5,0.5,0.5]\n[[surface]]\nname='b'\nmaterial='w'\nbox={{min=[0,0,0],max=[1,2,3],omit=['-y']}}\n"
+        );
+        let sc = parse_str(&s).unwrap();
+        let prims = &sc.surfaces[0].primitives;
+        assert_eq!(prims.len(), 5);
+        let centre = Vec3::new(0.5, 1.0, 1.5);
+        for p in prims {
+            let mid = (p.p[0] + p.p[2]) / 2.0;
+            assert!(p.normal().dot(mid - centre) > 0.0);
+        }
+        assert!((sc.total_area() - (2.0 * (2.0 + 6.0 + 3.0) - 3.0)).abs() < 1e-5);
+        let sc = parse_str(&s.replace("omit=['-y']", "inward=true")).unwrap();
+        for p in &sc.surfaces[0].primitives {
+            let mid = (p.p[0] + p.p[2]) / 2.0;
+            assert!(p.normal().dot(mid - centre) < 0.0);
+        }
+    }
+
+    #[test]
+    fn cornell_box_parses() {
+        let sc = Scene::cornell_box();
+        assert_eq!(sc.surfaces.len(), 8);
+        assert_eq!(sc.materials.len(), 4);
+        assert_eq!(sc.primitives().count(), 1 + 4 + 1 + 3 + 10);
+    }
+}

@@ -1,0 +1,288 @@
+#!/usr/bin/env python3
+"""Path-traced reference renderer for illumnet scenes, using Mitsuba 3.
+
+Reads an illumnet TOML scene, converts it to a Mitsuba 3 scene and renders
+a linear-RGB float32 OpenEXR image (PIZ-compressed, lossless).
+
+Usage:
+    python3 tools/reference/reference.py SCENE.toml -o OUT.exr \
+        [--spp N] [--pass-spp N] [--seed S] \
+        [--variant llvm_ad_rgb|scalar_rgb] [--max-depth -1] [--png OUT.png]
+
+See tools/reference/README.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+import tomllib
+
+LLVM_DEFAULT = "/usr/lib/x86_64-linux-gnu/libLLVM.so.19.1"
+if "DRJIT_LIBLLVM_PATH" not in os.environ and os.path.exists(LLVM_DEFAULT):
+    os.environ["DRJIT_LIBLLVM_PATH"] = LLVM_DEFAULT
+
+import numpy as np  # noqa: E402
+
+
+class SceneError(Exception):
+    pass
+
+
+# --------------------------------------------------------------------------
+# Scene parsing (independent of Mitsuba)
+# --------------------------------------------------------------------------
+
+def _vec3(value, what):
+    try:
+        v = [float(x) for x in value]
+    except TypeError:
+        raise SceneError(f"{what}: expected a list of 3 numbers, got {value!r}")
+    if len(v) != 3:
+        raise SceneError(f"{what}: expected 3 numbers, got {len(v)}")
+    return v
+
+
+def _quad(value, what):
+    if not isinstance(value, list) or len(value) != 4:
+        raise SceneError(f"{what}: a quad must be a list of 4 vertices")
+    return [_vec3(p, f"{what} vertex {i}") for i, p in enumerate(value)]
+
+
+def load_scene(path):
+    """Parse the TOML scene into a plain description (dicts and lists)."""
+    with open(path, "rb") as f:
+        doc = tomllib.load(f)
+
+    if "camera" not in doc:
+        raise SceneError("scene has no [camera] table")
+    c = doc["camera"]
+    for key in ("position", "look_at", "up", "fov_y_deg", "width", "height"):
+        if key not in c:
+            raise SceneError(f"[camera] is missing '{key}'")
+    camera = {
+        "position": _vec3(c["position"], "camera.position"),
+        "look_at": _vec3(c["look_at"], "camera.look_at"),
+        "up": _vec3(c["up"], "camera.up"),
+        "fov_y_deg": float(c["fov_y_deg"]),
+        "width": int(c["width"]),
+        "height": int(c["height"]),
+    }
+
+    materials = {}
+    for m in doc.get("material", []):
+        name = m.get("name")
+        if name is None:
+            raise SceneError("a [[material]] has no 'name'")
+        if name in materials:
+            raise SceneError(f"material '{name}' is defined twice")
+        mtype = m.get("type")
+        if mtype != "diffuse":
+            raise SceneError(
+                f"material '{name}': unsupported type {mtype!r} "
+                "(the reference tool supports only 'diffuse')")
+        materials[name] = {
+            "type": "diffuse",
+            "reflectance": _vec3(m.get("reflectance"), f"material '{name}'.reflectance"),
+        }
+
+    surfaces = []
+    known_geometry = ("quad", "quads")
+    for s in doc.get("surface", []):
+        name = s.get("name", f"surface#{len(surfaces)}")
+        mat = s.get("material")
+        if mat is None:
+            raise SceneError(f"surface '{name}' has no 'material'")
+        if mat not in materials:
+            raise SceneError(f"surface '{name}': unknown material '{mat}'")
+        geo = [k for k in known_geometry if k in s]
+        others = [k for k in s if k not in ("name", "material", "emission") + known_geometry]
+        if others:
+            raise SceneError(
+                f"surface '{name}': unsupported key(s) {others} "
+                "(the reference tool supports only 'quad' and 'quads' geometry)")
+        if len(geo) != 1:
+            raise SceneError(f"surface '{name}' needs exactly one of 'quad' or 'quads'")
+        if geo[0] == "quad":
+            quads = [_quad(s["quad"], f"surface '{name}'.quad")]
+        else:
+            if not isinstance(s["quads"], list) or not s["quads"]:
+                raise SceneError(f"surface '{name}'.quads must be a non-empty list")
+            quads = [_quad(q, f"surface '{name}'.quads[{i}]") for i, q in enumerate(s["quads"])]
+        emission = None
+        if "emission" in s:
+            emission = _vec3(s["emission"], f"surface '{name}'.emission")
+        surfaces.append({"name": name, "material": mat, "quads": quads, "emission": emission})
+
+    if not surfaces:
+        raise SceneError("scene has no [[surface]]")
+    return {"camera": camera, "materials": materials, "surfaces": surfaces}
+
+
+# --------------------------------------------------------------------------
+# Conversion to Mitsuba
+# --------------------------------------------------------------------------
+
+def _make_mesh(mi, dr, surf, bsdf):
+    quads = np.asarray(surf["quads"], dtype=np.float64)  # (n, 4, 3)
+    n = quads.shape[0]
+    verts = quads.reshape(-1, 3).astype(np.float32)
+    faces = []
+    for q in range(n):
+        b = 4 * q
+        faces.append([b, b + 1, b + 2])  # (v0, v1, v2)
+        faces.append([b, b + 2, b + 3])  # (v0, v2, v3)
+    faces = np.asarray(faces, dtype=np.uint32)
+
+    props = mi.Properties()
+    props["bsdf"] = bsdf
+    if surf["emission"] is not None:
+        props["emitter"] = mi.load_dict({
+            "type": "area",
+            "radiance": {"type": "rgb", "value": surf["emission"]},
+        })
+    mesh = mi.Mesh(surf["name"], len(verts), len(faces), props=props,
+                   has_vertex_normals=False, has_vertex_texcoords=False)
+    params = mi.traverse(mesh)
+    # Buffer types differ between variants (e.g. mi.Float vs dr.scalar.ArrayXf).
+    params["vertex_positions"] = type(params["vertex_positions"])(verts.ravel())
+    params["faces"] = type(params["faces"])(faces.ravel())
+    params.update()
+    return mesh
+
+
+def build_mitsuba_scene(mi, dr, scene, max_depth):
+    cam = scene["camera"]
+    # Mitsuba's look_at (camera space +Z = forward, +Y = up, +X = up x forward,
+    # with the image x axis running along -X) gives image right =
+    # forward x up, the same as illumnet's convention. Verified on the
+    # Cornell box: the red wall (x = 0.556) is on the left of the image.
+    to_world = mi.ScalarTransform4f().look_at(
+        origin=cam["position"], target=cam["look_at"], up=cam["up"])
+    d = {
+        "type": "scene",
+        "integrator": {
+            "type": "path",
+            "max_depth": int(max_depth),
+            "hide_emitters": False,
+        },
+        "sensor": {
+            "type": "perspective",
+            "fov": cam["fov_y_deg"],
+            "fov_axis": "y",
+            "to_world": to_world,
+            "sampler": {"type": "independent", "sample_count": 1},
+            "film": {
+                "type": "hdrfilm",
+                "width": cam["width"],
+                "height": cam["height"],
+                "pixel_format": "rgb",
+                "component_format": "float32",
+                "rfilter": {"type": "box"},
+            },
+        },
+    }
+    bsdfs = {}
+    for name, m in scene["materials"].items():
+        bsdfs[name] = mi.load_dict({
+            "type": "diffuse",
+            "reflectance": {"type": "rgb", "value": m["reflectance"]},
+        })
+    for i, surf in enumerate(scene["surfaces"]):
+        d[f"surface_{i}"] = _make_mesh(mi, dr, surf, bsdfs[surf["material"]])
+    return mi.load_dict(d)
+
+
+# --------------------------------------------------------------------------
+# Rendering
+# --------------------------------------------------------------------------
+
+def render(mi, dr, mscene, spp, pass_spp, seed, log=True):
+    """Render `spp` samples per pixel in passes of `pass_spp` with distinct
+    seeds and return the average as a float64 numpy array (H, W, 3)."""
+    acc = None
+    done = 0
+    p = 0
+    t0 = time.time()
+    while done < spp:
+        n = min(pass_spp, spp - done)
+        s = seed * 100003 + p  # distinct seed per pass
+        img = mi.render(mscene, spp=n, seed=s)
+        arr = np.array(img, dtype=np.float64)[..., :3]
+        acc = arr * n if acc is None else acc + arr * n
+        done += n
+        p += 1
+        if log:
+            el = time.time() - t0
+            print(f"  pass {p}: {done}/{spp} spp, {el:.1f} s "
+                  f"({done * arr.shape[0] * arr.shape[1] / max(el, 1e-9) / 1e6:.2f} Msamples/s)",
+                  file=sys.stderr, flush=True)
+    return acc / spp
+
+
+def write_exr(mi, img, path):
+    bmp = mi.Bitmap(np.ascontiguousarray(img, dtype=np.float32),
+                    pixel_format=mi.Bitmap.PixelFormat.RGB)
+    bmp.write(path)  # default quality -1: lossless PIZ compression
+
+
+def write_png(mi, img, path):
+    x = np.clip(img, 0.0, 1.0)
+    srgb = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1.0 / 2.4) - 0.055)
+    u8 = np.clip(np.round(srgb * 255.0), 0, 255).astype(np.uint8)
+    bmp = mi.Bitmap(np.ascontiguousarray(u8), pixel_format=mi.Bitmap.PixelFormat.RGB)
+    bmp.write(path)
+
+
+def read_exr(mi, path):
+    return np.array(mi.Bitmap(path), dtype=np.float64)[..., :3]
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("scene", help="illumnet TOML scene")
+    ap.add_argument("-o", "--output", required=True, help="output .exr (linear RGB, float32)")
+    ap.add_argument("--spp", type=int, default=1024, help="samples per pixel (default 1024)")
+    ap.add_argument("--pass-spp", type=int, default=1024,
+                    help="samples per pixel per pass; passes use distinct seeds and are averaged")
+    ap.add_argument("--seed", type=int, default=0, help="base seed (default 0)")
+    ap.add_argument("--variant", default="llvm_ad_rgb", choices=["llvm_ad_rgb", "scalar_rgb"])
+    ap.add_argument("--max-depth", type=int, default=-1,
+                    help="path integrator max_depth (-1 = unbounded, the default)")
+    ap.add_argument("--png", help="also write an sRGB preview PNG (clamped at 1)")
+    args = ap.parse_args(argv)
+    if args.spp < 1 or args.pass_spp < 1:
+        ap.error("--spp and --pass-spp must be >= 1")
+
+    try:
+        scene = load_scene(args.scene)
+    except (SceneError, tomllib.TOMLDecodeError, OSError) as e:
+        print(f"error: {args.scene}: {e}", file=sys.stderr)
+        return 2
+
+    import drjit as dr
+    import mitsuba as mi
+    try:
+        mi.set_variant(args.variant)
+    except Exception as e:  # e.g. LLVM not found
+        print(f"error: cannot use Mitsuba variant {args.variant}: {e}\n"
+              "For llvm_ad_rgb install libllvm19 (apt-get install libllvm19) or set "
+              "DRJIT_LIBLLVM_PATH; or use --variant scalar_rgb.", file=sys.stderr)
+        return 2
+
+    mscene = build_mitsuba_scene(mi, dr, scene, args.max_depth)
+    t0 = time.time()
+    img = render(mi, dr, mscene, args.spp, args.pass_spp, args.seed)
+    el = time.time() - t0
+    write_exr(mi, img, args.output)
+    if args.png:
+        write_png(mi, img, args.png)
+    print(f"wrote {args.output}: {img.shape[1]}x{img.shape[0]}, {args.spp} spp, "
+          f"{el:.1f} s, variant {args.variant}, max_depth {args.max_depth}", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
