@@ -142,7 +142,11 @@ pub fn build(
         .iter()
         .zip(&dirs.neighbours)
         .zip(&dirs.solid_angle)
-        .map(|((d, n), &w)| DirectionRecord { direction: *d, solid_angle_sr: w as f32, neighbours: *n })
+        .map(|((d, n), &w)| DirectionRecord {
+            direction: *d,
+            solid_angle_sr: w as f32,
+            neighbours: *n,
+        })
         .collect();
     let c = &scene.camera;
     let stats = BuildStats {

@@ -211,7 +211,12 @@ impl DirectionSet {
             neighbours[d][..set.len()].copy_from_slice(set);
         }
         let directions = directions.iter().map(|p| p.as_vec3().to_array()).collect();
-        let mut set = Self { frequency: f, directions, neighbours, solid_angle: Vec::new() };
+        let mut set = Self {
+            frequency: f,
+            directions,
+            neighbours,
+            solid_angle: Vec::new(),
+        };
         set.solid_angle = set.voronoi_cells();
         Ok(set)
     }
@@ -266,7 +271,9 @@ impl DirectionSet {
                         if cc.dot(c) < 0.0 { -cc } else { cc }
                     })
                     .collect();
-                (0..m).map(|k| tri_area(c, centres[k], centres[(k + 1) % m])).sum()
+                (0..m)
+                    .map(|k| tri_area(c, centres[k], centres[(k + 1) % m]))
+                    .sum()
             })
             .collect()
     }
@@ -342,7 +349,10 @@ mod tests {
         assert!(u.cell_max_sr / u.cell_min_sr < 1.25, "{u:?}");
         assert!(u.spacing_max_rad / u.spacing_min_rad < 1.2, "{u:?}");
         for (i, w) in s.solid_angle.iter().enumerate() {
-            assert!((*w - s.solid_angle[DirectionSet::antipode(i as u32) as usize]).abs() < 1e-12, "antipodes share a cell");
+            assert!(
+                (*w - s.solid_angle[DirectionSet::antipode(i as u32) as usize]).abs() < 1e-12,
+                "antipodes share a cell"
+            );
         }
     }
 }

@@ -1,0 +1,144 @@
+//! Archive format: round trip, corruption and truncation give errors (never
+//! panics), mmap and in-memory readers agree, builds are deterministic.
+
+mod common;
+
+use common::*;
+use illumnet::archive::{self, Archive, ArchiveError, layout};
+use illumnet::build::{self, BuildSettings};
+use illumnet::progress::NoProgress;
+use illumnet::scene::{BuildHints, Scene};
+
+/// A quick, coarse Cornell box build.
+fn small_contents() -> archive::ArchiveContents {
+    let scene = Scene::cornell_box();
+    let hints = BuildHints {
+        patch_size: Some(0.08),
+        frequency: Some(4),
+        ray_spacing: Some(0.02),
+    };
+    build::build(&scene, &BuildSettings::resolve(&scene, hints), &NoProgress)
+        .unwrap()
+        .0
+}
+
+#[test]
+fn round_trip_through_a_file_and_memory() {
+    let contents = small_contents();
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("box.inet");
+    let size = archive::write(&path, &contents).unwrap();
+    assert_eq!(size, std::fs::metadata(&path).unwrap().len());
+    // No temporary files are left behind.
+    assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
+    let mapped = Archive::open(&path).unwrap();
+    let owned = Archive::from_bytes(&std::fs::read(&path).unwrap()).unwrap();
+    for a in [&mapped, &owned] {
+        let v = a.view();
+        assert_eq!(*v.build, contents.build);
+        assert_eq!(v.link_other, &contents.link_other[..]);
+        assert_eq!(v.link_weight, &contents.link_weight[..]);
+        assert_eq!(v.link_offsets, &contents.link_offsets[..]);
+        assert_eq!(v.patch_hits, &contents.patch_hits[..]);
+        assert_eq!(v.primitives, &contents.primitives[..]);
+        assert_eq!(a.meta(), &contents.meta);
+    }
+    assert_eq!(mapped.sections(), owned.sections());
+    let s1 = solve(&mapped);
+    let s2 = solve(&owned);
+    assert_eq!(
+        s1.radiance, s2.radiance,
+        "mmap and in-memory readers give identical light"
+    );
+}
+
+#[test]
+fn every_flipped_byte_in_header_table_and_sections_is_an_error() {
+    let bytes = archive::write_to_vec(&small_contents()).unwrap();
+    let good = Archive::from_bytes(&bytes).unwrap();
+    let mut probes: Vec<usize> = (0..layout::HEADER_SIZE).collect();
+    let table = good.header().table_offset as usize;
+    probes.extend(table..bytes.len());
+    for e in good.sections() {
+        let (o, n) = (e.offset as usize, e.stored_length as usize);
+        probes.extend([o, o + n / 2, o + n - 1]);
+    }
+    for &i in &probes {
+        let mut bad = bytes.clone();
+        bad[i] ^= 0x40;
+        match Archive::from_bytes(&bad) {
+            Err(ArchiveError::Corrupt(msg)) => assert!(!msg.is_empty()),
+            Err(ArchiveError::UnsupportedVersion { .. }) => {
+                panic!("byte {i}: version error for a flipped byte")
+            }
+            Err(e) => panic!("byte {i}: unexpected error {e}"),
+            Ok(_) => panic!("byte {i} flipped, archive still opened"),
+        }
+    }
+}
+
+#[test]
+fn truncated_and_garbage_files_are_errors() {
+    let bytes = archive::write_to_vec(&small_contents()).unwrap();
+    for len in [
+        0,
+        1,
+        7,
+        64,
+        127,
+        128,
+        4096,
+        bytes.len() / 2,
+        bytes.len() - 64,
+        bytes.len() - 1,
+    ] {
+        let err = Archive::from_bytes(&bytes[..len])
+            .err()
+            .unwrap_or_else(|| panic!("{len} bytes opened"));
+        assert!(err.to_string().contains("corrupt archive"), "{len}: {err}");
+    }
+    let err = Archive::from_bytes(b"PK\x03\x04 this is a zip file, not an archive......................................................................................................").err().unwrap();
+    assert!(err.to_string().contains("not an illumnet archive"), "{err}");
+    let dir = tempfile::tempdir().unwrap();
+    let err = Archive::open(&dir.path().join("missing.inet"))
+        .err()
+        .unwrap();
+    assert!(matches!(err, ArchiveError::Io { .. }), "{err}");
+}
+
+#[test]
+fn newer_reader_version_is_refused_with_a_clear_message() {
+    let mut bytes = archive::write_to_vec(&small_contents()).unwrap();
+    bytes[12..16].copy_from_slice(&2u32.to_le_bytes()); // version_read
+    let sum = xxhash_rust::xxh3::xxh3_64(&bytes[..120]);
+    bytes[120..128].copy_from_slice(&sum.to_le_bytes());
+    let err = Archive::from_bytes(&bytes).err().unwrap();
+    assert!(
+        matches!(
+            err,
+            ArchiveError::UnsupportedVersion {
+                needs: 2,
+                supports: 1
+            }
+        ),
+        "{err}"
+    );
+}
+
+#[test]
+fn archive_bytes_do_not_depend_on_thread_count() {
+    let build_with = |threads: usize| {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        pool.install(|| archive::write_to_vec(&small_contents()).unwrap())
+    };
+    let one = build_with(1);
+    let two = build_with(2);
+    let four = build_with(4);
+    assert!(
+        one == two && two == four,
+        "archives differ across thread counts"
+    );
+}

@@ -1,0 +1,146 @@
+//! Physics checks against closed forms: form factors, the closed-room energy
+//! balance, reciprocity.
+
+mod common;
+
+use common::*;
+use illumnet::scene::BuildHints;
+
+/// Fraction of the emitter's power that lands on the receiver (both black).
+fn transfer_fraction(emitter: &str, receiver: &str) -> f64 {
+    let toml = format!(
+        "{CAMERA}[[material]]\nname = 'black'\ntype = 'diffuse'\nreflectance = [0, 0, 0]\n\
+         [[surface]]\nname = 'emitter'\nmaterial = 'black'\nemission = [1, 1, 1]\nquad = {emitter}\n\
+         [[surface]]\nname = 'receiver'\nmaterial = 'black'\nquad = {receiver}\n"
+    );
+    let archive = build_archive(&scene(&toml), BuildHints::default());
+    let sol = solve(&archive);
+    let v = archive.view();
+    let emitted: f64 = sol.balance.emitted.iter().sum();
+    assert!(sol.balance.imbalance().abs() < 1e-5, "{:?}", sol.balance);
+    surface_total(&v, &sol.received, 1) / emitted
+}
+
+#[test]
+fn form_factor_parallel_unit_squares_one_metre_apart() {
+    // Analytic: F = 0.19982 for two directly opposed unit squares 1 m apart.
+    let f = transfer_fraction(
+        "[[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]]", // faces +z
+        "[[0, 0, 1], [0, 1, 1], [1, 1, 1], [1, 0, 1]]", // faces -z
+    );
+    let exact = 0.19982;
+    eprintln!(
+        "parallel squares: F = {f:.5}, analytic {exact}, error {:+.2}%",
+        (f / exact - 1.0) * 100.0
+    );
+    assert!(
+        (f - exact).abs() / exact < 0.02,
+        "F = {f:.5}, analytic {exact}"
+    );
+}
+
+#[test]
+fn form_factor_perpendicular_unit_squares_sharing_an_edge() {
+    // Analytic: F = 0.20004 for perpendicular unit squares with a common edge.
+    let f = transfer_fraction(
+        "[[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]]", // z = 0, faces +z
+        "[[0, 0, 0], [0, 0, 1], [1, 0, 1], [1, 0, 0]]", // y = 0, faces +y
+    );
+    let exact = 0.20004;
+    eprintln!(
+        "perpendicular squares: F = {f:.5}, analytic {exact}, error {:+.2}%",
+        (f / exact - 1.0) * 100.0
+    );
+    assert!(
+        (f - exact).abs() / exact < 0.02,
+        "F = {f:.5}, analytic {exact}"
+    );
+}
+
+#[test]
+fn closed_room_reaches_e_over_one_minus_rho_everywhere() {
+    // Every wall of a closed box emits L_e and reflects rho = 0.5:
+    // L = L_e / (1 - rho) = 2 L_e on every patch.
+    let toml = format!(
+        "{CAMERA}[[material]]\nname = 'grey'\ntype = 'diffuse'\nreflectance = [0.5, 0.5, 0.5]\n\
+         [[surface]]\nname = 'room'\nmaterial = 'grey'\nemission = [1, 2, 3]\n\
+         box = {{ min = [0, 0, 0], max = [1.0, 0.8, 1.3], inward = true }}\n"
+    );
+    let archive = build_archive(&scene(&toml), BuildHints::default());
+    let sol = solve(&archive);
+    let mut worst = 0.0f64;
+    for l in &sol.radiance {
+        for (c, e) in [1.0f64, 2.0, 3.0].iter().enumerate() {
+            worst = worst.max((l[c] as f64 / (2.0 * e) - 1.0).abs());
+        }
+    }
+    eprintln!(
+        "closed room: worst patch {:.3}% off, absorbed/emitted - 1 = {:.2e}",
+        worst * 100.0,
+        sol.balance.absorbed.iter().sum::<f64>() / sol.balance.emitted.iter().sum::<f64>() - 1.0
+    );
+    assert!(
+        worst < 0.01,
+        "worst patch deviates {:.3}% from E/(1-rho)",
+        worst * 100.0
+    );
+    let b = &sol.balance;
+    let (emitted, absorbed): (f64, f64) = (b.emitted.iter().sum(), b.absorbed.iter().sum());
+    assert!(
+        (absorbed / emitted - 1.0).abs() < 0.005,
+        "absorbed {absorbed} of emitted {emitted}: {b:?}"
+    );
+}
+
+#[test]
+fn links_are_reciprocal_on_the_cornell_box() {
+    // A_i F_ij = A_j F_ji with F_ij = (rays from i reaching j) / H_i.
+    let archive = build_archive(
+        &illumnet::scene::Scene::cornell_box(),
+        BuildHints::default(),
+    );
+    let v = archive.view();
+    let surf = patch_surface(&v);
+    let ns = v.surfaces.len();
+    let mut af = vec![vec![0.0f64; ns]; ns];
+    let mut worst_patch = 0.0f64;
+    let mut checked_pairs = 0;
+    for i in 0..v.patch_count() {
+        let (other, w, _) = v.link_ends(i);
+        let a_over_h = v.patch_area[i] as f64 / v.patch_hits[i] as f64;
+        // Merge this patch's ends by partner.
+        let mut per: std::collections::BTreeMap<u32, f64> = Default::default();
+        for (&j, &wt) in other.iter().zip(w) {
+            *per.entry(j).or_default() += wt as f64;
+            af[surf[i] as usize][surf[j as usize] as usize] += a_over_h * wt as f64;
+        }
+        for (&j, &wij) in &per {
+            if wij >= 200.0 {
+                let a_over_h_j = v.patch_area[j as usize] as f64 / v.patch_hits[j as usize] as f64;
+                worst_patch = worst_patch.max((a_over_h / a_over_h_j - 1.0).abs());
+                checked_pairs += 1;
+            }
+        }
+    }
+    eprintln!(
+        "reciprocity: {checked_pairs} patch pairs with >= 200 rays, worst {:.2}%",
+        worst_patch * 100.0
+    );
+    assert!(
+        checked_pairs > 100,
+        "only {checked_pairs} patch pairs with ≥ 200 rays"
+    );
+    assert!(
+        worst_patch < 0.05,
+        "patch pairs: worst A_iF_ij / A_jF_ji off by {:.2}%",
+        worst_patch * 100.0
+    );
+    for s in 0..ns {
+        for t in 0..ns {
+            if af[s][t] > 1e-4 {
+                let r = af[s][t] / af[t][s];
+                assert!((r - 1.0).abs() < 0.05, "surfaces {s},{t}: A F ratio {r}");
+            }
+        }
+    }
+}
