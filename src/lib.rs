@@ -26,6 +26,8 @@
 //! `ARCHITECTURE.md` at the repository root states what may depend on what.
 #![deny(missing_docs)]
 #![deny(unsafe_op_in_unsafe_fn)]
+// Per-band loops `for c in 0..3` over RGB arrays read better than zipped iterators.
+#![allow(clippy::needless_range_loop)]
 
 #[cfg(not(target_endian = "little"))]
 compile_error!(

@@ -1,5 +1,6 @@
 //! Physics checks against closed forms: form factors, the closed-room energy
 //! balance, reciprocity.
+#![allow(clippy::needless_range_loop)]
 
 mod common;
 

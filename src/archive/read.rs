@@ -349,7 +349,7 @@ fn validate_structure(bytes: &[u8]) -> Result<(HeaderRecord, Vec<SectionEntry>),
         .checked_add(table_len)
         .ok_or_else(|| bad("section table offset overflows"))?;
     if header.table_offset < layout::HEADER_SIZE as u64
-        || header.table_offset % 8 != 0
+        || !header.table_offset.is_multiple_of(8)
         || table_end > len
     {
         return Err(bad(format!(

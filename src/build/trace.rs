@@ -210,10 +210,9 @@ pub fn trace_all(
                             let patch = pp.first_patch + pp.grid.locate(h.uv).cell;
                             hits[patch as usize].fetch_add(1, Ordering::Relaxed);
                             stats.hits += 1;
-                            if let Some((prev_patch, _, _, true)) = prev {
-                                if !forward {
-                                    keys.push(((prev_patch as u64) << 32) | patch as u64);
-                                }
+                            // A link: the previous hit faces down the ray, this one faces back.
+                            if let (Some((prev_patch, _, _, true)), false) = (prev, forward) {
+                                keys.push(((prev_patch as u64) << 32) | patch as u64);
                             }
                             prev = Some((patch, h.t, h.primitive, forward));
                         }

@@ -101,14 +101,11 @@ enum Command {
 /// Runs the CLI; errors print as `illumnet: error: …` and exit with 1.
 pub fn main() -> ExitCode {
     let cli = Cli::parse();
-    if let Some(n) = cli.threads {
-        if let Err(e) = rayon::ThreadPoolBuilder::new()
-            .num_threads(n)
-            .build_global()
-        {
-            eprintln!("illumnet: error: cannot start {n} threads: {e}");
-            return ExitCode::FAILURE;
-        }
+    if let Some(n) = cli.threads
+        && let Err(e) = rayon::ThreadPoolBuilder::new().num_threads(n).build_global()
+    {
+        eprintln!("illumnet: error: cannot start {n} threads: {e}");
+        return ExitCode::FAILURE;
     }
     let progress = progress_bar::BarProgress::new(cli.quiet);
     let result = match cli.command {

@@ -106,7 +106,7 @@ impl PatchGrid {
                 }
                 let r = cell - j * (2 * k - j);
                 let i = r / 2;
-                if r % 2 == 0 {
+                if r.is_multiple_of(2) {
                     [
                         self.tri_vertex(i, j),
                         self.tri_vertex(i + 1, j),

@@ -223,20 +223,18 @@ fn inverse_bilinear(x: Vec2, a: Vec2, b: Vec2, c: Vec2, d: Vec2) -> Option<Vec2>
     let in_range = |s: f32| (-EPS..=1.0 + EPS).contains(&s);
     let solve_u = |v: f32| {
         let den = e + g * v;
-        let u = if den.x.abs() >= den.y.abs() {
+        if den.x.abs() >= den.y.abs() {
             (h.x - f.x * v) / den.x
         } else {
             (h.y - f.y * v) / den.y
-        };
-        u
+        }
     };
-    let candidates: [f32; 2];
-    if k2.abs() <= 1e-7 * k1.abs().max(f32::MIN_POSITIVE) {
+    let candidates: [f32; 2] = if k2.abs() <= 1e-7 * k1.abs().max(f32::MIN_POSITIVE) {
         // Parallelogram (g = 0) or nearly so: the equation in v is linear.
         if k1 == 0.0 {
             return None;
         }
-        candidates = [-k0 / k1, f32::NAN];
+        [-k0 / k1, f32::NAN]
     } else {
         let w = k1 * k1 - 4.0 * k0 * k2;
         if w < 0.0 {
@@ -245,8 +243,8 @@ fn inverse_bilinear(x: Vec2, a: Vec2, b: Vec2, c: Vec2, d: Vec2) -> Option<Vec2>
         let w = w.sqrt();
         // Numerically stable roots of k2 v² + k1 v + k0 = 0.
         let q = -0.5 * (k1 + k1.signum() * w);
-        candidates = [q / k2, if q != 0.0 { k0 / q } else { f32::NAN }];
-    }
+        [q / k2, if q != 0.0 { k0 / q } else { f32::NAN }]
+    };
     for v in candidates {
         if v.is_finite() && in_range(v) {
             let u = solve_u(v);

@@ -452,7 +452,7 @@ fn check_primitive(p: &Primitive) -> Result<(), String> {
     }
     let (lo, hi) = p.bounds();
     let size = (hi - lo).length();
-    if !(p.area() > 1e-12 * size.max(1e-3) * size.max(1e-3)) || size == 0.0 {
+    if p.area().is_nan() || p.area() <= 1e-12 * size.max(1e-3) * size.max(1e-3) || size == 0.0 {
         return Err("degenerate (zero area)".into());
     }
     if n == 4 {
