@@ -218,6 +218,30 @@ pub fn inspect(path: &Path, json: bool) -> Result<()> {
     Ok(())
 }
 
+pub fn compare(
+    image: &Path,
+    reference: &Path,
+    heatmap: Option<&Path>,
+    full_scale: f32,
+) -> Result<()> {
+    let a = image_io::read_exr(image).map_err(anyhow::Error::msg)?;
+    let r = image_io::read_exr(reference).map_err(anyhow::Error::msg)?;
+    let (err, map) = image_io::compare(&a, &r).map_err(anyhow::Error::msg)?;
+    println!(
+        "relative L2 {:.4}, relative MSE {:.3e}, mean absolute error {:.4e} over {} pixels",
+        err.relative_l2, err.relative_mse, err.mean_abs, err.pixels
+    );
+    if let Some(path) = heatmap {
+        image_io::write_heatmap(a.width, a.height, &map, full_scale, path)
+            .map_err(anyhow::Error::msg)?;
+        println!(
+            "wrote heat map {} (white = relative error ≥ {full_scale})",
+            path.display()
+        );
+    }
+    Ok(())
+}
+
 pub fn demo(
     dir: &Path,
     build_args: BuildArgs,

@@ -86,6 +86,21 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// Compare a linear EXR image with a reference EXR: relative L2 error,
+    /// relative MSE and mean absolute error over pixels whose reference is
+    /// below 1.0 (emitters seen directly are left out).
+    Compare {
+        /// Image to judge.
+        image: std::path::PathBuf,
+        /// Reference image (same size).
+        reference: std::path::PathBuf,
+        /// Write a PNG heat map of per-pixel relative luminance error.
+        #[arg(long, value_name = "MAP.png")]
+        heatmap: Option<std::path::PathBuf>,
+        /// Relative error shown as white in the heat map.
+        #[arg(long, default_value_t = 0.25, value_name = "X")]
+        full_scale: f32,
+    },
     /// Build and render the embedded Cornell box.
     Demo {
         /// Directory for cornell_box.inet, .png and .exr.
@@ -123,6 +138,12 @@ pub fn main() -> ExitCode {
             render,
         } => commands::render(&archive, &output, exr.as_deref(), render, &progress),
         Command::Inspect { archive, json } => commands::inspect(&archive, json),
+        Command::Compare {
+            image,
+            reference,
+            heatmap,
+            full_scale,
+        } => commands::compare(&image, &reference, heatmap.as_deref(), full_scale),
         Command::Demo {
             output,
             settings,

@@ -103,3 +103,73 @@ pub fn relative_l2(image: &Image, reference: &Image) -> Result<f64, String> {
     }
     Ok((num / den.max(f64::MIN_POSITIVE)).sqrt())
 }
+
+/// Error measures of an image against a reference, on linear radiance, over
+/// the pixels whose reference is below `1.0` in every channel.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ImageError {
+    /// ‖a − ref‖₂ / ‖ref‖₂ (the measure of [`relative_l2`]).
+    pub relative_l2: f64,
+    /// Mean of (a − ref)² / mean of ref².
+    pub relative_mse: f64,
+    /// Mean |a − ref|.
+    pub mean_abs: f64,
+    /// Pixels compared.
+    pub pixels: u64,
+}
+
+/// Computes [`ImageError`] and, per pixel, the relative error
+/// `|a − ref| / (ref + 0.01)` of the luminance (0 where the pixel is excluded).
+pub fn compare(image: &Image, reference: &Image) -> Result<(ImageError, Vec<f32>), String> {
+    let rel = relative_l2(image, reference)?;
+    let lum = |c: &[f32; 3]| 0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2];
+    let (mut sq, mut ref_sq, mut abs, mut n) = (0.0f64, 0.0f64, 0.0f64, 0u64);
+    let mut map = Vec::with_capacity(image.pixels.len());
+    for (a, r) in image.pixels.iter().zip(&reference.pixels) {
+        if r.iter().all(|&x| x < 1.0) {
+            for c in 0..3 {
+                let d = (a[c] - r[c]) as f64;
+                sq += d * d;
+                ref_sq += (r[c] as f64).powi(2);
+                abs += d.abs();
+            }
+            n += 1;
+            map.push((lum(a) - lum(r)).abs() / (lum(r) + 0.01));
+        } else {
+            map.push(0.0);
+        }
+    }
+    let values = (3 * n).max(1) as f64;
+    let err = ImageError {
+        relative_l2: rel,
+        relative_mse: sq / ref_sq.max(f64::MIN_POSITIVE),
+        mean_abs: abs / values,
+        pixels: n,
+    };
+    Ok((err, map))
+}
+
+/// Writes a per-pixel error map as a PNG: black at 0, through red and
+/// yellow, to white at `full_scale` and above.
+pub fn write_heatmap(
+    width: u32,
+    height: u32,
+    values: &[f32],
+    full_scale: f32,
+    path: &Path,
+) -> Result<(), String> {
+    let data: Vec<u8> = values
+        .iter()
+        .flat_map(|&v| {
+            let t = (v / full_scale).clamp(0.0, 1.0) * 3.0;
+            [
+                t.min(1.0),
+                (t - 1.0).clamp(0.0, 1.0),
+                (t - 2.0).clamp(0.0, 1.0),
+            ]
+            .map(|c| (c * 255.0 + 0.5) as u8)
+        })
+        .collect();
+    let img = RgbImage::from_raw(width, height, data).ok_or("image size mismatch")?;
+    save_atomic(path, |w| img.write_to(w, ImageFormat::Png))
+}
