@@ -24,36 +24,23 @@ fn stages(c: &mut Criterion) {
     let view = archive.view();
 
     let mut g = c.benchmark_group("cornell");
-    g.sample_size(10)
-        .measurement_time(Duration::from_secs(8))
-        .warm_up_time(Duration::from_secs(1));
+    g.sample_size(10).measurement_time(Duration::from_secs(8)).warm_up_time(Duration::from_secs(1));
 
     // Tracing at a quarter of the default directions keeps one sample near 1 s.
-    let coarse = BuildSettings {
-        frequency: 8,
-        ..defaults
-    };
+    let coarse = BuildSettings { frequency: 8, ..defaults };
     let (_, coarse_stats) = build::build(&scene, &coarse, &NoProgress).unwrap();
     g.throughput(Throughput::Elements(coarse_stats.rays));
-    g.bench_function("build_f8 (rays)", |b| {
-        b.iter(|| build::build(black_box(&scene), &coarse, &NoProgress).unwrap())
-    });
+    g.bench_function("build_f8 (rays)", |b| b.iter(|| build::build(black_box(&scene), &coarse, &NoProgress).unwrap()));
 
     // One sweep over all link ends (max_iterations = 1).
-    let one = DistributeOptions {
-        max_iterations: 1,
-        tolerance: 0.0,
-        ..Default::default()
-    };
+    let one = DistributeOptions { max_iterations: 1, tolerance: 0.0, ..Default::default() };
     g.throughput(Throughput::Elements(stats.link_ends));
     g.bench_function("distribute_1_iteration (link ends)", |b| {
         b.iter(|| distribute::distribute(black_box(&view), &one, &NoProgress))
     });
 
     g.throughput(Throughput::Bytes(bytes.len() as u64));
-    g.bench_function("archive_validate (bytes)", |b| {
-        b.iter(|| Archive::from_bytes(black_box(&bytes)).unwrap())
-    });
+    g.bench_function("archive_validate (bytes)", |b| b.iter(|| Archive::from_bytes(black_box(&bytes)).unwrap()));
 
     let sol = distribute::distribute(&view, &DistributeOptions::default(), &NoProgress);
     let opts = RenderOptions::default();

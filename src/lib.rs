@@ -30,13 +30,12 @@
 #![allow(clippy::needless_range_loop)]
 
 #[cfg(not(target_endian = "little"))]
-compile_error!(
-    "illumnet archives are little-endian and read zero-copy: big-endian targets are not supported"
-);
+compile_error!("illumnet archives are little-endian and read zero-copy: big-endian targets are not supported");
 
 pub mod archive;
 pub mod build;
 pub mod distribute;
+pub mod flicker;
 pub mod geodesic;
 pub mod geometry;
 pub mod patch;

@@ -12,14 +12,8 @@ use illumnet::scene::{BuildHints, Scene};
 /// A quick, coarse Cornell box build.
 fn small_contents() -> archive::ArchiveContents {
     let scene = Scene::cornell_box();
-    let hints = BuildHints {
-        patch_size: Some(0.08),
-        frequency: Some(4),
-        ray_spacing: Some(0.02),
-    };
-    build::build(&scene, &BuildSettings::resolve(&scene, hints), &NoProgress)
-        .unwrap()
-        .0
+    let hints = BuildHints { patch_size: Some(0.08), frequency: Some(4), ray_spacing: Some(0.02), buckets: None };
+    build::build(&scene, &BuildSettings::resolve(&scene, hints), &NoProgress).unwrap().0
 }
 
 #[test]
@@ -46,10 +40,7 @@ fn round_trip_through_a_file_and_memory() {
     assert_eq!(mapped.sections(), owned.sections());
     let s1 = solve(&mapped);
     let s2 = solve(&owned);
-    assert_eq!(
-        s1.radiance, s2.radiance,
-        "mmap and in-memory readers give identical light"
-    );
+    assert_eq!(s1.radiance, s2.radiance, "mmap and in-memory readers give identical light");
 }
 
 #[test]
@@ -80,65 +71,54 @@ fn every_flipped_byte_in_header_table_and_sections_is_an_error() {
 #[test]
 fn truncated_and_garbage_files_are_errors() {
     let bytes = archive::write_to_vec(&small_contents()).unwrap();
-    for len in [
-        0,
-        1,
-        7,
-        64,
-        127,
-        128,
-        4096,
-        bytes.len() / 2,
-        bytes.len() - 64,
-        bytes.len() - 1,
-    ] {
-        let err = Archive::from_bytes(&bytes[..len])
-            .err()
-            .unwrap_or_else(|| panic!("{len} bytes opened"));
+    for len in [0, 1, 7, 64, 127, 128, 4096, bytes.len() / 2, bytes.len() - 64, bytes.len() - 1] {
+        let err = Archive::from_bytes(&bytes[..len]).err().unwrap_or_else(|| panic!("{len} bytes opened"));
         assert!(err.to_string().contains("corrupt archive"), "{len}: {err}");
     }
     let err = Archive::from_bytes(b"PK\x03\x04 this is a zip file, not an archive......................................................................................................").err().unwrap();
     assert!(err.to_string().contains("not an illumnet archive"), "{err}");
     let dir = tempfile::tempdir().unwrap();
-    let err = Archive::open(&dir.path().join("missing.inet"))
-        .err()
-        .unwrap();
+    let err = Archive::open(&dir.path().join("missing.inet")).err().unwrap();
     assert!(matches!(err, ArchiveError::Io { .. }), "{err}");
 }
 
 #[test]
 fn newer_reader_version_is_refused_with_a_clear_message() {
     let mut bytes = archive::write_to_vec(&small_contents()).unwrap();
-    bytes[12..16].copy_from_slice(&2u32.to_le_bytes()); // version_read
+    bytes[12..16].copy_from_slice(&3u32.to_le_bytes()); // version_read
     let sum = xxhash_rust::xxh3::xxh3_64(&bytes[..120]);
     bytes[120..128].copy_from_slice(&sum.to_le_bytes());
     let err = Archive::from_bytes(&bytes).err().unwrap();
-    assert!(
-        matches!(
-            err,
-            ArchiveError::UnsupportedVersion {
-                needs: 2,
-                supports: 1
-            }
-        ),
-        "{err}"
-    );
+    assert!(matches!(err, ArchiveError::UnsupportedVersion { needs: 3, supports: 2 }), "{err}");
 }
 
 #[test]
 fn archive_bytes_do_not_depend_on_thread_count() {
     let build_with = |threads: usize| {
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .build()
-            .unwrap();
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
         pool.install(|| archive::write_to_vec(&small_contents()).unwrap())
     };
     let one = build_with(1);
     let two = build_with(2);
     let four = build_with(4);
-    assert!(
-        one == two && two == four,
-        "archives differ across thread counts"
-    );
+    assert!(one == two && two == four, "archives differ across thread counts");
+}
+
+#[test]
+fn versions_follow_the_compatibility_rule() {
+    // Geodesic archives only add optional sections over version 1: readable by 1.
+    let bytes = archive::write_to_vec(&small_contents()).unwrap();
+    let a = Archive::from_bytes(&bytes).unwrap();
+    assert_eq!((a.header().version_write, a.header().version_read), (2, 1));
+    assert!(a.view().link_bucket.is_some());
+    // Ray-space baseline archives would be misread by version 1 readers.
+    let scene = Scene::cornell_box();
+    let hints = BuildHints { patch_size: Some(0.08), frequency: Some(4), ray_spacing: Some(0.02), buckets: None };
+    let mut settings = BuildSettings::resolve(&scene, hints);
+    settings.direction_set = illumnet::geodesic::DirectionSetKind::RaySpace;
+    let contents = build::build(&scene, &settings, &NoProgress).unwrap().0;
+    let a = Archive::from_bytes(&archive::write_to_vec(&contents).unwrap()).unwrap();
+    assert_eq!((a.header().version_write, a.header().version_read), (2, 2));
+    // f = 4 gives 162 geodesic directions; m = round(√(162/6)) = 5 gives 150.
+    assert_eq!(a.view().directions.len(), 6 * 5 * 5);
 }

@@ -6,10 +6,7 @@ use std::process::Command;
 use illumnet::render::image_io::read_exr;
 
 fn illumnet(args: &[&str]) -> std::process::Output {
-    let out = Command::new(env!("CARGO_BIN_EXE_illumnet"))
-        .args(args)
-        .output()
-        .unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_illumnet")).args(args).output().unwrap();
     assert!(
         out.status.success(),
         "illumnet {args:?} failed:\n{}\n{}",
@@ -38,30 +35,15 @@ fn demo_shows_colour_bleeding_and_an_indirectly_lit_ceiling() {
     let near_red = img.mean(58, 60, 70, 90);
     let near_green = img.mean(186, 60, 198, 90);
     let rg = |c: [f32; 3]| c[0] / c[1];
-    assert!(
-        rg(near_red) > 1.1 * rg(near_green),
-        "red bleeding: {near_red:?} vs {near_green:?}"
-    );
-    assert!(
-        near_green[1] / near_green[0] > 1.1 * near_red[1] / near_red[0],
-        "green bleeding"
-    );
+    assert!(rg(near_red) > 1.1 * rg(near_green), "red bleeding: {near_red:?} vs {near_green:?}");
+    assert!(near_green[1] / near_green[0] > 1.1 * near_red[1] / near_red[0], "green bleeding");
     let red_wall = img.mean(10, 100, 30, 150);
-    assert!(
-        red_wall[0] > 3.0 * red_wall[1],
-        "red wall is red: {red_wall:?}"
-    );
+    assert!(red_wall[0] > 3.0 * red_wall[1], "red wall is red: {red_wall:?}");
     // The ceiling (y ≈ 5..55 px) sees no direct light, yet is clearly lit.
     let ceiling = img.mean(70, 10, 95, 20);
     let back = img.mean(90, 60, 170, 90);
-    assert!(
-        luminance(ceiling) > 0.15 * luminance(back),
-        "ceiling {ceiling:?}, back wall {back:?}"
-    );
-    assert!(
-        luminance(ceiling) < luminance(back),
-        "ceiling {ceiling:?} brighter than the lit back wall {back:?}"
-    );
+    assert!(luminance(ceiling) > 0.15 * luminance(back), "ceiling {ceiling:?}, back wall {back:?}");
+    assert!(luminance(ceiling) < luminance(back), "ceiling {ceiling:?} brighter than the lit back wall {back:?}");
     // The light (rows ≈ 32..41) shows its emitted radiance (18.4, 14.0, 6.8) and more.
     let light = img.at(128, 36);
     assert!(light[0] > 18.0 && light[1] > 13.5, "light pixel {light:?}");
@@ -73,40 +55,17 @@ fn build_inspect_render_with_json() {
     let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/cornell_box.toml");
     let archive = dir.path().join("box.inet");
     let a = archive.to_str().unwrap();
-    illumnet(&[
-        "build",
-        "-q",
-        scene.to_str().unwrap(),
-        "-o",
-        a,
-        "--frequency",
-        "6",
-        "--patch-size",
-        "0.05",
-    ]);
+    illumnet(&["build", "-q", scene.to_str().unwrap(), "-o", a, "--frequency", "6", "--patch-size", "0.05"]);
     let out = illumnet(&["inspect", a, "--json"]);
     let json: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
-    assert_eq!(json["format_version"], 1);
+    assert_eq!(json["format_version"], 2);
+    assert_eq!(json["version_read"], 1);
     assert_eq!(json["directions"], 362);
     assert!(json["patches"].as_u64().unwrap() > 500);
     assert!(json["links"].as_u64().unwrap() > 1000);
-    assert!(
-        json["sections"]
-            .as_array()
-            .unwrap()
-            .iter()
-            .any(|s| s["tag"] == "LOTH")
-    );
+    assert!(json["sections"].as_array().unwrap().iter().any(|s| s["tag"] == "LOTH"));
     let png = dir.path().join("img.png");
-    illumnet(&[
-        "render",
-        "-q",
-        a,
-        "-o",
-        png.to_str().unwrap(),
-        "--samples",
-        "1",
-    ]);
+    illumnet(&["render", "-q", a, "-o", png.to_str().unwrap(), "--samples", "1"]);
     assert!(png.exists());
 }
 
@@ -116,28 +75,17 @@ fn bad_input_gives_clear_errors() {
     let scene = dir.path().join("bad.toml");
     std::fs::write(&scene, "[camera]\nposition = [0, 0, -1]\nlook_at = [0, 0, 0]\nfov_y_deg = 40\nwidth = 8\nheight = 8\n[[material]]\nname = 'w'\ntype = 'glass'\n").unwrap();
     let out = Command::new(env!("CARGO_BIN_EXE_illumnet"))
-        .args([
-            "build",
-            scene.to_str().unwrap(),
-            "-o",
-            dir.path().join("x.inet").to_str().unwrap(),
-        ])
+        .args(["build", scene.to_str().unwrap(), "-o", dir.path().join("x.inet").to_str().unwrap()])
         .output()
         .unwrap();
     assert!(!out.status.success());
     let err = String::from_utf8_lossy(&out.stderr);
-    assert!(
-        err.contains("bad.toml:9:") && err.contains("material[0].type") && err.contains("glass"),
-        "{err}"
-    );
+    assert!(err.contains("bad.toml:9:") && err.contains("material[0].type") && err.contains("glass"), "{err}");
     assert!(!dir.path().join("x.inet").exists());
 
     let junk = dir.path().join("junk.inet");
     std::fs::write(&junk, b"hello").unwrap();
-    let out = Command::new(env!("CARGO_BIN_EXE_illumnet"))
-        .args(["inspect", junk.to_str().unwrap()])
-        .output()
-        .unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_illumnet")).args(["inspect", junk.to_str().unwrap()]).output().unwrap();
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("corrupt archive"));
 }

@@ -30,14 +30,8 @@ fn form_factor_parallel_unit_squares_one_metre_apart() {
         "[[0, 0, 1], [0, 1, 1], [1, 1, 1], [1, 0, 1]]", // faces -z
     );
     let exact = 0.19982;
-    eprintln!(
-        "parallel squares: F = {f:.5}, analytic {exact}, error {:+.2}%",
-        (f / exact - 1.0) * 100.0
-    );
-    assert!(
-        (f - exact).abs() / exact < 0.02,
-        "F = {f:.5}, analytic {exact}"
-    );
+    eprintln!("parallel squares: F = {f:.5}, analytic {exact}, error {:+.2}%", (f / exact - 1.0) * 100.0);
+    assert!((f - exact).abs() / exact < 0.02, "F = {f:.5}, analytic {exact}");
 }
 
 #[test]
@@ -48,26 +42,19 @@ fn form_factor_perpendicular_unit_squares_sharing_an_edge() {
         "[[0, 0, 0], [0, 0, 1], [1, 0, 1], [1, 0, 0]]", // y = 0, faces +y
     );
     let exact = 0.20004;
-    eprintln!(
-        "perpendicular squares: F = {f:.5}, analytic {exact}, error {:+.2}%",
-        (f / exact - 1.0) * 100.0
-    );
-    assert!(
-        (f - exact).abs() / exact < 0.02,
-        "F = {f:.5}, analytic {exact}"
-    );
+    eprintln!("perpendicular squares: F = {f:.5}, analytic {exact}, error {:+.2}%", (f / exact - 1.0) * 100.0);
+    assert!((f - exact).abs() / exact < 0.02, "F = {f:.5}, analytic {exact}");
 }
 
-#[test]
-fn closed_room_reaches_e_over_one_minus_rho_everywhere() {
-    // Every wall of a closed box emits L_e and reflects rho = 0.5:
-    // L = L_e / (1 - rho) = 2 L_e on every patch.
+/// Worst relative deviation from L = L_e/(1−ρ) and absorbed/emitted − 1 in
+/// a closed box whose walls all emit (1, 2, 3) and reflect ρ = 0.5.
+fn closed_room(buckets: u32) -> (f64, f64) {
     let toml = format!(
         "{CAMERA}[[material]]\nname = 'grey'\ntype = 'diffuse'\nreflectance = [0.5, 0.5, 0.5]\n\
          [[surface]]\nname = 'room'\nmaterial = 'grey'\nemission = [1, 2, 3]\n\
          box = {{ min = [0, 0, 0], max = [1.0, 0.8, 1.3], inward = true }}\n"
     );
-    let archive = build_archive(&scene(&toml), BuildHints::default());
+    let archive = build_archive(&scene(&toml), BuildHints { buckets: Some(buckets), ..Default::default() });
     let sol = solve(&archive);
     let mut worst = 0.0f64;
     for l in &sol.radiance {
@@ -75,31 +62,38 @@ fn closed_room_reaches_e_over_one_minus_rho_everywhere() {
             worst = worst.max((l[c] as f64 / (2.0 * e) - 1.0).abs());
         }
     }
-    eprintln!(
-        "closed room: worst patch {:.3}% off, absorbed/emitted - 1 = {:.2e}",
-        worst * 100.0,
-        sol.balance.absorbed.iter().sum::<f64>() / sol.balance.emitted.iter().sum::<f64>() - 1.0
-    );
-    assert!(
-        worst < 0.01,
-        "worst patch deviates {:.3}% from E/(1-rho)",
-        worst * 100.0
-    );
     let b = &sol.balance;
     let (emitted, absorbed): (f64, f64) = (b.emitted.iter().sum(), b.absorbed.iter().sum());
-    assert!(
-        (absorbed / emitted - 1.0).abs() < 0.005,
-        "absorbed {absorbed} of emitted {emitted}: {b:?}"
+    (worst, absorbed / emitted - 1.0)
+}
+
+#[test]
+fn closed_room_reaches_e_over_one_minus_rho_everywhere() {
+    // The transport itself: no buckets.
+    let (worst, absorbed) = closed_room(0);
+    eprintln!("closed room, no buckets: worst patch {:.3}% off, absorbed/emitted - 1 = {absorbed:.2e}", worst * 100.0);
+    assert!(worst < 0.01, "worst patch deviates {:.3}% from E/(1-rho)", worst * 100.0);
+    assert!(absorbed.abs() < 0.005, "absorbed/emitted - 1 = {absorbed}");
+}
+
+#[test]
+fn closed_room_with_default_buckets() {
+    // Buckets conserve energy exactly, but blurring the bucketed share of the
+    // light, which is not uniform across a wall, shifts light near surface
+    // borders: measured 1.08% at the worst patch (docs/ACCURACY.md).
+    let (worst, absorbed) = closed_room(illumnet::build::DEFAULT_MAX_BUCKET);
+    eprintln!(
+        "closed room, default buckets: worst patch {:.3}% off, absorbed/emitted - 1 = {absorbed:.2e}",
+        worst * 100.0
     );
+    assert!(worst < 0.015, "worst patch deviates {:.3}% from E/(1-rho)", worst * 100.0);
+    assert!(absorbed.abs() < 0.005, "absorbed/emitted - 1 = {absorbed}");
 }
 
 #[test]
 fn links_are_reciprocal_on_the_cornell_box() {
     // A_i F_ij = A_j F_ji with F_ij = (rays from i reaching j) / H_i.
-    let archive = build_archive(
-        &illumnet::scene::Scene::cornell_box(),
-        BuildHints::default(),
-    );
+    let archive = build_archive(&illumnet::scene::Scene::cornell_box(), BuildHints::default());
     let v = archive.view();
     let surf = patch_surface(&v);
     let ns = v.surfaces.len();
@@ -123,19 +117,9 @@ fn links_are_reciprocal_on_the_cornell_box() {
             }
         }
     }
-    eprintln!(
-        "reciprocity: {checked_pairs} patch pairs with >= 200 rays, worst {:.2}%",
-        worst_patch * 100.0
-    );
-    assert!(
-        checked_pairs > 100,
-        "only {checked_pairs} patch pairs with ≥ 200 rays"
-    );
-    assert!(
-        worst_patch < 0.05,
-        "patch pairs: worst A_iF_ij / A_jF_ji off by {:.2}%",
-        worst_patch * 100.0
-    );
+    eprintln!("reciprocity: {checked_pairs} patch pairs with >= 200 rays, worst {:.2}%", worst_patch * 100.0);
+    assert!(checked_pairs > 100, "only {checked_pairs} patch pairs with ≥ 200 rays");
+    assert!(worst_patch < 0.05, "patch pairs: worst A_iF_ij / A_jF_ji off by {:.2}%", worst_patch * 100.0);
     for s in 0..ns {
         for t in 0..ns {
             if af[s][t] > 1e-4 {

@@ -10,11 +10,8 @@ fn obj_mesh_loads_relative_to_the_scene_and_is_transformed() {
     let dir = tempfile::tempdir().unwrap();
     std::fs::create_dir(dir.path().join("meshes")).unwrap();
     // A unit square in z = 0 as two triangles facing +z, and a quad face (triangulated).
-    std::fs::write(
-        dir.path().join("meshes/square.obj"),
-        "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3\nf 1 3 4\n",
-    )
-    .unwrap();
+    std::fs::write(dir.path().join("meshes/square.obj"), "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3\nf 1 3 4\n")
+        .unwrap();
     let scene_path = dir.path().join("s.toml");
     std::fs::write(
         &scene_path,
@@ -31,24 +28,13 @@ fn obj_mesh_loads_relative_to_the_scene_and_is_transformed() {
     assert!((area - 4.0).abs() < 1e-5, "scaled by 2: area {area}");
     // +z rotated 90° about y becomes +x.
     for p in prims {
-        assert!(
-            (p.normal() - glam::Vec3::X).length() < 1e-5,
-            "{:?}",
-            p.normal()
-        );
+        assert!((p.normal() - glam::Vec3::X).length() < 1e-5, "{:?}", p.normal());
     }
     let (lo, hi) = scene.bounds();
-    assert!(
-        (lo.y - 1.0).abs() < 1e-6 && (hi.y - 3.0).abs() < 1e-6,
-        "{lo} {hi}"
-    );
+    assert!((lo.y - 1.0).abs() < 1e-6 && (hi.y - 3.0).abs() < 1e-6, "{lo} {hi}");
 
     // A missing mesh names the scene line and the OBJ path.
-    std::fs::write(
-        &scene_path,
-        format!("{HEAD}[[surface]]\nname = 'm'\nmaterial = 'w'\nmesh = 'nope.obj'\n"),
-    )
-    .unwrap();
+    std::fs::write(&scene_path, format!("{HEAD}[[surface]]\nname = 'm'\nmaterial = 'w'\nmesh = 'nope.obj'\n")).unwrap();
     let e = Scene::from_file(&scene_path).unwrap_err();
     assert_eq!((e.line, e.field.as_str()), (14, "surface[0].mesh"), "{e}");
     assert!(e.message.contains("nope.obj"), "{e}");
@@ -60,12 +46,7 @@ fn mirroring_transforms_keep_box_faces_outward() {
         "{HEAD}[[surface]]\nname = 'b'\nmaterial = 'w'\nbox = {{ min = [0, 0, 0], max = [1, 1, 1] }}\n\
          transform = {{ scale = [-1, 1, 1] }}\n"
     );
-    let scene = Scene::from_toml(
-        &s,
-        std::path::Path::new("m.toml"),
-        std::path::Path::new("."),
-    )
-    .unwrap();
+    let scene = Scene::from_toml(&s, std::path::Path::new("m.toml"), std::path::Path::new(".")).unwrap();
     let centre = glam::Vec3::new(-0.5, 0.5, 0.5);
     for p in &scene.surfaces[0].primitives {
         let mid = (p.p[0] + p.p[2]) / 2.0;
@@ -76,9 +57,5 @@ fn mirroring_transforms_keep_box_faces_outward() {
 #[test]
 fn missing_file_is_an_error_naming_it() {
     let e = Scene::from_file(std::path::Path::new("/nonexistent/scene.toml")).unwrap_err();
-    assert!(
-        e.to_string()
-            .starts_with("/nonexistent/scene.toml: cannot read"),
-        "{e}"
-    );
+    assert!(e.to_string().starts_with("/nonexistent/scene.toml: cannot read"), "{e}");
 }

@@ -10,11 +10,15 @@ use bytemuck::{Pod, Zeroable};
 /// File magic, bytes 0..8 (§3).
 pub const MAGIC: [u8; 8] = *b"ILLUMNET";
 /// The format version this code writes (§3, `version_write`).
-pub const VERSION_WRITE: u32 = 1;
-/// The oldest reader version able to read what this code writes (§3, `version_read`).
+pub const VERSION_WRITE: u32 = 2;
+/// The oldest reader version able to read a geodesic archive this code
+/// writes (§3, `version_read`): version 2 only added optional content.
 pub const VERSION_READ: u32 = 1;
+/// `version_read` of ray-space baseline archives, which version 1 readers
+/// would misread as geodesic.
+pub const VERSION_READ_RAY_SPACE: u32 = 2;
 /// The highest `version_read` this code can read (§6).
-pub const READER_VERSION: u32 = 1;
+pub const READER_VERSION: u32 = 2;
 /// Header size in bytes (§3).
 pub const HEADER_SIZE: usize = 128;
 /// Section table entry size in bytes (§4).
@@ -95,6 +99,8 @@ pub mod tag {
     pub const LINK_WEIGHT: Tag = *b"LWGT";
     /// Link-end outgoing direction (§5.10).
     pub const LINK_DIRECTION: Tag = *b"LDIR";
+    /// Link-end bucket (§5.12).
+    pub const LINK_BUCKET: Tag = *b"LBKT";
     /// Names and provenance, rkyv + zstd (§5.11).
     pub const META: Tag = *b"META";
 }
@@ -179,8 +185,11 @@ pub struct BuildRecord {
     pub ray_spacing_m: f32,
     /// Target patch size used (m).
     pub patch_size_m: f32,
-    /// Reserved, zero.
-    pub reserved0: [u32; 2],
+    /// Direction set: 0 = geodesic (`10f²+2` directions), 1 = ray-space
+    /// baseline (`6m²` directions, `m` stored in `frequency`).
+    pub direction_set: u32,
+    /// Widest bucket in `LBKT` (0 = buckets off).
+    pub max_bucket: u32,
     /// Rays traced (one per ray line; each serves both directions of a pair).
     pub ray_count: u64,
     /// Undirected links before merging (one per facing hit pair on a ray).

@@ -27,15 +27,11 @@ use std::path::PathBuf;
 pub use read::{Archive, InetView};
 pub use write::{write, write_to_vec};
 
-use layout::{
-    BuildRecord, CameraRecord, DirectionRecord, MaterialRecord, PrimitiveRecord, SurfaceRecord, Tag,
-};
+use layout::{BuildRecord, CameraRecord, DirectionRecord, MaterialRecord, PrimitiveRecord, SurfaceRecord, Tag};
 
 /// Names and provenance: small, structured, cold. Stored with rkyv (validated
 /// with bytecheck on read) inside a zstd frame.
-#[derive(
-    Debug, Clone, PartialEq, Eq, Default, rkyv::Archive, rkyv::Serialize, rkyv::Deserialize,
-)]
+#[derive(Debug, Clone, PartialEq, Eq, Default, rkyv::Archive, rkyv::Serialize, rkyv::Deserialize)]
 pub struct ArchiveMeta {
     /// Program and version that wrote the file.
     pub generator: String,
@@ -91,6 +87,8 @@ pub struct ArchiveContents {
     pub link_weight: Vec<f32>,
     /// `LDIR`.
     pub link_direction: Vec<u32>,
+    /// `LBKT`.
+    pub link_bucket: Vec<u8>,
     /// `META`.
     pub meta: ArchiveMeta,
 }
@@ -146,13 +144,5 @@ impl std::error::Error for ArchiveError {
 
 /// Printable form of a tag (`b"LOTH"` → `LOTH`; non-ASCII bytes escaped).
 pub fn tag_name(tag: Tag) -> String {
-    tag.iter()
-        .map(|&b| {
-            if b.is_ascii_graphic() {
-                (b as char).to_string()
-            } else {
-                format!("\\x{b:02x}")
-            }
-        })
-        .collect()
+    tag.iter().map(|&b| if b.is_ascii_graphic() { (b as char).to_string() } else { format!("\\x{b:02x}") }).collect()
 }

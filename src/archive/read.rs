@@ -6,8 +6,8 @@ use bytemuck::{Pod, pod_read_unaligned};
 use xxhash_rust::xxh3::xxh3_64;
 
 use super::layout::{
-    self, BuildRecord, CameraRecord, DirectionRecord, HeaderRecord, MaterialRecord,
-    PrimitiveRecord, SectionEntry, SurfaceRecord, Tag, compression, tag,
+    self, BuildRecord, CameraRecord, DirectionRecord, HeaderRecord, MaterialRecord, PrimitiveRecord, SectionEntry,
+    SurfaceRecord, Tag, compression, tag,
 };
 use super::{ArchiveError, ArchiveMeta, tag_name};
 
@@ -77,6 +77,9 @@ pub struct InetView<'a> {
     pub link_weight: &'a [f32],
     /// `LDIR`.
     pub link_direction: &'a [u32],
+    /// `LBKT`, when present (written since version 2): the bucket of the
+    /// light each link end's owner receives.
+    pub link_bucket: Option<&'a [u8]>,
 }
 
 impl<'a> InetView<'a> {
@@ -87,15 +90,8 @@ impl<'a> InetView<'a> {
 
     /// Link ends of patch `p`: `(other patch, weight, outgoing direction)` columns.
     pub fn link_ends(&self, p: usize) -> (&'a [u32], &'a [f32], &'a [u32]) {
-        let (a, b) = (
-            self.link_offsets[p] as usize,
-            self.link_offsets[p + 1] as usize,
-        );
-        (
-            &self.link_other[a..b],
-            &self.link_weight[a..b],
-            &self.link_direction[a..b],
-        )
+        let (a, b) = (self.link_offsets[p] as usize, self.link_offsets[p + 1] as usize);
+        (&self.link_other[a..b], &self.link_weight[a..b], &self.link_direction[a..b])
     }
 }
 
@@ -105,36 +101,12 @@ fn bad(msg: impl Into<String>) -> ArchiveError {
 
 /// Required sections: tag, record size, compression.
 const REQUIRED: [(Tag, u32, u32); 21] = [
-    (
-        tag::BUILD,
-        size_of::<BuildRecord>() as u32,
-        compression::NONE,
-    ),
-    (
-        tag::CAMERA,
-        size_of::<CameraRecord>() as u32,
-        compression::NONE,
-    ),
-    (
-        tag::MATERIALS,
-        size_of::<MaterialRecord>() as u32,
-        compression::NONE,
-    ),
-    (
-        tag::SURFACES,
-        size_of::<SurfaceRecord>() as u32,
-        compression::NONE,
-    ),
-    (
-        tag::PRIMITIVES,
-        size_of::<PrimitiveRecord>() as u32,
-        compression::NONE,
-    ),
-    (
-        tag::DIRECTIONS,
-        size_of::<DirectionRecord>() as u32,
-        compression::NONE,
-    ),
+    (tag::BUILD, size_of::<BuildRecord>() as u32, compression::NONE),
+    (tag::CAMERA, size_of::<CameraRecord>() as u32, compression::NONE),
+    (tag::MATERIALS, size_of::<MaterialRecord>() as u32, compression::NONE),
+    (tag::SURFACES, size_of::<SurfaceRecord>() as u32, compression::NONE),
+    (tag::PRIMITIVES, size_of::<PrimitiveRecord>() as u32, compression::NONE),
+    (tag::DIRECTIONS, size_of::<DirectionRecord>() as u32, compression::NONE),
     (tag::PATCH_CENTRE, 12, compression::NONE),
     (tag::PATCH_NORMAL, 12, compression::NONE),
     (tag::PATCH_AREA, 4, compression::NONE),
@@ -155,10 +127,7 @@ const REQUIRED: [(Tag, u32, u32); 21] = [
 impl Archive {
     /// Maps and validates the archive at `path`.
     pub fn open(path: &Path) -> Result<Self, ArchiveError> {
-        let io = |e: std::io::Error| ArchiveError::Io {
-            path: path.into(),
-            source: e,
-        };
+        let io = |e: std::io::Error| ArchiveError::Io { path: path.into(), source: e };
         let file = std::fs::File::open(path).map_err(io)?;
         let len = file.metadata().map_err(io)?.len();
         if len < layout::HEADER_SIZE as u64 {
@@ -188,12 +157,7 @@ impl Archive {
     fn from_storage(storage: Storage) -> Result<Self, ArchiveError> {
         let bytes = storage.bytes();
         let (header, entries) = validate_structure(bytes)?;
-        let mut archive = Self {
-            storage,
-            header,
-            entries,
-            meta: ArchiveMeta::default(),
-        };
+        let mut archive = Self { storage, header, entries, meta: ArchiveMeta::default() };
         archive.meta = archive.read_meta()?;
         validate_contents(&archive.view_unchecked()?, &archive.meta)?;
         Ok(archive)
@@ -220,10 +184,7 @@ impl Archive {
     }
 
     fn entry(&self, t: Tag) -> Result<&SectionEntry, ArchiveError> {
-        self.entries
-            .iter()
-            .find(|e| e.tag == t)
-            .ok_or_else(|| bad(format!("section {} is missing", tag_name(t))))
+        self.entries.iter().find(|e| e.tag == t).ok_or_else(|| bad(format!("section {} is missing", tag_name(t))))
     }
 
     fn stored(&self, e: &SectionEntry) -> &[u8] {
@@ -232,39 +193,28 @@ impl Archive {
 
     fn column<T: Pod>(&self, t: Tag) -> Result<&[T], ArchiveError> {
         let e = self.entry(t)?;
-        bytemuck::try_cast_slice(self.stored(e))
-            .map_err(|err| bad(format!("section {}: {err:?}", tag_name(t))))
+        bytemuck::try_cast_slice(self.stored(e)).map_err(|err| bad(format!("section {}: {err:?}", tag_name(t))))
     }
 
     fn one<T: Pod>(&self, t: Tag) -> Result<&T, ArchiveError> {
-        self.column::<T>(t)?
-            .first()
-            .ok_or_else(|| bad(format!("section {} is empty", tag_name(t))))
+        self.column::<T>(t)?.first().ok_or_else(|| bad(format!("section {} is empty", tag_name(t))))
     }
 
     fn read_meta(&self) -> Result<ArchiveMeta, ArchiveError> {
         let e = self.entry(tag::META)?;
         if e.length > 64 << 20 {
-            return Err(bad(format!(
-                "META claims {} bytes uncompressed, more than 64 MiB",
-                e.length
-            )));
+            return Err(bad(format!("META claims {} bytes uncompressed, more than 64 MiB", e.length)));
         }
         let raw = zstd::bulk::decompress(self.stored(e), e.length as usize)
             .map_err(|err| bad(format!("META does not decompress: {err}")))?;
         if raw.len() as u64 != e.length {
-            return Err(bad(format!(
-                "META decompresses to {} bytes, the table says {}",
-                raw.len(),
-                e.length
-            )));
+            return Err(bad(format!("META decompresses to {} bytes, the table says {}", raw.len(), e.length)));
         }
         let mut aligned = rkyv::util::AlignedVec::<16>::with_capacity(raw.len());
         aligned.extend_from_slice(&raw);
         let archived = rkyv::access::<super::ArchivedArchiveMeta, rkyv::rancor::Error>(&aligned)
             .map_err(|err| bad(format!("META fails validation: {err}")))?;
-        rkyv::deserialize::<ArchiveMeta, rkyv::rancor::Error>(archived)
-            .map_err(|err| bad(format!("META: {err}")))
+        rkyv::deserialize::<ArchiveMeta, rkyv::rancor::Error>(archived).map_err(|err| bad(format!("META: {err}")))
     }
 
     fn view_unchecked(&self) -> Result<InetView<'_>, ArchiveError> {
@@ -289,29 +239,27 @@ impl Archive {
             link_other: self.column(tag::LINK_OTHER)?,
             link_weight: self.column(tag::LINK_WEIGHT)?,
             link_direction: self.column(tag::LINK_DIRECTION)?,
+            link_bucket: match self.entries.iter().any(|e| e.tag == tag::LINK_BUCKET) {
+                true => Some(self.column(tag::LINK_BUCKET)?),
+                false => None,
+            },
         })
     }
 
     /// Typed zero-copy views of every section.
     pub fn view(&self) -> InetView<'_> {
-        self.view_unchecked()
-            .expect("sections were validated when the archive was opened")
+        self.view_unchecked().expect("sections were validated when the archive was opened")
     }
 }
 
 fn validate_structure(bytes: &[u8]) -> Result<(HeaderRecord, Vec<SectionEntry>), ArchiveError> {
     let len = bytes.len() as u64;
     if bytes.len() < layout::HEADER_SIZE {
-        return Err(bad(format!(
-            "file is {len} bytes, shorter than the header (truncated?)"
-        )));
+        return Err(bad(format!("file is {len} bytes, shorter than the header (truncated?)")));
     }
     let header: HeaderRecord = pod_read_unaligned(&bytes[..layout::HEADER_SIZE]);
     if header.magic != layout::MAGIC {
-        return Err(bad(format!(
-            "not an illumnet archive (magic {:02x?})",
-            header.magic
-        )));
+        return Err(bad(format!("not an illumnet archive (magic {:02x?})", header.magic)));
     }
     let sum = xxh3_64(&bytes[..120]);
     if sum != header.header_checksum {
@@ -321,18 +269,10 @@ fn validate_structure(bytes: &[u8]) -> Result<(HeaderRecord, Vec<SectionEntry>),
         )));
     }
     if header.version_read > layout::READER_VERSION {
-        return Err(ArchiveError::UnsupportedVersion {
-            needs: header.version_read,
-            supports: layout::READER_VERSION,
-        });
+        return Err(ArchiveError::UnsupportedVersion { needs: header.version_read, supports: layout::READER_VERSION });
     }
-    if header.header_size as usize != layout::HEADER_SIZE
-        || header.entry_size as usize != layout::ENTRY_SIZE
-    {
-        return Err(bad(format!(
-            "unexpected header size {} or entry size {}",
-            header.header_size, header.entry_size
-        )));
+    if header.header_size as usize != layout::HEADER_SIZE || header.entry_size as usize != layout::ENTRY_SIZE {
+        return Err(bad(format!("unexpected header size {} or entry size {}", header.header_size, header.entry_size)));
     }
     if header.flags != 0 || header.reserved != [0; 8] {
         return Err(bad("reserved header fields are not zero"));
@@ -344,14 +284,8 @@ fn validate_structure(bytes: &[u8]) -> Result<(HeaderRecord, Vec<SectionEntry>),
         )));
     }
     let table_len = header.section_count as u64 * layout::ENTRY_SIZE as u64;
-    let table_end = header
-        .table_offset
-        .checked_add(table_len)
-        .ok_or_else(|| bad("section table offset overflows"))?;
-    if header.table_offset < layout::HEADER_SIZE as u64
-        || !header.table_offset.is_multiple_of(8)
-        || table_end > len
-    {
+    let table_end = header.table_offset.checked_add(table_len).ok_or_else(|| bad("section table offset overflows"))?;
+    if header.table_offset < layout::HEADER_SIZE as u64 || !header.table_offset.is_multiple_of(8) || table_end > len {
         return Err(bad(format!(
             "section table ({} entries at offset {}) lies outside the file ({len} bytes)",
             header.section_count, header.table_offset
@@ -365,17 +299,13 @@ fn validate_structure(bytes: &[u8]) -> Result<(HeaderRecord, Vec<SectionEntry>),
             header.table_checksum
         )));
     }
-    let entries: Vec<SectionEntry> = table
-        .chunks_exact(layout::ENTRY_SIZE)
-        .map(pod_read_unaligned::<SectionEntry>)
-        .collect();
+    let entries: Vec<SectionEntry> =
+        table.chunks_exact(layout::ENTRY_SIZE).map(pod_read_unaligned::<SectionEntry>).collect();
     let mut spans: Vec<(u64, u64, Tag)> = Vec::new();
     for (i, e) in entries.iter().enumerate() {
         let name = tag_name(e.tag);
-        let end = e
-            .offset
-            .checked_add(e.stored_length)
-            .ok_or_else(|| bad(format!("section {name}: length overflows")))?;
+        let end =
+            e.offset.checked_add(e.stored_length).ok_or_else(|| bad(format!("section {name}: length overflows")))?;
         if e.offset < layout::HEADER_SIZE as u64 || end > header.table_offset {
             return Err(bad(format!(
                 "section {name}: bytes {}..{end} lie outside the data area {}..{}",
@@ -422,18 +352,12 @@ fn validate_structure(bytes: &[u8]) -> Result<(HeaderRecord, Vec<SectionEntry>),
     spans.sort_unstable();
     for w in spans.windows(2) {
         if w[1].0 < w[0].1 {
-            return Err(bad(format!(
-                "sections {} and {} overlap",
-                tag_name(w[0].2),
-                tag_name(w[1].2)
-            )));
+            return Err(bad(format!("sections {} and {} overlap", tag_name(w[0].2), tag_name(w[1].2))));
         }
     }
     for (t, size, comp) in REQUIRED {
-        let e = entries
-            .iter()
-            .find(|e| e.tag == t)
-            .ok_or_else(|| bad(format!("section {} is missing", tag_name(t))))?;
+        let e =
+            entries.iter().find(|e| e.tag == t).ok_or_else(|| bad(format!("section {} is missing", tag_name(t))))?;
         if e.record_size != size || e.compression != comp {
             return Err(bad(format!(
                 "section {}: record size {} / compression {} (expected {size} / {comp})",
@@ -458,25 +382,24 @@ fn finite(v: &[f32]) -> bool {
 /// without bounds surprises.
 fn validate_contents(v: &InetView<'_>, meta: &ArchiveMeta) -> Result<(), ArchiveError> {
     let b = v.build;
-    let (p, nv, nd) = (
-        b.patch_count as usize,
-        b.vertex_count as usize,
-        b.direction_count as usize,
-    );
+    let (p, nv, nd) = (b.patch_count as usize, b.vertex_count as usize, b.direction_count as usize);
     let count = |name: &str, got: usize, want: usize| {
-        check(got == want, || {
-            format!("section {name}: {got} records, expected {want}")
-        })
+        check(got == want, || format!("section {name}: {got} records, expected {want}"))
     };
     count("SURF", v.surfaces.len(), b.surface_count as usize)?;
     count("MATL", v.materials.len(), b.material_count as usize)?;
     count("PRIM", v.primitives.len(), b.primitive_count as usize)?;
     count("DIRS", v.directions.len(), nd)?;
     let f = b.frequency as u64;
-    check(
-        f >= 1 && f <= crate::geodesic::MAX_FREQUENCY as u64 && nd as u64 == 10 * f * f + 2,
-        || format!("BILD: frequency {f} does not give {nd} directions"),
-    )?;
+    let expected_dirs = match b.direction_set {
+        0 if (1..=crate::geodesic::MAX_FREQUENCY as u64).contains(&f) => 10 * f * f + 2,
+        1 if (1..=100).contains(&f) => 6 * f * f,
+        _ => u64::MAX,
+    };
+    check(nd as u64 == expected_dirs, || {
+        format!("BILD: direction set {} with frequency {f} does not give {nd} directions", b.direction_set)
+    })?;
+    check(b.max_bucket <= 15, || format!("BILD: max bucket {} out of range", b.max_bucket))?;
     for (name, n) in [
         ("PCEN", v.patch_centre.len()),
         ("PNRM", v.patch_normal.len()),
@@ -491,80 +414,46 @@ fn validate_contents(v: &InetView<'_>, meta: &ArchiveMeta) -> Result<(), Archive
     count("VPOS", v.vertex_position.len(), nv)?;
     count("ADJO", v.adjacency_offsets.len(), p + 1)?;
     count("LOFF", v.link_offsets.len(), p + 1)?;
-    count(
-        "META surface names",
-        meta.surface_names.len(),
-        v.surfaces.len(),
-    )?;
-    count(
-        "META material names",
-        meta.material_names.len(),
-        v.materials.len(),
-    )?;
-    check(b.ray_spacing_m.is_finite() && b.ray_spacing_m > 0.0, || {
-        "BILD: ray spacing must be positive".into()
-    })?;
+    count("META surface names", meta.surface_names.len(), v.surfaces.len())?;
+    count("META material names", meta.material_names.len(), v.materials.len())?;
+    check(b.ray_spacing_m.is_finite() && b.ray_spacing_m > 0.0, || "BILD: ray spacing must be positive".into())?;
 
     let c = v.camera;
-    check(
-        finite(&c.position) && finite(&c.look_at) && finite(&c.up),
-        || "CAMR: non-finite vector".into(),
-    )?;
-    check(c.fov_y_deg > 0.0 && c.fov_y_deg < 180.0, || {
-        format!("CAMR: field of view {}", c.fov_y_deg)
+    check(finite(&c.position) && finite(&c.look_at) && finite(&c.up), || "CAMR: non-finite vector".into())?;
+    check(c.fov_y_deg > 0.0 && c.fov_y_deg < 180.0, || format!("CAMR: field of view {}", c.fov_y_deg))?;
+    check((1..=16384).contains(&c.width) && (1..=16384).contains(&c.height), || {
+        "CAMR: image size out of range".into()
     })?;
-    check(
-        (1..=16384).contains(&c.width) && (1..=16384).contains(&c.height),
-        || "CAMR: image size out of range".into(),
-    )?;
 
     for (i, m) in v.materials.iter().enumerate() {
-        check(m.model == layout::model::DIFFUSE, || {
-            format!("MATL[{i}]: unknown model {}", m.model)
+        check(m.model == layout::model::DIFFUSE, || format!("MATL[{i}]: unknown model {}", m.model))?;
+        check(m.params[..3].iter().all(|r| (0.0..=1.0).contains(r)), || {
+            format!("MATL[{i}]: reflectance outside [0, 1]")
         })?;
-        check(
-            m.params[..3].iter().all(|r| (0.0..=1.0).contains(r)),
-            || format!("MATL[{i}]: reflectance outside [0, 1]"),
-        )?;
     }
     for (i, s) in v.surfaces.iter().enumerate() {
         check((s.material as usize) < v.materials.len(), || {
             format!("SURF[{i}]: material {} out of range", s.material)
         })?;
-        check(
-            s.emission.iter().all(|e| e.is_finite() && *e >= 0.0),
-            || format!("SURF[{i}]: bad emission"),
-        )?;
-        check(
-            s.first_primitive as u64 + s.primitive_count as u64 <= v.primitives.len() as u64,
-            || format!("SURF[{i}]: primitives out of range"),
-        )?;
+        check(s.emission.iter().all(|e| e.is_finite() && *e >= 0.0), || format!("SURF[{i}]: bad emission"))?;
+        check(s.first_primitive as u64 + s.primitive_count as u64 <= v.primitives.len() as u64, || {
+            format!("SURF[{i}]: primitives out of range")
+        })?;
     }
     let (mut next_patch, mut next_vertex) = (0u64, 0u64);
     for (i, r) in v.primitives.iter().enumerate() {
-        check(r.kind <= 1, || {
-            format!("PRIM[{i}]: unknown kind {}", r.kind)
-        })?;
-        check((r.surface as usize) < v.surfaces.len(), || {
-            format!("PRIM[{i}]: surface out of range")
-        })?;
-        check(r.corners.iter().all(|c| finite(c)), || {
-            format!("PRIM[{i}]: non-finite corner")
-        })?;
+        check(r.kind <= 1, || format!("PRIM[{i}]: unknown kind {}", r.kind))?;
+        check((r.surface as usize) < v.surfaces.len(), || format!("PRIM[{i}]: surface out of range"))?;
+        check(r.corners.iter().all(|c| finite(c)), || format!("PRIM[{i}]: non-finite corner"))?;
         let (gu, gv) = (r.grid_u as u64, r.grid_v as u64);
-        check(
-            gu >= 1 && gv >= 1 && gu <= 1 << 16 && gv <= 1 << 16 && (r.kind == 0 || gu == gv),
-            || format!("PRIM[{i}]: bad grid {gu}×{gv}"),
-        )?;
-        let (cells, verts) = if r.kind == 0 {
-            (gu * gv, (gu + 1) * (gv + 1))
-        } else {
-            (gu * gu, (gu + 1) * (gu + 2) / 2)
-        };
-        check(
-            r.first_patch as u64 == next_patch && r.first_vertex as u64 == next_vertex,
-            || format!("PRIM[{i}]: patches or vertices not contiguous"),
-        )?;
+        check(gu >= 1 && gv >= 1 && gu <= 1 << 16 && gv <= 1 << 16 && (r.kind == 0 || gu == gv), || {
+            format!("PRIM[{i}]: bad grid {gu}×{gv}")
+        })?;
+        let (cells, verts) =
+            if r.kind == 0 { (gu * gv, (gu + 1) * (gv + 1)) } else { (gu * gu, (gu + 1) * (gu + 2) / 2) };
+        check(r.first_patch as u64 == next_patch && r.first_vertex as u64 == next_vertex, || {
+            format!("PRIM[{i}]: patches or vertices not contiguous")
+        })?;
         next_patch += cells;
         next_vertex += verts;
     }
@@ -573,12 +462,9 @@ fn validate_contents(v: &InetView<'_>, meta: &ArchiveMeta) -> Result<(), Archive
     })?;
     for (i, d) in v.directions.iter().enumerate() {
         check(finite(&d.direction), || format!("DIRS[{i}]: non-finite"))?;
-        check(
-            d.neighbours
-                .iter()
-                .all(|&n| n == u32::MAX || (n as usize) < nd),
-            || format!("DIRS[{i}]: neighbour out of range"),
-        )?;
+        check(d.neighbours.iter().all(|&n| n == u32::MAX || (n as usize) < nd), || {
+            format!("DIRS[{i}]: neighbour out of range")
+        })?;
     }
     for i in 0..p {
         check(
@@ -588,48 +474,30 @@ fn validate_contents(v: &InetView<'_>, meta: &ArchiveMeta) -> Result<(), Archive
                 && v.patch_area[i] >= 0.0,
             || format!("patch {i}: non-finite geometry"),
         )?;
-        check((v.patch_primitive[i] as usize) < v.primitives.len(), || {
-            format!("PPRM[{i}]: out of range")
+        check((v.patch_primitive[i] as usize) < v.primitives.len(), || format!("PPRM[{i}]: out of range"))?;
+        check(v.patch_corners[i].iter().all(|&c| c == u32::MAX || (c as usize) < nv), || {
+            format!("PCOR[{i}]: out of range")
         })?;
-        check(
-            v.patch_corners[i]
-                .iter()
-                .all(|&c| c == u32::MAX || (c as usize) < nv),
-            || format!("PCOR[{i}]: out of range"),
-        )?;
-        check(
-            v.patch_expected_hits[i].is_finite() && v.patch_expected_hits[i] >= 0.0,
-            || format!("PEXP[{i}]: bad value"),
-        )?;
+        check(v.patch_expected_hits[i].is_finite() && v.patch_expected_hits[i] >= 0.0, || {
+            format!("PEXP[{i}]: bad value")
+        })?;
     }
-    check(v.vertex_position.iter().all(|x| finite(x)), || {
-        "VPOS: non-finite vertex".into()
-    })?;
-    csr(
-        "ADJO",
-        v.adjacency_offsets.iter().map(|&x| x as u64),
-        v.adjacency.len(),
-    )?;
-    check(v.adjacency.iter().all(|&a| (a as usize) < p), || {
-        "ADJI: patch id out of range".into()
-    })?;
+    check(v.vertex_position.iter().all(|x| finite(x)), || "VPOS: non-finite vertex".into())?;
+    csr("ADJO", v.adjacency_offsets.iter().map(|&x| x as u64), v.adjacency.len())?;
+    check(v.adjacency.iter().all(|&a| (a as usize) < p), || "ADJI: patch id out of range".into())?;
     let ends = v.link_other.len();
     count("LWGT", v.link_weight.len(), ends)?;
     count("LDIR", v.link_direction.len(), ends)?;
-    check(b.link_end_count == ends as u64, || {
-        "BILD: link end count disagrees with LOTH".into()
-    })?;
+    check(b.link_end_count == ends as u64, || "BILD: link end count disagrees with LOTH".into())?;
     csr("LOFF", v.link_offsets.iter().copied(), ends)?;
-    check(v.link_other.iter().all(|&o| (o as usize) < p), || {
-        "LOTH: patch id out of range".into()
-    })?;
-    check(
-        v.link_weight.iter().all(|&w| w.is_finite() && w >= 0.0),
-        || "LWGT: weight negative or non-finite".into(),
-    )?;
-    check(v.link_direction.iter().all(|&d| (d as usize) < nd), || {
-        "LDIR: direction out of range".into()
-    })?;
+    check(v.link_other.iter().all(|&o| (o as usize) < p), || "LOTH: patch id out of range".into())?;
+    check(v.link_weight.iter().all(|&w| w.is_finite() && w >= 0.0), || "LWGT: weight negative or non-finite".into())?;
+    check(v.link_direction.iter().all(|&d| (d as usize) < nd), || "LDIR: direction out of range".into())?;
+    if let Some(buckets) = v.link_bucket {
+        count("LBKT", buckets.len(), ends)?;
+        let max = b.max_bucket as u8;
+        check(buckets.iter().all(|&k| k <= max), || format!("LBKT: bucket above BILD.max_bucket {max}"))?;
+    }
     Ok(())
 }
 
@@ -643,7 +511,5 @@ fn csr(name: &str, offsets: impl Iterator<Item = u64>, len: usize) -> Result<(),
         prev = o;
         first = false;
     }
-    check(prev == len as u64, || {
-        format!("{name}: last offset {prev} ≠ {len} entries")
-    })
+    check(prev == len as u64, || format!("{name}: last offset {prev} ≠ {len} entries"))
 }

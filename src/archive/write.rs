@@ -14,16 +14,13 @@ struct SectionWriter<W: Write + Seek> {
     out: W,
     position: u64,
     entries: Vec<SectionEntry>,
+    version_read: u32,
 }
 
 impl<W: Write + Seek> SectionWriter<W> {
     fn new(mut out: W) -> std::io::Result<Self> {
         out.write_all(&[0u8; layout::HEADER_SIZE])?;
-        Ok(Self {
-            out,
-            position: layout::HEADER_SIZE as u64,
-            entries: Vec::new(),
-        })
+        Ok(Self { out, position: layout::HEADER_SIZE as u64, entries: Vec::new(), version_read: layout::VERSION_READ })
     }
 
     fn pad_to(&mut self, align: u64) -> std::io::Result<()> {
@@ -37,14 +34,7 @@ impl<W: Write + Seek> SectionWriter<W> {
     /// Stores one section as is: `records` zero-copy readable.
     fn column<T: Pod>(&mut self, tag: Tag, records: &[T]) -> std::io::Result<()> {
         let bytes: &[u8] = cast_slice(records);
-        self.raw(
-            tag,
-            compression::NONE,
-            bytes,
-            bytes.len() as u64,
-            records.len() as u64,
-            size_of::<T>() as u32,
-        )
+        self.raw(tag, compression::NONE, bytes, bytes.len() as u64, records.len() as u64, size_of::<T>() as u32)
     }
 
     fn raw(
@@ -56,11 +46,8 @@ impl<W: Write + Seek> SectionWriter<W> {
         count: u64,
         record_size: u32,
     ) -> std::io::Result<()> {
-        let align = if stored.len() as u64 >= layout::LARGE_SECTION {
-            layout::PAGE_ALIGN
-        } else {
-            layout::SECTION_ALIGN
-        };
+        let align =
+            if stored.len() as u64 >= layout::LARGE_SECTION { layout::PAGE_ALIGN } else { layout::SECTION_ALIGN };
         self.pad_to(align)?;
         let mut hasher = Xxh3::new();
         // Large columns are written in chunks so the hash streams with the write.
@@ -93,7 +80,7 @@ impl<W: Write + Seek> SectionWriter<W> {
         let mut header = HeaderRecord {
             magic: layout::MAGIC,
             version_write: layout::VERSION_WRITE,
-            version_read: layout::VERSION_READ,
+            version_read: self.version_read,
             header_size: layout::HEADER_SIZE as u32,
             flags: 0,
             file_length: self.position,
@@ -113,14 +100,14 @@ impl<W: Write + Seek> SectionWriter<W> {
 }
 
 fn write_all<W: Write + Seek>(out: W, c: &ArchiveContents) -> Result<W, ArchiveError> {
-    let io = |e: std::io::Error| ArchiveError::Io {
-        path: "<archive>".into(),
-        source: e,
-    };
+    let io = |e: std::io::Error| ArchiveError::Io { path: "<archive>".into(), source: e };
     let meta = rkyv::to_bytes::<rkyv::rancor::Error>(&c.meta)
         .map_err(|e| ArchiveError::corrupt(format!("cannot serialise META: {e}")))?;
     let meta_z = zstd::bulk::compress(&meta, 3).map_err(io)?;
     let mut w = SectionWriter::new(out).map_err(io)?;
+    if c.build.direction_set != 0 {
+        w.version_read = layout::VERSION_READ_RAY_SPACE;
+    }
     let mut sections = || -> std::io::Result<()> {
         w.column(tag::BUILD, std::slice::from_ref(&c.build))?;
         w.column(tag::CAMERA, std::slice::from_ref(&c.camera))?;
@@ -142,14 +129,8 @@ fn write_all<W: Write + Seek>(out: W, c: &ArchiveContents) -> Result<W, ArchiveE
         w.column(tag::LINK_OTHER, &c.link_other)?;
         w.column(tag::LINK_WEIGHT, &c.link_weight)?;
         w.column(tag::LINK_DIRECTION, &c.link_direction)?;
-        w.raw(
-            tag::META,
-            compression::ZSTD,
-            &meta_z,
-            meta.len() as u64,
-            1,
-            0,
-        )?;
+        w.column(tag::LINK_BUCKET, &c.link_bucket)?;
+        w.raw(tag::META, compression::ZSTD, &meta_z, meta.len() as u64, 1, 0)?;
         Ok(())
     };
     sections().map_err(io)?;
@@ -164,15 +145,8 @@ pub fn write(path: &Path, contents: &ArchiveContents) -> Result<u64, ArchiveErro
         Some(p) if !p.as_os_str().is_empty() => p,
         _ => Path::new("."),
     };
-    let io = |e: std::io::Error| ArchiveError::Io {
-        path: path.into(),
-        source: e,
-    };
-    let tmp = tempfile::Builder::new()
-        .prefix(".illumnet-")
-        .suffix(".tmp")
-        .tempfile_in(dir)
-        .map_err(io)?;
+    let io = |e: std::io::Error| ArchiveError::Io { path: path.into(), source: e };
+    let tmp = tempfile::Builder::new().prefix(".illumnet-").suffix(".tmp").tempfile_in(dir).map_err(io)?;
     let (file, tmp_path) = tmp.into_parts();
     let buffered = std::io::BufWriter::with_capacity(1 << 20, file);
     let buffered = write_all(buffered, contents).map_err(|e| match e {

@@ -7,6 +7,11 @@
 //! with no atomics and a deterministic summation order. The rejected
 //! alternative, one record per link scattered to both ends, needs atomics or
 //! per-thread copies of the patch state.
+//!
+//! A patch's ends are grouped by bucket (ascending), then by pair and the
+//! bundle's `(a, b)` order, so the distribution accumulates each bucket's
+//! run in registers (accumulating into a bucket slot chosen per end measured
+//! 2.5× slower: a store-to-load dependency per end).
 
 use super::trace::Bundle;
 
@@ -20,53 +25,53 @@ pub struct LinkTable {
     pub weight: Vec<f32>,
     /// Direction light leaves the owner along.
     pub direction: Vec<u32>,
+    /// Bucket (§3.4) of the light the owner receives over the link.
+    pub bucket: Vec<u8>,
 }
 
-/// Builds the table; entries of a patch are ordered by pair, then by the
-/// bundle's `(a, b)` order.
-pub fn assemble(bundles: &[Bundle], patch_count: usize) -> LinkTable {
-    let mut count = vec![0u64; patch_count + 1];
+/// Builds the table (see the module docs for the order).
+pub fn assemble(bundles: &[Bundle], patch_count: usize, max_bucket: u32) -> LinkTable {
+    let nb = max_bucket as usize + 1;
+    // Ends per (patch, bucket).
+    let mut count = vec![0u64; patch_count * nb];
     for b in bundles {
-        for (&x, &y) in b.a.iter().zip(&b.b) {
-            count[x as usize] += 1;
-            count[y as usize] += 1;
+        for i in 0..b.a.len() {
+            count[b.a[i] as usize * nb + b.bucket_a[i] as usize] += 1;
+            count[b.b[i] as usize * nb + b.bucket_b[i] as usize] += 1;
         }
     }
     let mut offsets = Vec::with_capacity(patch_count + 1);
+    let mut cursor = vec![0u64; patch_count * nb];
     let mut sum = 0u64;
-    for c in &count[..patch_count] {
+    for p in 0..patch_count {
         offsets.push(sum);
-        sum += c;
+        for k in 0..nb {
+            cursor[p * nb + k] = sum;
+            sum += count[p * nb + k];
+        }
     }
     offsets.push(sum);
     let n = sum as usize;
     let mut other = vec![0u32; n];
     let mut weight = vec![0f32; n];
     let mut direction = vec![0u32; n];
-    let mut cursor: Vec<u64> = offsets[..patch_count].to_vec();
+    let mut bucket = vec![0u8; n];
     for bundle in bundles {
         for i in 0..bundle.a.len() {
-            let (a, b, w) = (
-                bundle.a[i] as usize,
-                bundle.b[i] as usize,
-                bundle.w[i] as f32,
-            );
-            let ca = cursor[a] as usize;
-            other[ca] = b as u32;
-            weight[ca] = w;
-            direction[ca] = 2 * bundle.pair;
-            cursor[a] += 1;
-            let cb = cursor[b] as usize;
-            other[cb] = a as u32;
-            weight[cb] = w;
-            direction[cb] = 2 * bundle.pair + 1;
-            cursor[b] += 1;
+            let w = bundle.w[i] as f32;
+            for (me, them, k, dir) in [
+                (bundle.a[i], bundle.b[i], bundle.bucket_a[i], 2 * bundle.pair),
+                (bundle.b[i], bundle.a[i], bundle.bucket_b[i], 2 * bundle.pair + 1),
+            ] {
+                let slot = &mut cursor[me as usize * nb + k as usize];
+                let e = *slot as usize;
+                other[e] = them;
+                weight[e] = w;
+                direction[e] = dir;
+                bucket[e] = k;
+                *slot += 1;
+            }
         }
     }
-    LinkTable {
-        offsets,
-        other,
-        weight,
-        direction,
-    }
+    LinkTable { offsets, other, weight, direction, bucket }
 }

@@ -18,15 +18,14 @@ mod trace;
 
 use std::time::Instant;
 
-pub use settings::BuildSettings;
+pub use settings::{BuildSettings, DEFAULT_MAX_BUCKET, MAX_BUCKET, ray_space_divisions};
 pub use trace::BundleStats;
 
 use crate::archive::layout::{
-    self, BuildRecord, CameraRecord, DirectionRecord, MaterialRecord, PrimitiveRecord,
-    SurfaceRecord,
+    self, BuildRecord, CameraRecord, DirectionRecord, MaterialRecord, PrimitiveRecord, SurfaceRecord,
 };
 use crate::archive::{ArchiveContents, ArchiveMeta};
-use crate::geodesic::DirectionSet;
+use crate::geodesic::{DirectionSet, DirectionSetKind};
 use crate::geometry::Primitive;
 use crate::patch::Patches;
 use crate::progress::Progress;
@@ -63,35 +62,40 @@ pub fn build(
 ) -> Result<(ArchiveContents, BuildStats), String> {
     settings.validate()?;
     let t0 = Instant::now();
-    let dirs = DirectionSet::new(settings.frequency)?;
+    let dirs = match settings.direction_set {
+        DirectionSetKind::Geodesic => DirectionSet::new(settings.frequency)?,
+        DirectionSetKind::RaySpace => crate::geodesic::ray_space(ray_space_divisions(settings.frequency))?,
+    };
     let prims: Vec<Primitive> = scene.primitives().map(|(_, p)| *p).collect();
     let prim_surface: Vec<u32> = scene.primitives().map(|(s, _)| s).collect();
-    let patches = Patches::new(&prims, settings.patch_size)?;
+    let patches = Patches::new(&prims, &prim_surface, settings.patch_size)?;
     let setup_s = t0.elapsed().as_secs_f64();
 
     let t1 = Instant::now();
-    let traced = trace::trace_all(&prims, &patches, &dirs, settings.ray_spacing, progress)?;
+    let traced = trace::trace_all(&prims, &patches, &dirs, settings.ray_spacing, settings.max_bucket, progress)?;
     let trace_s = t1.elapsed().as_secs_f64();
 
     let t2 = Instant::now();
-    let table = links::assemble(&traced.bundles, patches.len());
+    let table = links::assemble(&traced.bundles, patches.len(), settings.max_bucket);
     let assemble_s = t2.elapsed().as_secs_f64();
 
-    // Expected hits from geometry: A · Σ_d max(0, n·d) / δ².
-    let delta2 = (settings.ray_spacing as f64).powi(2);
+    // Expected hits from geometry: a patch of area A and normal n is crossed
+    // by A·|n·d_k|·density_k rays of pair k (both directions of the pair).
+    let densities: Vec<f64> =
+        (0..dirs.len() as u32 / 2).map(|k| trace::layout(&dirs, settings.ray_spacing, k).density).collect();
     let coverage: Vec<f64> = prims
         .iter()
         .map(|p| {
-            let n = p.normal();
-            dirs.directions
+            let n = p.normal().as_dvec3();
+            densities
                 .iter()
-                .map(|d| (n.x * d[0] + n.y * d[1] + n.z * d[2]).max(0.0) as f64)
+                .enumerate()
+                .map(|(k, rho)| n.dot(glam::DVec3::from(dirs.directions[2 * k].map(f64::from))).abs() * rho)
                 .sum()
         })
         .collect();
-    let expected: Vec<f32> = (0..patches.len())
-        .map(|i| (patches.area[i] as f64 * coverage[patches.primitive[i] as usize] / delta2) as f32)
-        .collect();
+    let expected: Vec<f32> =
+        (0..patches.len()).map(|i| (patches.area[i] as f64 * coverage[patches.primitive[i] as usize]) as f32).collect();
 
     let mut surfaces = Vec::with_capacity(scene.surfaces.len());
     let mut first = 0u32;
@@ -114,11 +118,7 @@ pub fn build(
             ReflectanceModel::Diffuse { reflectance } => {
                 let mut params = [0.0; 14];
                 params[..3].copy_from_slice(&reflectance);
-                MaterialRecord {
-                    model: layout::model::DIFFUSE,
-                    reserved: 0,
-                    params,
-                }
+                MaterialRecord { model: layout::model::DIFFUSE, reserved: 0, params }
             }
         })
         .collect();
@@ -142,11 +142,7 @@ pub fn build(
         .iter()
         .zip(&dirs.neighbours)
         .zip(&dirs.solid_angle)
-        .map(|((d, n), &w)| DirectionRecord {
-            direction: *d,
-            solid_angle_sr: w as f32,
-            neighbours: *n,
-        })
+        .map(|((d, n), &w)| DirectionRecord { direction: *d, solid_angle_sr: w as f32, neighbours: *n })
         .collect();
     let c = &scene.camera;
     let stats = BuildStats {
@@ -162,7 +158,7 @@ pub fn build(
     };
     let contents = ArchiveContents {
         build: BuildRecord {
-            frequency: settings.frequency,
+            frequency: dirs.frequency,
             direction_count: dirs.len() as u32,
             patch_count: patches.len() as u32,
             vertex_count: patches.vertex_position.len() as u32,
@@ -170,9 +166,10 @@ pub fn build(
             surface_count: scene.surfaces.len() as u32,
             material_count: scene.materials.len() as u32,
             link_merge: layout::merge::PATCH_PAIR_DIRECTION,
+            direction_set: dirs.kind as u32,
+            max_bucket: settings.max_bucket,
             ray_spacing_m: settings.ray_spacing,
             patch_size_m: settings.patch_size,
-            reserved0: [0; 2],
             ray_count: traced.stats.rays,
             link_count: traced.stats.links,
             link_end_count: table.other.len() as u64,
@@ -205,6 +202,7 @@ pub fn build(
         link_other: table.other,
         link_weight: table.weight,
         link_direction: table.direction,
+        link_bucket: table.bucket,
         meta: ArchiveMeta {
             generator: format!("illumnet {}", env!("CARGO_PKG_VERSION")),
             scene: scene.name.clone(),

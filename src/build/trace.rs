@@ -11,7 +11,7 @@ use std::sync::atomic::{AtomicU32, Ordering};
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
 
-use crate::geodesic::DirectionSet;
+use crate::geodesic::{DirectionSet, DirectionSetKind};
 use crate::geometry::Primitive;
 use crate::geometry::accel::PrimitiveBvh;
 use crate::patch::Patches;
@@ -21,8 +21,8 @@ use crate::progress::Progress;
 pub const MAX_RAYS: u64 = 1 << 34;
 
 /// Links of one direction pair, merged: `a` faces along the pair's first
-/// direction `d`, `b` faces back along `−d`, `w` parallel rays joined them.
-/// Sorted by `(a, b)`.
+/// direction `d`, `b` faces back along `−d`, `w` parallel rays with the same
+/// buckets joined them. Sorted by `(a, b, bucket_a, bucket_b)`.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct Bundle {
     /// Index `k` of the pair (directions `2k` and `2k+1`).
@@ -33,6 +33,10 @@ pub struct Bundle {
     pub b: Vec<u32>,
     /// Number of rays merged into the link.
     pub w: Vec<u32>,
+    /// Bucket of the end at `a` (light received by `a` over this link).
+    pub bucket_a: Vec<u8>,
+    /// Bucket of the end at `b`.
+    pub bucket_b: Vec<u8>,
 }
 
 /// Counts from tracing.
@@ -56,11 +60,13 @@ pub struct Traced {
     pub stats: BundleStats,
 }
 
-/// The ray grid of one direction.
+/// The ray grid of one direction: ray `(i, j)` starts at
+/// `origin + e1·(i + offset.x)·step + e2·(j + offset.y)·step`.
 struct Grid {
     origin: Vec3,
     e1: Vec3,
     e2: Vec3,
+    step: f32,
     i0: i64,
     j0: i64,
     nu: u64,
@@ -68,42 +74,18 @@ struct Grid {
     offset: Vec2,
 }
 
-fn grid_for(dir: Vec3, pair: u32, lo: Vec3, hi: Vec3, delta: f32) -> Grid {
-    let centre = (lo + hi) * 0.5;
-    let radius = (hi - lo).length() * 0.5;
-    let (e1, e2) = dir.any_orthonormal_pair();
-    // R2 sequence (Roberts 2018): plastic-number increments, fractional parts.
-    const G: f64 = 1.324_717_957_244_746;
-    let offset = Vec2::new(
-        (0.5 + pair as f64 / G).fract() as f32,
-        (0.5 + pair as f64 / (G * G)).fract() as f32,
-    );
-    let (mut u0, mut u1, mut v0, mut v1) = (f32::MAX, f32::MIN, f32::MAX, f32::MIN);
-    for c in 0..8 {
-        let p = Vec3::new(
-            if c & 1 == 0 { lo.x } else { hi.x },
-            if c & 2 == 0 { lo.y } else { hi.y },
-            if c & 4 == 0 { lo.z } else { hi.z },
-        ) - centre;
-        u0 = u0.min(p.dot(e1));
-        u1 = u1.max(p.dot(e1));
-        v0 = v0.min(p.dot(e2));
-        v1 = v1.max(p.dot(e2));
-    }
-    let i0 = ((u0 / delta - offset.x).floor() as i64) - 1;
-    let i1 = ((u1 / delta - offset.x).ceil() as i64) + 1;
-    let j0 = ((v0 / delta - offset.y).floor() as i64) - 1;
-    let j1 = ((v1 / delta - offset.y).ceil() as i64) + 1;
-    Grid {
-        origin: centre - dir * (radius * 1.01 + delta),
-        e1,
-        e2,
-        i0,
-        j0,
-        nu: (i1 - i0 + 1) as u64,
-        nv: (j1 - j0 + 1) as u64,
-        offset,
-    }
+/// How a direction's rays are laid out, and how many cross a unit area
+/// perpendicular to the direction.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BundleLayout {
+    /// Spacing of the grid in its own plane (m).
+    pub step: f32,
+    /// For ray-space bundles, the axis of the common intercept plane.
+    pub intercept_axis: Option<usize>,
+    /// Rays per m² perpendicular to the direction.
+    pub density: f64,
+    /// Solid angle the direction stands for (sr).
+    pub solid_angle: f64,
 }
 
 /// Ray spacing for a direction whose Voronoi cell is `omega` sr: every ray
@@ -112,6 +94,114 @@ fn grid_for(dir: Vec3, pair: u32, lo: Vec3, hi: Vec3, delta: f32) -> Grid {
 /// directions.
 pub fn spacing(delta: f32, omega: f64, mean: f64) -> f32 {
     (delta as f64 * (mean / omega).sqrt()) as f32
+}
+
+/// The layout of pair `k`'s bundle. Geodesic sets get a grid perpendicular
+/// to the direction with the étendue-equalising [`spacing`]; the ray-space
+/// baseline gets the 1989 layout, `δ` apart in the intercept plane normal to
+/// the direction's cube axis, so its rays are denser by `1/cos` (§3.2).
+pub fn layout(dirs: &DirectionSet, delta: f32, k: u32) -> BundleLayout {
+    let d = dirs.directions[2 * k as usize];
+    let omega = dirs.solid_angle[2 * k as usize];
+    match dirs.kind {
+        DirectionSetKind::Geodesic => {
+            let step = spacing(delta, omega, dirs.mean_solid_angle());
+            BundleLayout { step, intercept_axis: None, density: 1.0 / (step as f64).powi(2), solid_angle: omega }
+        }
+        DirectionSetKind::RaySpace => {
+            let axis = (0..3).max_by(|&a, &b| d[a].abs().total_cmp(&d[b].abs())).unwrap_or(0);
+            let cos = d[axis].abs() as f64;
+            BundleLayout {
+                step: delta,
+                intercept_axis: Some(axis),
+                density: 1.0 / ((delta as f64).powi(2) * cos),
+                solid_angle: omega,
+            }
+        }
+    }
+}
+
+fn grid_for(dir: Vec3, pair: u32, lo: Vec3, hi: Vec3, layout: &BundleLayout) -> Grid {
+    let centre = (lo + hi) * 0.5;
+    let radius = (hi - lo).length() * 0.5;
+    let step = layout.step;
+    // For ray-space bundles, points are projected along the direction onto
+    // the intercept plane through the centre (normal e_a): (e_a, d·e_a).
+    let (e1, e2, offset, reach, intercept) = match layout.intercept_axis {
+        None => {
+            let (e1, e2) = dir.any_orthonormal_pair();
+            // R2 sequence (Roberts 2018): plastic-number increments, fractional
+            // parts; decorrelates the grids of neighbouring directions.
+            const G: f64 = 1.324_717_957_244_746;
+            let offset =
+                Vec2::new((0.5 + pair as f64 / G).fract() as f32, (0.5 + pair as f64 / (G * G)).fract() as f32);
+            (e1, e2, offset, radius, None)
+        }
+        Some(a) => {
+            let mut axes = [Vec3::X, Vec3::Y, Vec3::Z];
+            let ea = axes[a];
+            axes.rotate_left(a);
+            let cos = dir.dot(ea);
+            // Common intercept points: every direction of a face uses one grid.
+            (axes[1], axes[2], Vec2::splat(0.5), radius / cos.abs(), Some((ea, cos)))
+        }
+    };
+    let project = |p: Vec3| match intercept {
+        None => p,
+        Some((ea, cos)) => p - dir * (p.dot(ea) / cos),
+    };
+    let (mut u0, mut u1, mut v0, mut v1) = (f32::MAX, f32::MIN, f32::MAX, f32::MIN);
+    for c in 0..8 {
+        let p = Vec3::new(
+            if c & 1 == 0 { lo.x } else { hi.x },
+            if c & 2 == 0 { lo.y } else { hi.y },
+            if c & 4 == 0 { lo.z } else { hi.z },
+        ) - centre;
+        let q = project(p);
+        u0 = u0.min(q.dot(e1));
+        u1 = u1.max(q.dot(e1));
+        v0 = v0.min(q.dot(e2));
+        v1 = v1.max(q.dot(e2));
+    }
+    let i0 = ((u0 / step - offset.x).floor() as i64) - 1;
+    let i1 = ((u1 / step - offset.x).ceil() as i64) + 1;
+    let j0 = ((v0 / step - offset.y).floor() as i64) - 1;
+    let j1 = ((v1 / step - offset.y).ceil() as i64) + 1;
+    Grid {
+        origin: centre - dir * (reach * 1.01 + step),
+        e1,
+        e2,
+        step,
+        i0,
+        j0,
+        nu: (i1 - i0 + 1) as u64,
+        nv: (j1 - j0 + 1) as u64,
+        offset,
+    }
+}
+
+/// Ring sizes of a square patch grid: patches within Manhattan distance `b`.
+fn ring_size(b: u32) -> f64 {
+    (2 * b * b + 2 * b + 1) as f64
+}
+
+/// The bucket (§3.4) of a link end: the widest ring of patches whose area
+/// does not exceed the beam's footprint on the receiving patch. A ray stands
+/// for a beam of cross-section `1/density` spreading over the direction's
+/// solid angle `Ω`, so at distance `r` it covers about `(√(1/density) + r√Ω)²`,
+/// divided by `|cos θ|` on the receiver.
+pub fn bucket(layout: &BundleLayout, distance: f32, cos_receiver: f32, area_receiver: f32, max_bucket: u32) -> u8 {
+    if max_bucket == 0 || area_receiver <= 0.0 {
+        return 0;
+    }
+    let width = (1.0 / layout.density).sqrt() + distance as f64 * layout.solid_angle.sqrt();
+    let footprint = width * width / (cos_receiver.abs() as f64).max(1e-3);
+    let patches = footprint / area_receiver as f64;
+    let mut b = 0;
+    while b < max_bucket && ring_size(b + 1) <= patches {
+        b += 1;
+    }
+    b as u8
 }
 
 #[derive(Clone, Copy)]
@@ -127,6 +217,7 @@ pub fn trace_all(
     patches: &Patches,
     dirs: &DirectionSet,
     delta: f32,
+    max_bucket: u32,
     progress: &dyn Progress,
 ) -> Result<Traced, String> {
     let (mut lo, mut hi) = (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN));
@@ -137,11 +228,10 @@ pub fn trace_all(
     }
     let pairs = (dirs.len() / 2) as u32;
     let dir_of = |k: u32| Vec3::from(dirs.directions[2 * k as usize]);
-    let mean = dirs.mean_solid_angle();
-    let spacing_of = |k: u32| spacing(delta, dirs.solid_angle[2 * k as usize], mean);
+    let layouts: Vec<BundleLayout> = (0..pairs).map(|k| layout(dirs, delta, k)).collect();
     let total_rays: u64 = (0..pairs)
         .map(|k| {
-            let g = grid_for(dir_of(k), k, lo, hi, spacing_of(k));
+            let g = grid_for(dir_of(k), k, lo, hi, &layouts[k as usize]);
             g.nu * g.nv
         })
         .sum();
@@ -158,15 +248,13 @@ pub fn trace_all(
     let results: Vec<(Bundle, BundleStats)> = (0..pairs)
         .into_par_iter()
         .map_init(
-            || (Vec::<RayHitRecord>::new(), Vec::<u64>::new()),
+            || (Vec::<RayHitRecord>::new(), Vec::<(u64, u8, u8)>::new()),
             |(ray_hits, keys), k| {
                 let d = dir_of(k);
-                let delta = spacing_of(k);
-                let g = grid_for(d, k, lo, hi, delta);
-                let mut stats = BundleStats {
-                    rays: g.nu * g.nv,
-                    ..Default::default()
-                };
+                let lay = &layouts[k as usize];
+                let g = grid_for(d, k, lo, hi, lay);
+                let delta = g.step;
+                let mut stats = BundleStats { rays: g.nu * g.nv, ..Default::default() };
                 keys.clear();
                 for jj in 0..g.nv {
                     let v = ((g.j0 + jj as i64) as f32 + g.offset.y) * delta;
@@ -175,27 +263,21 @@ pub fn trace_all(
                         let origin = g.origin + g.e1 * u + g.e2 * v;
                         ray_hits.clear();
                         bvh.all_hits(origin, d, |h| {
-                            ray_hits.push(RayHitRecord {
-                                t: h.hit.t,
-                                primitive: h.primitive,
-                                uv: h.hit.uv,
-                            })
+                            ray_hits.push(RayHitRecord { t: h.hit.t, primitive: h.primitive, uv: h.hit.uv })
                         });
                         if ray_hits.is_empty() {
                             continue;
                         }
-                        ray_hits.sort_unstable_by(|x, y| {
-                            x.t.total_cmp(&y.t).then(x.primitive.cmp(&y.primitive))
-                        });
+                        ray_hits.sort_unstable_by(|x, y| x.t.total_cmp(&y.t).then(x.primitive.cmp(&y.primitive)));
                         // Walk the hits in order: (patch, facing) of the previous kept hit.
-                        let mut prev: Option<(u32, f32, u32, bool)> = None; // (patch, t, primitive, faces +d)
+                        let mut prev: Option<(u32, f32, u32, bool, f32)> = None; // (patch, t, primitive, faces +d, cos)
                         for h in ray_hits.iter() {
                             let cos = normals[h.primitive as usize].dot(d);
                             if cos == 0.0 {
                                 continue;
                             }
                             let forward = cos > 0.0;
-                            if let Some((_, pt, pp, pf)) = prev {
+                            if let Some((_, pt, pp, pf, _)) = prev {
                                 // One crossing reported twice (shared edge of one primitive
                                 // set): keep the first.
                                 if h.t - pt <= eps_t
@@ -211,23 +293,27 @@ pub fn trace_all(
                             hits[patch as usize].fetch_add(1, Ordering::Relaxed);
                             stats.hits += 1;
                             // A link: the previous hit faces down the ray, this one faces back.
-                            if let (Some((prev_patch, _, _, true)), false) = (prev, forward) {
-                                keys.push(((prev_patch as u64) << 32) | patch as u64);
+                            if let (Some((prev_patch, pt, _, true, pcos)), false) = (prev, forward) {
+                                // Buckets: each end's footprint from its own incidence.
+                                let r = h.t - pt;
+                                let ba = bucket(lay, r, pcos, patches.area[prev_patch as usize], max_bucket);
+                                let bb = bucket(lay, r, cos, patches.area[patch as usize], max_bucket);
+                                keys.push((((prev_patch as u64) << 32) | patch as u64, ba, bb));
                             }
-                            prev = Some((patch, h.t, h.primitive, forward));
+                            prev = Some((patch, h.t, h.primitive, forward, cos));
                         }
                     }
                 }
                 stats.links = keys.len() as u64;
                 keys.sort_unstable();
-                let mut bundle = Bundle {
-                    pair: k,
-                    ..Default::default()
-                };
+                let mut bundle = Bundle { pair: k, ..Default::default() };
                 for run in keys.chunk_by(|x, y| x == y) {
-                    bundle.a.push((run[0] >> 32) as u32);
-                    bundle.b.push(run[0] as u32);
+                    let (key, ba, bb) = run[0];
+                    bundle.a.push((key >> 32) as u32);
+                    bundle.b.push(key as u32);
                     bundle.w.push(run.len() as u32);
+                    bundle.bucket_a.push(ba);
+                    bundle.bucket_b.push(bb);
                 }
                 progress.advance(1);
                 (bundle, stats)
@@ -243,9 +329,70 @@ pub fn trace_all(
         stats.links += s.links;
         bundles.push(b);
     }
-    Ok(Traced {
-        bundles,
-        hits: hits.into_iter().map(AtomicU32::into_inner).collect(),
-        stats,
-    })
+    Ok(Traced { bundles, hits: hits.into_iter().map(AtomicU32::into_inner).collect(), stats })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geodesic::ray_space;
+
+    /// Rays of pair `k`'s bundle that cross a square of side `side` centred at
+    /// the origin, perpendicular to the direction.
+    fn rays_through_square(dirs: &DirectionSet, delta: f32, k: u32, side: f32) -> (u64, Vec3) {
+        let d = Vec3::from(dirs.directions[2 * k as usize]);
+        let (lo, hi) = (Vec3::splat(-1.0), Vec3::splat(1.0));
+        let lay = layout(dirs, delta, k);
+        let g = grid_for(d, k, lo, hi, &lay);
+        let (e1, e2) = d.any_orthonormal_pair();
+        let mut n = 0;
+        for j in 0..g.nv {
+            for i in 0..g.nu {
+                let o = g.origin
+                    + g.e1 * ((g.i0 + i as i64) as f32 + g.offset.x) * g.step
+                    + g.e2 * ((g.j0 + j as i64) as f32 + g.offset.y) * g.step;
+                // Where the ray crosses the plane through the origin perpendicular to d.
+                let x = o - d * o.dot(d);
+                if x.dot(e1).abs() < side / 2.0 && x.dot(e2).abs() < side / 2.0 {
+                    n += 1;
+                }
+            }
+        }
+        (n, d)
+    }
+
+    #[test]
+    fn ray_space_rays_are_denser_by_one_over_cos_on_oblique_directions() {
+        // See: issue #3. §3.2: common intercept points make oblique rays denser.
+        let dirs = ray_space(8).unwrap();
+        let delta = 0.01;
+        let side = 1.0;
+        // The most oblique direction and the most normal one.
+        let cos_of = |k: u32| {
+            let d = dirs.directions[2 * k as usize];
+            d.iter().fold(0.0f32, |m, x| m.max(x.abs()))
+        };
+        let pairs = dirs.len() as u32 / 2;
+        let oblique = (0..pairs).min_by(|&a, &b| cos_of(a).total_cmp(&cos_of(b))).unwrap();
+        let normal = (0..pairs).max_by(|&a, &b| cos_of(a).total_cmp(&cos_of(b))).unwrap();
+        let (n_obl, _) = rays_through_square(&dirs, delta, oblique, side);
+        let (n_nrm, _) = rays_through_square(&dirs, delta, normal, side);
+        let expect = |k: u32| side * side / (delta * delta * cos_of(k));
+        for (n, k) in [(n_obl, oblique), (n_nrm, normal)] {
+            assert!((n as f32 / expect(k) - 1.0).abs() < 0.02, "pair {k}: {n} rays, predicted {}", expect(k));
+        }
+        // The bias between the two: 1/cos θ of the oblique direction (≈ 1.6 here).
+        let predicted = cos_of(normal) / cos_of(oblique);
+        let measured = n_obl as f32 / n_nrm as f32;
+        assert!(predicted > 1.5, "{predicted}");
+        assert!((measured / predicted - 1.0).abs() < 0.03, "bias {measured}, predicted {predicted}");
+
+        // Geodesic bundles: the same density 1/δ_k² in every direction.
+        let geo = DirectionSet::new(8).unwrap();
+        for k in [0, 77, 160] {
+            let (n, _) = rays_through_square(&geo, delta, k, side);
+            let lay = layout(&geo, delta, k);
+            assert!((n as f64 / lay.density - 1.0).abs() < 0.02, "geodesic pair {k}: {n} vs {}", lay.density);
+        }
+    }
 }

@@ -7,6 +7,7 @@ use anyhow::{Context, Result, bail};
 use illumnet::archive::{self, Archive, tag_name};
 use illumnet::build::{self, BuildSettings};
 use illumnet::distribute::{self, DistributeOptions};
+use illumnet::geodesic::DirectionSetKind;
 use illumnet::progress::Progress;
 use illumnet::render::{self, RenderOptions, image_io};
 use illumnet::scene::{BuildHints, Scene};
@@ -14,20 +15,14 @@ use illumnet::scene::{BuildHints, Scene};
 use super::{BuildArgs, RenderArgs};
 
 fn hints(a: BuildArgs) -> BuildHints {
-    BuildHints {
-        patch_size: a.patch_size,
-        frequency: a.frequency,
-        ray_spacing: a.ray_spacing,
-    }
+    BuildHints { patch_size: a.patch_size, frequency: a.frequency, ray_spacing: a.ray_spacing, buckets: a.buckets }
 }
 
-fn build_scene(
-    scene: &Scene,
-    output: &Path,
-    args: BuildArgs,
-    progress: &dyn Progress,
-) -> Result<()> {
-    let settings = BuildSettings::resolve(scene, hints(args));
+fn build_scene(scene: &Scene, output: &Path, args: BuildArgs, progress: &dyn Progress) -> Result<()> {
+    let mut settings = BuildSettings::resolve(scene, hints(args));
+    if args.ray_space {
+        settings.direction_set = DirectionSetKind::RaySpace;
+    }
     let t = Instant::now();
     let (contents, stats) = build::build(scene, &settings, progress).map_err(anyhow::Error::msg)?;
     let bytes = archive::write(output, &contents)?;
@@ -52,13 +47,7 @@ pub fn build(scene: &Path, output: &Path, args: BuildArgs, progress: &dyn Progre
     build_scene(&scene, output, args, progress)
 }
 
-pub fn render(
-    path: &Path,
-    png: &Path,
-    exr: Option<&Path>,
-    args: RenderArgs,
-    progress: &dyn Progress,
-) -> Result<()> {
+pub fn render(path: &Path, png: &Path, exr: Option<&Path>, args: RenderArgs, progress: &dyn Progress) -> Result<()> {
     if !(args.tolerance > 0.0 && args.tolerance < 1.0) {
         bail!("--tolerance must be in (0, 1), got {}", args.tolerance);
     }
@@ -69,10 +58,7 @@ pub fn render(
     let archive = Archive::open(path).with_context(|| format!("cannot open {}", path.display()))?;
     let view = archive.view();
     let t_open = t.elapsed().as_secs_f64();
-    let opts = DistributeOptions {
-        tolerance: args.tolerance,
-        ..Default::default()
-    };
+    let opts = DistributeOptions { tolerance: args.tolerance, ..Default::default() };
     let t1 = Instant::now();
     let solution = distribute::distribute(&view, &opts, progress);
     let t_dist = t1.elapsed().as_secs_f64();
@@ -86,20 +72,10 @@ pub fn render(
         sum(&b.residual),
         b.imbalance(),
         b.iterations,
-        if b.converged {
-            ""
-        } else {
-            " (NOT converged: raise the iteration limit or the tolerance)"
-        }
+        if b.converged { "" } else { " (NOT converged: raise the iteration limit or the tolerance)" }
     );
     let t2 = Instant::now();
-    let image = render::render(
-        &view,
-        &solution.radiance,
-        &RenderOptions {
-            samples_per_axis: args.samples,
-        },
-    );
+    let image = render::render(&view, &solution.radiance, &RenderOptions { samples_per_axis: args.samples });
     let t_render = t2.elapsed().as_secs_f64();
     image_io::write_png(&image, png, args.exposure).map_err(anyhow::Error::msg)?;
     if let Some(exr) = exr {
@@ -109,8 +85,7 @@ pub fn render(
     println!(
         "rendered {}{}: {}×{}, open {:.3} s, distribution {:.3} s ({:.0} M link ends/s), render {:.3} s",
         png.display(),
-        exr.map(|e| format!(" and {}", e.display()))
-            .unwrap_or_default(),
+        exr.map(|e| format!(" and {}", e.display())).unwrap_or_default(),
         image.width,
         image.height,
         t_open,
@@ -175,10 +150,7 @@ pub fn inspect(path: &Path, json: bool) -> Result<()> {
         h.version_write,
         h.version_read
     );
-    println!(
-        "  written by {}, scene `{}`, {} bytes",
-        meta.generator, meta.scene, h.file_length
-    );
+    println!("  written by {}, scene `{}`, {} bytes", meta.generator, meta.scene, h.file_length);
     println!(
         "  {} directions (f = {}), {} patches, {} vertices, {} primitives, {} surfaces, {} materials",
         b.direction_count,
@@ -218,12 +190,7 @@ pub fn inspect(path: &Path, json: bool) -> Result<()> {
     Ok(())
 }
 
-pub fn compare(
-    image: &Path,
-    reference: &Path,
-    heatmap: Option<&Path>,
-    full_scale: f32,
-) -> Result<()> {
+pub fn compare(image: &Path, reference: &Path, heatmap: Option<&Path>, full_scale: f32) -> Result<()> {
     let a = image_io::read_exr(image).map_err(anyhow::Error::msg)?;
     let r = image_io::read_exr(reference).map_err(anyhow::Error::msg)?;
     let (err, map) = image_io::compare(&a, &r).map_err(anyhow::Error::msg)?;
@@ -232,31 +199,16 @@ pub fn compare(
         err.relative_l2, err.relative_mse, err.mean_abs, err.pixels
     );
     if let Some(path) = heatmap {
-        image_io::write_heatmap(a.width, a.height, &map, full_scale, path)
-            .map_err(anyhow::Error::msg)?;
-        println!(
-            "wrote heat map {} (white = relative error ≥ {full_scale})",
-            path.display()
-        );
+        image_io::write_heatmap(a.width, a.height, &map, full_scale, path).map_err(anyhow::Error::msg)?;
+        println!("wrote heat map {} (white = relative error ≥ {full_scale})", path.display());
     }
     Ok(())
 }
 
-pub fn demo(
-    dir: &Path,
-    build_args: BuildArgs,
-    render_args: RenderArgs,
-    progress: &dyn Progress,
-) -> Result<()> {
+pub fn demo(dir: &Path, build_args: BuildArgs, render_args: RenderArgs, progress: &dyn Progress) -> Result<()> {
     std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     let scene = Scene::cornell_box();
     let archive = dir.join("cornell_box.inet");
     build_scene(&scene, &archive, build_args, progress)?;
-    render(
-        &archive,
-        &dir.join("cornell_box.png"),
-        Some(&dir.join("cornell_box.exr")),
-        render_args,
-        progress,
-    )
+    render(&archive, &dir.join("cornell_box.png"), Some(&dir.join("cornell_box.exr")), render_args, progress)
 }

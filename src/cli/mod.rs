@@ -38,6 +38,16 @@ struct BuildArgs {
     /// Distance between parallel rays in metres.
     #[arg(long, value_name = "M")]
     ray_spacing: Option<f32>,
+    /// Widest bucket of §3.4 (0 = off; default 1): light arriving over a
+    /// link whose footprint covers many patches is spread over a ring of them.
+    #[arg(long, value_name = "K")]
+    buckets: Option<u32>,
+    /// BASELINE FOR MEASUREMENT ONLY, not a supported mode: build with the
+    /// 1989 ray-space directions (uniform slopes over cube faces, rays through
+    /// common intercept-plane points, no 1/cos correction) instead of the
+    /// geodesic set, with about as many directions as --frequency gives.
+    #[arg(long)]
+    ray_space: bool,
 }
 
 #[derive(Args, Clone, Copy)]
@@ -117,38 +127,22 @@ enum Command {
 pub fn main() -> ExitCode {
     let cli = Cli::parse();
     if let Some(n) = cli.threads
-        && let Err(e) = rayon::ThreadPoolBuilder::new()
-            .num_threads(n)
-            .build_global()
+        && let Err(e) = rayon::ThreadPoolBuilder::new().num_threads(n).build_global()
     {
         eprintln!("illumnet: error: cannot start {n} threads: {e}");
         return ExitCode::FAILURE;
     }
     let progress = progress_bar::BarProgress::new(cli.quiet);
     let result = match cli.command {
-        Command::Build {
-            scene,
-            output,
-            settings,
-        } => commands::build(&scene, &output, settings, &progress),
-        Command::Render {
-            archive,
-            output,
-            exr,
-            render,
-        } => commands::render(&archive, &output, exr.as_deref(), render, &progress),
+        Command::Build { scene, output, settings } => commands::build(&scene, &output, settings, &progress),
+        Command::Render { archive, output, exr, render } => {
+            commands::render(&archive, &output, exr.as_deref(), render, &progress)
+        }
         Command::Inspect { archive, json } => commands::inspect(&archive, json),
-        Command::Compare {
-            image,
-            reference,
-            heatmap,
-            full_scale,
-        } => commands::compare(&image, &reference, heatmap.as_deref(), full_scale),
-        Command::Demo {
-            output,
-            settings,
-            render,
-        } => commands::demo(&output, settings, render, &progress),
+        Command::Compare { image, reference, heatmap, full_scale } => {
+            commands::compare(&image, &reference, heatmap.as_deref(), full_scale)
+        }
+        Command::Demo { output, settings, render } => commands::demo(&output, settings, render, &progress),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

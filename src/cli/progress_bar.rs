@@ -14,10 +14,7 @@ pub struct BarProgress {
 
 impl BarProgress {
     pub fn new(quiet: bool) -> Self {
-        Self {
-            quiet,
-            bar: Mutex::new(None),
-        }
+        Self { quiet, bar: Mutex::new(None) }
     }
 }
 
@@ -36,10 +33,7 @@ impl Progress for BarProgress {
             b
         } else {
             let b = ProgressBar::new_spinner();
-            b.set_style(
-                ProgressStyle::with_template("{msg:28} {spinner} {pos} iterations")
-                    .expect("valid template"),
-            );
+            b.set_style(ProgressStyle::with_template("{msg:28} {spinner} {pos} iterations").expect("valid template"));
             b.enable_steady_tick(Duration::from_millis(100));
             b
         };

@@ -21,6 +21,8 @@
 //! state it gathers from is 16 bytes per patch, cache-resident for scenes of
 //! up to ~10⁵ patches.
 
+mod buckets;
+
 use rayon::prelude::*;
 
 use crate::archive::InetView;
@@ -38,15 +40,14 @@ pub struct DistributeOptions {
     /// link carries `U_p/E[H_p]` and irradiance uses the geometric area: the
     /// uncorrected method, kept for measurement.
     pub patch_size_correction: bool,
+    /// Spread light over the rings of neighbours its link end's bucket names
+    /// (§3.4), when the archive has buckets (default on).
+    pub buckets: bool,
 }
 
 impl Default for DistributeOptions {
     fn default() -> Self {
-        Self {
-            tolerance: 1e-4,
-            max_iterations: 1000,
-            patch_size_correction: true,
-        }
+        Self { tolerance: 1e-4, max_iterations: 1000, patch_size_correction: true, buckets: true }
     }
 }
 
@@ -73,11 +74,7 @@ impl EnergyBalance {
     pub fn imbalance(&self) -> f64 {
         let s = |a: &[f64; 3]| a.iter().sum::<f64>();
         let e = s(&self.emitted);
-        if e == 0.0 {
-            0.0
-        } else {
-            (e - s(&self.absorbed) - s(&self.escaped) - s(&self.residual)) / e
-        }
+        if e == 0.0 { 0.0 } else { (e - s(&self.absorbed) - s(&self.escaped) - s(&self.residual)) / e }
     }
 }
 
@@ -112,30 +109,62 @@ pub fn patch_materials(v: &InetView<'_>) -> (Vec<[f32; 3]>, Vec<[f32; 3]>) {
 const BLOCK: usize = 512;
 
 /// Gathers `recv[q] = Σ w·shoot[other]` over each patch's link ends.
-fn gather(
+fn gather(offsets: &[u64], other: &[u32], weight: &[f32], shoot: &[[f32; 4]], recv: &mut [[f32; 4]]) {
+    recv.par_chunks_mut(BLOCK).enumerate().for_each(|(block, out)| {
+        let first = block * BLOCK;
+        for (i, r) in out.iter_mut().enumerate() {
+            let q = first + i;
+            let (a, b) = (offsets[q] as usize, offsets[q + 1] as usize);
+            let mut acc = [0.0f32; 4];
+            for (&o, &w) in other[a..b].iter().zip(&weight[a..b]) {
+                let s = shoot[o as usize];
+                for c in 0..4 {
+                    acc[c] += w * s[c];
+                }
+            }
+            *r = acc;
+        }
+    });
+}
+
+/// Like [`gather`], but sorts what arrives into buckets: `recv[q·B + k]`
+/// holds the light patch `q` received over ends of bucket `k` (B = buckets).
+fn gather_buckets(
     offsets: &[u64],
     other: &[u32],
     weight: &[f32],
+    bucket: &[u8],
+    buckets: usize,
     shoot: &[[f32; 4]],
     recv: &mut [[f32; 4]],
 ) {
-    recv.par_chunks_mut(BLOCK)
-        .enumerate()
-        .for_each(|(block, out)| {
-            let first = block * BLOCK;
-            for (i, r) in out.iter_mut().enumerate() {
-                let q = first + i;
-                let (a, b) = (offsets[q] as usize, offsets[q + 1] as usize);
+    recv.par_chunks_mut(BLOCK * buckets).enumerate().for_each(|(block, out)| {
+        let first = block * BLOCK;
+        for (i, r) in out.chunks_exact_mut(buckets).enumerate() {
+            let q = first + i;
+            let (a, b) = (offsets[q] as usize, offsets[q + 1] as usize);
+            // Ends come grouped by bucket (build::links): accumulate each run
+            // in registers. Buckets are validated to be < `buckets`.
+            r.fill([0.0; 4]);
+            let mut e = a;
+            while e < b {
+                let k = bucket[e];
                 let mut acc = [0.0f32; 4];
-                for (&o, &w) in other[a..b].iter().zip(&weight[a..b]) {
-                    let s = shoot[o as usize];
+                while e < b && bucket[e] == k {
+                    let s = shoot[other[e] as usize];
+                    let w = weight[e];
                     for c in 0..4 {
                         acc[c] += w * s[c];
                     }
+                    e += 1;
                 }
-                *r = acc;
+                let slot = &mut r[k as usize];
+                for c in 0..4 {
+                    slot[c] += acc[c];
+                }
             }
-        });
+        }
+    });
 }
 
 /// Runs the energy balance on an archive's links.
@@ -147,11 +176,7 @@ pub fn distribute(v: &InetView<'_>, opts: &DistributeOptions, progress: &dyn Pro
     let mut area_eff = vec![0.0f32; n];
     let mut linked = vec![0.0f64; n];
     for p in 0..n {
-        let (h, hx, a) = (
-            v.patch_hits[p] as f32,
-            v.patch_expected_hits[p],
-            v.patch_area[p],
-        );
+        let (h, hx, a) = (v.patch_hits[p] as f32, v.patch_expected_hits[p], v.patch_area[p]);
         if opts.patch_size_correction {
             share[p] = if h > 0.0 { 1.0 / h } else { 0.0 };
             area_eff[p] = if h > 0.0 && hx > 0.0 { a * h / hx } else { a };
@@ -162,6 +187,11 @@ pub fn distribute(v: &InetView<'_>, opts: &DistributeOptions, progress: &dyn Pro
         let (_, w, _) = v.link_ends(p);
         linked[p] = w.iter().map(|&x| x as f64).sum();
     }
+    // Buckets (§3.4): rings of neighbours to spread light over.
+    let bucket_column = v.link_bucket.filter(|_| opts.buckets && v.build.max_bucket > 0);
+    let nb = bucket_column.map_or(1, |_| v.build.max_bucket as usize + 1);
+    let rings = bucket_column.map(|_| buckets::Rings::new(v.adjacency_offsets, v.adjacency, nb - 1));
+
     let mut unshot: Vec<[f32; 4]> = (0..n)
         .map(|p| {
             let k = std::f32::consts::PI * v.patch_area[p];
@@ -175,9 +205,13 @@ pub fn distribute(v: &InetView<'_>, opts: &DistributeOptions, progress: &dyn Pro
         }
     }
     let emitted_total: f64 = bal.emitted.iter().sum();
-    let mut total_recv = vec![[0.0f32; 4]; n];
+    // Received power, split into what hit the patch itself (bucket 0, whose
+    // density follows the patch's hit count) and what was spread onto it.
+    let mut total_direct = vec![[0.0f32; 4]; n];
+    let mut total_spread = vec![[0.0f32; 4]; n];
     let mut shoot = vec![[0.0f32; 4]; n];
-    let mut recv = vec![[0.0f32; 4]; n];
+    let mut recv = vec![[0.0f32; 4]; n * nb];
+    let mut spread = vec![[0.0f32; 4]; n];
     progress.start("distributing light", 0);
     let mut residual_total = emitted_total;
     while residual_total > opts.tolerance * emitted_total && bal.iterations < opts.max_iterations {
@@ -189,18 +223,23 @@ pub fn distribute(v: &InetView<'_>, opts: &DistributeOptions, progress: &dyn Pro
                 bal.escaped[c] += unshot[p][c] as f64 * escape;
             }
         }
-        gather(
-            v.link_offsets,
-            v.link_other,
-            v.link_weight,
-            &shoot,
-            &mut recv,
-        );
+        match (bucket_column, &rings) {
+            (Some(bk), Some(rings)) => {
+                gather_buckets(v.link_offsets, v.link_other, v.link_weight, bk, nb, &shoot, &mut recv);
+                rings.spread(&recv, nb, &mut spread);
+            }
+            _ => {
+                gather(v.link_offsets, v.link_other, v.link_weight, &shoot, &mut recv);
+                spread.fill([0.0; 4]);
+            }
+        }
         residual_total = 0.0;
         for p in 0..n {
             for c in 0..3 {
-                let r = recv[p][c];
-                total_recv[p][c] += r;
+                let direct = recv[p * nb][c];
+                let r = direct + spread[p][c];
+                total_direct[p][c] += direct;
+                total_spread[p][c] += spread[p][c];
                 let reflected = r * rho[p][c];
                 unshot[p][c] = reflected;
                 bal.absorbed[c] += (r - reflected) as f64;
@@ -217,20 +256,14 @@ pub fn distribute(v: &InetView<'_>, opts: &DistributeOptions, progress: &dyn Pro
         }
     }
     bal.converged = residual_total <= opts.tolerance * emitted_total;
+    let inv_pi = 1.0 / std::f32::consts::PI;
     let radiance = (0..n)
         .map(|p| {
-            let k = if area_eff[p] > 0.0 {
-                1.0 / (std::f32::consts::PI * area_eff[p])
-            } else {
-                0.0
-            };
-            [0, 1, 2].map(|c| emit[p][c] + rho[p][c] * total_recv[p][c] * k)
+            let kd = if area_eff[p] > 0.0 { inv_pi / area_eff[p] } else { 0.0 };
+            let ks = if v.patch_area[p] > 0.0 { inv_pi / v.patch_area[p] } else { 0.0 };
+            [0, 1, 2].map(|c| emit[p][c] + rho[p][c] * (total_direct[p][c] * kd + total_spread[p][c] * ks))
         })
         .collect();
-    let received = total_recv.iter().map(|r| [r[0], r[1], r[2]]).collect();
-    Solution {
-        radiance,
-        received,
-        balance: bal,
-    }
+    let received = (0..n).map(|p| [0, 1, 2].map(|c| total_direct[p][c] + total_spread[p][c])).collect();
+    Solution { radiance, received, balance: bal }
 }

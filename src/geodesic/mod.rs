@@ -15,17 +15,34 @@
 //! `(a·A + b·B + c·C)/f` of icosahedron corners, keyed by those integers, so
 //! shared edge vertices are found without floating-point tolerances.
 
+mod ray_space;
+
 use std::collections::BTreeMap;
+
+pub use ray_space::ray_space;
 
 use glam::DVec3;
 
 /// Largest supported frequency (`10·80² + 2 = 64 002` directions).
 pub const MAX_FREQUENCY: u32 = 80;
 
+/// Which construction a [`DirectionSet`] came from. The discriminants are the
+/// on-disk values (`format-spec/archive.md`, `BILD.direction_set`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[repr(u32)]
+pub enum DirectionSetKind {
+    /// Icosahedral geodesic set (§3.3), `10f² + 2` directions.
+    Geodesic = 0,
+    /// The 1989 ray-space baseline (§3.2), `6m²` directions; see [`ray_space`].
+    RaySpace = 1,
+}
+
 /// The geodesic direction set with neighbour lists.
 #[derive(Debug, Clone)]
 pub struct DirectionSet {
-    /// Subdivision frequency `f`.
+    /// How the set was made.
+    pub kind: DirectionSetKind,
+    /// Subdivision frequency `f` (ray-space: slope divisions `m`).
     pub frequency: u32,
     /// Unit directions; `directions[2k+1] == -directions[2k]`.
     pub directions: Vec<[f32; 3]>,
@@ -76,11 +93,7 @@ fn icosahedron() -> (Vec<DVec3>, Vec<[usize; 3]>) {
             for c in b + 1..12 {
                 if adjacent(a, b) && adjacent(b, c) && adjacent(a, c) {
                     let n = (v[b] - v[a]).cross(v[c] - v[a]);
-                    faces.push(if n.dot(v[a]) > 0.0 {
-                        [a, b, c]
-                    } else {
-                        [a, c, b]
-                    });
+                    faces.push(if n.dot(v[a]) > 0.0 { [a, b, c] } else { [a, c, b] });
                 }
             }
         }
@@ -101,20 +114,13 @@ impl DirectionSet {
     /// Builds the set for frequency `f` (1 ≤ f ≤ [`MAX_FREQUENCY`]).
     pub fn new(frequency: u32) -> Result<Self, String> {
         if frequency == 0 || frequency > MAX_FREQUENCY {
-            return Err(format!(
-                "direction frequency must be in 1..={MAX_FREQUENCY}, got {frequency}"
-            ));
+            return Err(format!("direction frequency must be in 1..={MAX_FREQUENCY}, got {frequency}"));
         }
         let f = frequency;
         let (corners, faces) = icosahedron();
         // Antipodal corner of each corner.
-        let anti: Vec<u8> = (0..12)
-            .map(|a| {
-                (0..12)
-                    .find(|&b| (corners[a] + corners[b]).length() < 1e-9)
-                    .unwrap() as u8
-            })
-            .collect();
+        let anti: Vec<u8> =
+            (0..12).map(|a| (0..12).find(|&b| (corners[a] + corners[b]).length() < 1e-9).unwrap() as u8).collect();
         // Spherical (slerp-like) weights: exact great-circle spacing along
         // the icosahedron's edges and far more even cells inside the faces
         // than projecting the flat subdivision (cell-size ratio 1.93 at f = 16).
@@ -130,13 +136,8 @@ impl DirectionSet {
         let mut keys: BTreeMap<Key, u32> = BTreeMap::new();
         let mut tris: Vec<[Key; 3]> = Vec::new();
         for face in &faces {
-            let key = |i: u32, j: u32| {
-                make_key(vec![
-                    (face[0] as u8, f - i - j),
-                    (face[1] as u8, i),
-                    (face[2] as u8, j),
-                ])
-            };
+            let key =
+                |i: u32, j: u32| make_key(vec![(face[0] as u8, f - i - j), (face[1] as u8, i), (face[2] as u8, j)]);
             for j in 0..f {
                 for i in 0..f - j {
                     tris.push([key(i, j), key(i + 1, j), key(i, j + 1)]);
@@ -152,14 +153,8 @@ impl DirectionSet {
             }
         }
         // Pair each key with its antipode; number pairs in key order.
-        let antikey = |k: &Key| {
-            make_key(
-                k.iter()
-                    .filter(|p| p.0 != u8::MAX)
-                    .map(|&(c, w)| (anti[c as usize], w))
-                    .collect(),
-            )
-        };
+        let antikey =
+            |k: &Key| make_key(k.iter().filter(|p| p.0 != u8::MAX).map(|&(c, w)| (anti[c as usize], w)).collect());
         let mut directions = Vec::with_capacity(keys.len());
         let all: Vec<Key> = keys.keys().copied().collect();
         for k in &all {
@@ -193,11 +188,7 @@ impl DirectionSet {
             // Counter-clockwise around d seen from outside: sort by angle in
             // the tangent plane with basis (e1, e2 = d × e1).
             let dir = directions[d];
-            let helper = if dir.x.abs() < 0.9 {
-                DVec3::X
-            } else {
-                DVec3::Y
-            };
+            let helper = if dir.x.abs() < 0.9 { DVec3::X } else { DVec3::Y };
             let e1 = (helper - dir * dir.dot(helper)).normalize();
             let e2 = dir.cross(e1);
             set.sort_by(|&a, &b| {
@@ -211,12 +202,8 @@ impl DirectionSet {
             neighbours[d][..set.len()].copy_from_slice(set);
         }
         let directions = directions.iter().map(|p| p.as_vec3().to_array()).collect();
-        let mut set = Self {
-            frequency: f,
-            directions,
-            neighbours,
-            solid_angle: Vec::new(),
-        };
+        let mut set =
+            Self { kind: DirectionSetKind::Geodesic, frequency: f, directions, neighbours, solid_angle: Vec::new() };
         set.solid_angle = set.voronoi_cells();
         Ok(set)
     }
@@ -238,10 +225,7 @@ impl DirectionSet {
 
     /// The neighbours of direction `index` (5 or 6 of them).
     pub fn neighbours_of(&self, index: usize) -> impl Iterator<Item = u32> + '_ {
-        self.neighbours[index]
-            .iter()
-            .copied()
-            .filter(|&n| n != u32::MAX)
+        self.neighbours[index].iter().copied().filter(|&n| n != u32::MAX)
     }
 
     /// Solid angle each direction stands for if the set were perfectly even (4π/N).
@@ -271,11 +255,16 @@ impl DirectionSet {
                         if cc.dot(c) < 0.0 { -cc } else { cc }
                     })
                     .collect();
-                (0..m)
-                    .map(|k| tri_area(c, centres[k], centres[(k + 1) % m]))
-                    .sum()
+                (0..m).map(|k| tri_area(c, centres[k], centres[(k + 1) % m])).sum()
             })
             .collect()
+    }
+
+    /// Ratio of the largest to the smallest direction cell.
+    pub fn uniformity_of_cells(&self) -> f64 {
+        let max = self.solid_angle.iter().copied().fold(0.0, f64::max);
+        let min = self.solid_angle.iter().copied().fold(f64::MAX, f64::min);
+        max / min
     }
 
     /// Measures cell sizes and neighbour spacing.
@@ -323,16 +312,10 @@ mod tests {
                 assert!(n.len() == 5 || n.len() == 6);
                 fives += (n.len() == 5) as u32;
                 for &j in &n {
-                    assert!(
-                        s.neighbours_of(j as usize).any(|k| k == i as u32),
-                        "symmetric"
-                    );
+                    assert!(s.neighbours_of(j as usize).any(|k| k == i as u32), "symmetric");
                 }
             }
-            assert_eq!(
-                fives, 12,
-                "only the icosahedron's corners have five neighbours"
-            );
+            assert_eq!(fives, 12, "only the icosahedron's corners have five neighbours");
         }
     }
 
@@ -340,10 +323,7 @@ mod tests {
     fn voronoi_cells_tile_the_sphere_and_are_even() {
         let s = DirectionSet::new(16).unwrap();
         let u = s.uniformity();
-        assert!(
-            (u.cell_sum_sr - 4.0 * std::f64::consts::PI).abs() < 1e-6,
-            "{u:?}"
-        );
+        assert!((u.cell_sum_sr - 4.0 * std::f64::consts::PI).abs() < 1e-6, "{u:?}");
         // Measured 1.235 at f = 16 (docs/GEODESIC.md); projecting the flat
         // subdivision instead gives 1.93.
         assert!(u.cell_max_sr / u.cell_min_sr < 1.25, "{u:?}");

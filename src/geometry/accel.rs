@@ -52,18 +52,10 @@ impl PrimitiveBvh {
                 Aabb::new(Vec3A::from(a - pad), Vec3A::from(b + pad))
             })
             .collect();
-        let bvh = build_bvh2(
-            &aabbs,
-            BvhBuildParams::medium_build(),
-            &mut Duration::default(),
-        );
+        let bvh = build_bvh2(&aabbs, BvhBuildParams::medium_build(), &mut Duration::default());
         let original = bvh.primitive_indices.clone();
         let ordered = original.iter().map(|&i| primitives[i as usize]).collect();
-        Self {
-            bvh,
-            ordered,
-            original,
-        }
+        Self { bvh, ordered, original }
     }
 
     /// Calls `out` for every intersection of the full line through `origin`
@@ -74,10 +66,7 @@ impl PrimitiveBvh {
         self.bvh.ray_traverse_anyhit(ray, |r, id| {
             let prim = &self.ordered[id];
             if let Some(hit) = prim.intersect(origin, dir, r.tmin, r.tmax) {
-                out(PrimitiveHit {
-                    primitive: self.original[id],
-                    hit,
-                });
+                out(PrimitiveHit { primitive: self.original[id], hit });
             }
         });
     }
@@ -88,17 +77,12 @@ impl PrimitiveBvh {
         let ray = Ray::new(origin.into(), dir.into(), t_min, f32::INFINITY);
         let mut best: Option<PrimitiveHit> = None;
         let mut rh = RayHit::none();
-        self.bvh.ray_traverse(ray, &mut rh, |r, id| {
-            match self.ordered[id].intersect(origin, dir, r.tmin, r.tmax) {
-                Some(hit) => {
-                    best = Some(PrimitiveHit {
-                        primitive: self.original[id],
-                        hit,
-                    });
-                    hit.t
-                }
-                None => f32::INFINITY,
+        self.bvh.ray_traverse(ray, &mut rh, |r, id| match self.ordered[id].intersect(origin, dir, r.tmin, r.tmax) {
+            Some(hit) => {
+                best = Some(PrimitiveHit { primitive: self.original[id], hit });
+                hit.t
             }
+            None => f32::INFINITY,
         });
         best
     }

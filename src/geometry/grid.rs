@@ -91,12 +91,7 @@ impl PatchGrid {
             PrimitiveKind::Quad => {
                 let (i, j) = (cell % self.n_u, cell / self.n_u);
                 let w = self.n_u + 1;
-                [
-                    j * w + i,
-                    j * w + i + 1,
-                    (j + 1) * w + i + 1,
-                    (j + 1) * w + i,
-                ]
+                [j * w + i, j * w + i + 1, (j + 1) * w + i + 1, (j + 1) * w + i]
             }
             PrimitiveKind::Triangle => {
                 let k = self.n_u;
@@ -107,19 +102,9 @@ impl PatchGrid {
                 let r = cell - j * (2 * k - j);
                 let i = r / 2;
                 if r.is_multiple_of(2) {
-                    [
-                        self.tri_vertex(i, j),
-                        self.tri_vertex(i + 1, j),
-                        self.tri_vertex(i, j + 1),
-                        NO_VERTEX,
-                    ]
+                    [self.tri_vertex(i, j), self.tri_vertex(i + 1, j), self.tri_vertex(i, j + 1), NO_VERTEX]
                 } else {
-                    [
-                        self.tri_vertex(i + 1, j + 1),
-                        self.tri_vertex(i, j + 1),
-                        self.tri_vertex(i + 1, j),
-                        NO_VERTEX,
-                    ]
+                    [self.tri_vertex(i + 1, j + 1), self.tri_vertex(i, j + 1), self.tri_vertex(i + 1, j), NO_VERTEX]
                 }
             }
         }
@@ -231,11 +216,7 @@ mod tests {
     #[test]
     fn triangle_grid_locates_every_cell_centre_in_that_cell() {
         for k in 1..6 {
-            let g = PatchGrid {
-                kind: PrimitiveKind::Triangle,
-                n_u: k,
-                n_v: k,
-            };
+            let g = PatchGrid { kind: PrimitiveKind::Triangle, n_u: k, n_v: k };
             assert_eq!(g.vertex_count(), (k + 1) * (k + 2) / 2);
             for cell in 0..g.cell_count() {
                 let c = g.cell_corners(cell);
@@ -246,9 +227,7 @@ mod tests {
                 let w: f32 = loc.weights.iter().sum();
                 assert!((w - 1.0).abs() < 1e-5);
                 // Weights reproduce the point.
-                let p = (0..3)
-                    .map(|n| g.vertex_uv(c[n]) * loc.weights[n])
-                    .sum::<Vec2>();
+                let p = (0..3).map(|n| g.vertex_uv(c[n]) * loc.weights[n]).sum::<Vec2>();
                 assert!((p - centre).length() < 1e-5);
             }
         }
@@ -256,11 +235,7 @@ mod tests {
 
     #[test]
     fn quad_grid_cells_and_neighbours() {
-        let g = PatchGrid {
-            kind: PrimitiveKind::Quad,
-            n_u: 3,
-            n_v: 2,
-        };
+        let g = PatchGrid { kind: PrimitiveKind::Quad, n_u: 3, n_v: 2 };
         assert_eq!(g.cell_count(), 6);
         assert_eq!(g.vertex_count(), 12);
         let loc = g.locate(Vec2::new(0.5, 0.75));
@@ -268,11 +243,7 @@ mod tests {
         let mut n = Vec::new();
         g.cell_neighbours(4, &mut n);
         assert_eq!(n, vec![1, 3, 5]);
-        let tg = PatchGrid {
-            kind: PrimitiveKind::Triangle,
-            n_u: 2,
-            n_v: 2,
-        };
+        let tg = PatchGrid { kind: PrimitiveKind::Triangle, n_u: 2, n_v: 2 };
         tg.cell_neighbours(1, &mut n);
         assert_eq!(n.len(), 3, "the inverted middle cell touches all three");
     }

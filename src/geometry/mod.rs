@@ -51,18 +51,12 @@ pub struct SurfaceHit {
 impl Primitive {
     /// A quad from four corners, counter-clockwise seen from the front.
     pub fn quad(p: [Vec3; 4]) -> Self {
-        Self {
-            kind: PrimitiveKind::Quad,
-            p,
-        }
+        Self { kind: PrimitiveKind::Quad, p }
     }
 
     /// A triangle from three corners, counter-clockwise seen from the front.
     pub fn triangle(a: Vec3, b: Vec3, c: Vec3) -> Self {
-        Self {
-            kind: PrimitiveKind::Triangle,
-            p: [a, b, c, c],
-        }
+        Self { kind: PrimitiveKind::Triangle, p: [a, b, c, c] }
     }
 
     /// Unnormalised normal whose length is twice the area for triangles and
@@ -95,9 +89,7 @@ impl Primitive {
                     + u * v * self.p[2]
                     + (1.0 - u) * v * self.p[3]
             }
-            PrimitiveKind::Triangle => {
-                self.p[0] + u * (self.p[1] - self.p[0]) + v * (self.p[2] - self.p[0])
-            }
+            PrimitiveKind::Triangle => self.p[0] + u * (self.p[1] - self.p[0]) + v * (self.p[2] - self.p[0]),
         }
     }
 
@@ -126,27 +118,15 @@ impl Primitive {
     #[inline]
     pub fn intersect(&self, origin: Vec3, dir: Vec3, t_min: f32, t_max: f32) -> Option<SurfaceHit> {
         match self.kind {
-            PrimitiveKind::Triangle => {
-                intersect_triangle(self.p[0], self.p[1], self.p[2], origin, dir, t_min, t_max)
-            }
-            PrimitiveKind::Quad => {
-                intersect_quad(&self.p, self.raw_normal(), origin, dir, t_min, t_max)
-            }
+            PrimitiveKind::Triangle => intersect_triangle(self.p[0], self.p[1], self.p[2], origin, dir, t_min, t_max),
+            PrimitiveKind::Quad => intersect_quad(&self.p, self.raw_normal(), origin, dir, t_min, t_max),
         }
     }
 }
 
 /// Möller–Trumbore, two-sided, returning barycentrics `(b1, b2)` as `uv`.
 #[inline]
-fn intersect_triangle(
-    p0: Vec3,
-    p1: Vec3,
-    p2: Vec3,
-    o: Vec3,
-    d: Vec3,
-    t_min: f32,
-    t_max: f32,
-) -> Option<SurfaceHit> {
+fn intersect_triangle(p0: Vec3, p1: Vec3, p2: Vec3, o: Vec3, d: Vec3, t_min: f32, t_max: f32) -> Option<SurfaceHit> {
     let e1 = p1 - p0;
     let e2 = p2 - p0;
     let pv = d.cross(e2);
@@ -166,22 +146,12 @@ fn intersect_triangle(
         return None;
     }
     let t = e2.dot(qv) * inv;
-    (t > t_min && t < t_max).then_some(SurfaceHit {
-        t,
-        uv: Vec2::new(u, v),
-    })
+    (t > t_min && t < t_max).then_some(SurfaceHit { t, uv: Vec2::new(u, v) })
 }
 
 /// Plane intersection followed by the inverse of the bilinear map.
 #[inline]
-fn intersect_quad(
-    p: &[Vec3; 4],
-    n: Vec3,
-    o: Vec3,
-    d: Vec3,
-    t_min: f32,
-    t_max: f32,
-) -> Option<SurfaceHit> {
+fn intersect_quad(p: &[Vec3; 4], n: Vec3, o: Vec3, d: Vec3, t_min: f32, t_max: f32) -> Option<SurfaceHit> {
     let denom = d.dot(n);
     if denom == 0.0 || !denom.is_finite() {
         return None;
@@ -223,11 +193,7 @@ fn inverse_bilinear(x: Vec2, a: Vec2, b: Vec2, c: Vec2, d: Vec2) -> Option<Vec2>
     let in_range = |s: f32| (-EPS..=1.0 + EPS).contains(&s);
     let solve_u = |v: f32| {
         let den = e + g * v;
-        if den.x.abs() >= den.y.abs() {
-            (h.x - f.x * v) / den.x
-        } else {
-            (h.y - f.y * v) / den.y
-        }
+        if den.x.abs() >= den.y.abs() { (h.x - f.x * v) / den.x } else { (h.y - f.y * v) / den.y }
     };
     let candidates: [f32; 2] = if k2.abs() <= 1e-7 * k1.abs().max(f32::MIN_POSITIVE) {
         // Parallelogram (g = 0) or nearly so: the equation in v is linear.
@@ -276,17 +242,10 @@ mod tests {
                 let x = q.point(uv);
                 let hit = q.intersect(x + Vec3::Y, -Vec3::Y, 0.0, 10.0).expect("hit");
                 assert!((hit.t - 1.0).abs() < 1e-5);
-                assert!(
-                    (hit.uv - uv).abs().max_element() < 1e-4,
-                    "{uv} -> {}",
-                    hit.uv
-                );
+                assert!((hit.uv - uv).abs().max_element() < 1e-4, "{uv} -> {}", hit.uv);
             }
         }
-        assert!(
-            q.intersect(Vec3::new(0.0, 1.0, 0.0), -Vec3::Y, 0.0, 10.0)
-                .is_none()
-        );
+        assert!(q.intersect(Vec3::new(0.0, 1.0, 0.0), -Vec3::Y, 0.0, 10.0).is_none());
     }
 
     #[test]
@@ -294,13 +253,8 @@ mod tests {
         let t = Primitive::triangle(Vec3::ZERO, Vec3::X, Vec3::Z);
         assert!((t.area() - 0.5).abs() < 1e-6);
         assert!(t.normal().y < -0.999, "x × z = -y");
-        let h = t
-            .intersect(Vec3::new(0.25, 1.0, 0.5), -Vec3::Y, 0.0, 5.0)
-            .unwrap();
+        let h = t.intersect(Vec3::new(0.25, 1.0, 0.5), -Vec3::Y, 0.0, 5.0).unwrap();
         assert!((h.uv - Vec2::new(0.25, 0.5)).length() < 1e-6);
-        assert!(
-            t.intersect(Vec3::new(0.75, 1.0, 0.5), -Vec3::Y, 0.0, 5.0)
-                .is_none()
-        );
+        assert!(t.intersect(Vec3::new(0.75, 1.0, 0.5), -Vec3::Y, 0.0, 5.0).is_none());
     }
 }

@@ -7,10 +7,14 @@
 //! interpolated smoothly (§3.5). Adjacency (patches sharing an edge within a
 //! primitive) is a CSR table, for the buckets of §3.4.
 //!
-//! Adjacency does not yet cross primitive edges (e.g. between two coplanar
-//! quads of one wall): the bucket work extends it.
+//! Adjacency also crosses the edges between coplanar primitives of one
+//! surface (the four quads of the Cornell ceiling), where a cell's boundary
+//! edge overlaps another's over a positive length; it never crosses a crease,
+//! where spreading light would be wrong.
 
 use crate::geometry::grid::{NO_VERTEX, PatchGrid};
+use glam::Vec3;
+
 use crate::geometry::{Primitive, PrimitiveKind};
 
 /// Most patches a build may make (ids are `u32`; the rest is headroom).
@@ -62,59 +66,106 @@ pub fn grid_for(p: &Primitive, size: f32) -> PatchGrid {
         PrimitiveKind::Quad => {
             let lu = (p.p[1] - p.p[0]).length().max((p.p[2] - p.p[3]).length());
             let lv = (p.p[3] - p.p[0]).length().max((p.p[2] - p.p[1]).length());
-            PatchGrid {
-                kind: p.kind,
-                n_u: cells(lu, size),
-                n_v: cells(lv, size),
-            }
+            PatchGrid { kind: p.kind, n_u: cells(lu, size), n_v: cells(lv, size) }
         }
         PrimitiveKind::Triangle => {
-            let l = (p.p[1] - p.p[0])
-                .length()
-                .max((p.p[2] - p.p[0]).length())
-                .max((p.p[2] - p.p[1]).length());
+            let l = (p.p[1] - p.p[0]).length().max((p.p[2] - p.p[0]).length()).max((p.p[2] - p.p[1]).length());
             let k = cells(l, size);
-            PatchGrid {
-                kind: p.kind,
-                n_u: k,
-                n_v: k,
-            }
+            PatchGrid { kind: p.kind, n_u: k, n_v: k }
         }
     }
 }
 
+/// Boundary edges of a primitive's cells: `(patch, start, end)`.
+fn boundary_edges(prim: &Primitive, pp: &PrimitivePatches) -> Vec<(u32, Vec3, Vec3)> {
+    let g = pp.grid;
+    let mut out = Vec::new();
+    let at = |local_vertex: u32| prim.point(g.vertex_uv(local_vertex));
+    for cell in 0..g.cell_count() {
+        let c = g.cell_corners(cell);
+        let n = if c[3] == NO_VERTEX { 3 } else { 4 };
+        for k in 0..n {
+            let (v0, v1) = (c[k], c[(k + 1) % n]);
+            let (a, b) = (g.vertex_uv(v0), g.vertex_uv(v1));
+            // An edge lies on the primitive's boundary when both ends do, on one side.
+            let on_u0 = a.x == 0.0 && b.x == 0.0;
+            let on_v0 = a.y == 0.0 && b.y == 0.0;
+            let on_far = match prim.kind {
+                PrimitiveKind::Quad => (a.x == 1.0 && b.x == 1.0) || (a.y == 1.0 && b.y == 1.0),
+                PrimitiveKind::Triangle => (a.x + a.y - 1.0).abs() < 1e-6 && (b.x + b.y - 1.0).abs() < 1e-6,
+            };
+            if on_u0 || on_v0 || on_far {
+                out.push((pp.first_patch + cell, at(v0), at(v1)));
+            }
+        }
+    }
+    out
+}
+
+/// Pairs of patches of different, coplanar primitives of one surface whose
+/// boundary edges overlap over a positive length.
+fn coplanar_neighbours(prims: &[Primitive], surface_of: &[u32], patches: &Patches) -> Vec<(u32, u32)> {
+    let mut pairs = Vec::new();
+    let n = prims.len();
+    for i in 0..n {
+        for j in i + 1..n {
+            let (pi, pj) = (&prims[i], &prims[j]);
+            let (ni, nj) = (pi.normal(), pj.normal());
+            if surface_of[i] != surface_of[j] || ni.dot(nj) < 0.9999 {
+                continue;
+            }
+            let (lo_i, hi_i) = pi.bounds();
+            let (lo_j, hi_j) = pj.bounds();
+            let size = (hi_i - lo_i).length().max((hi_j - lo_j).length());
+            let eps = 1e-5 * size;
+            if (pj.p[0] - pi.p[0]).dot(ni).abs() > eps || lo_i.cmpgt(hi_j + eps).any() || lo_j.cmpgt(hi_i + eps).any() {
+                continue; // not coplanar, or too far apart to touch
+            }
+            let ei = boundary_edges(pi, &patches.primitives[i]);
+            let ej = boundary_edges(pj, &patches.primitives[j]);
+            for &(a, a0, a1) in &ei {
+                let len = (a1 - a0).length();
+                let dir = (a1 - a0) / len;
+                for &(b, b0, b1) in &ej {
+                    // Collinear: both ends of b on a's line.
+                    let off = |p: Vec3| (p - a0) - dir * (p - a0).dot(dir);
+                    if off(b0).length() > eps || off(b1).length() > eps {
+                        continue;
+                    }
+                    let (s0, s1) = ((b0 - a0).dot(dir), (b1 - a0).dot(dir));
+                    let overlap = s0.max(s1).min(len) - s0.min(s1).max(0.0);
+                    if overlap > eps {
+                        pairs.push((a, b));
+                    }
+                }
+            }
+        }
+    }
+    pairs
+}
+
 impl Patches {
-    /// Cuts `primitives` into patches of about `size` metres.
-    pub fn new(primitives: &[Primitive], size: f32) -> Result<Self, String> {
+    /// Cuts `primitives` (of surfaces `surface_of[i]`) into patches of about
+    /// `size` metres.
+    pub fn new(primitives: &[Primitive], surface_of: &[u32], size: f32) -> Result<Self, String> {
         let grids: Vec<PatchGrid> = primitives.iter().map(|p| grid_for(p, size)).collect();
         let total: u64 = grids.iter().map(|g| g.cell_count() as u64).sum();
         if total > MAX_PATCHES {
-            return Err(format!(
-                "patch size {size} m gives {total} patches, more than the {MAX_PATCHES} supported"
-            ));
+            return Err(format!("patch size {size} m gives {total} patches, more than the {MAX_PATCHES} supported"));
         }
         let mut out = Patches::default();
         let mut nb = Vec::new();
         for (pi, (prim, grid)) in primitives.iter().zip(&grids).enumerate() {
             let first_patch = out.area.len() as u32;
             let first_vertex = out.vertex_position.len() as u32;
-            out.primitives.push(PrimitivePatches {
-                grid: *grid,
-                first_patch,
-                first_vertex,
-            });
+            out.primitives.push(PrimitivePatches { grid: *grid, first_patch, first_vertex });
             for v in 0..grid.vertex_count() {
-                out.vertex_position
-                    .push(prim.point(grid.vertex_uv(v)).to_array());
+                out.vertex_position.push(prim.point(grid.vertex_uv(v)).to_array());
             }
             let normal = prim.normal().to_array();
             for cell in 0..grid.cell_count() {
                 let local = grid.cell_corners(cell);
-                let uv: Vec<_> = local
-                    .iter()
-                    .filter(|&&c| c != NO_VERTEX)
-                    .map(|&c| grid.vertex_uv(c))
-                    .collect();
+                let uv: Vec<_> = local.iter().filter(|&&c| c != NO_VERTEX).map(|&c| grid.vertex_uv(c)).collect();
                 let pts: Vec<_> = uv.iter().map(|&t| prim.point(t)).collect();
                 let (area, centre) = if pts.len() == 4 {
                     // Cells of a planar quad are planar quads with straight edges.
@@ -128,23 +179,27 @@ impl Patches {
                 out.normal.push(normal);
                 out.area.push(area);
                 out.primitive.push(pi as u32);
-                out.corners.push(local.map(|c| {
-                    if c == NO_VERTEX {
-                        NO_VERTEX
-                    } else {
-                        first_vertex + c
-                    }
-                }));
+                out.corners.push(local.map(|c| if c == NO_VERTEX { NO_VERTEX } else { first_vertex + c }));
             }
         }
-        // Adjacency, CSR.
-        out.adjacency_offsets.push(0);
+        // Adjacency: within each grid, then across coplanar primitive edges.
+        let mut lists: Vec<Vec<u32>> = Vec::with_capacity(out.len());
         for pp in &out.primitives {
             for cell in 0..pp.grid.cell_count() {
                 pp.grid.cell_neighbours(cell, &mut nb);
-                out.adjacency.extend(nb.iter().map(|&c| pp.first_patch + c));
-                out.adjacency_offsets.push(out.adjacency.len() as u32);
+                lists.push(nb.iter().map(|&c| pp.first_patch + c).collect());
             }
+        }
+        for (a, b) in coplanar_neighbours(primitives, surface_of, &out) {
+            lists[a as usize].push(b);
+            lists[b as usize].push(a);
+        }
+        out.adjacency_offsets.push(0);
+        for l in &mut lists {
+            l.sort_unstable();
+            l.dedup();
+            out.adjacency.extend_from_slice(l);
+            out.adjacency_offsets.push(out.adjacency.len() as u32);
         }
         Ok(out)
     }
@@ -169,32 +224,23 @@ mod tests {
     fn patch_areas_sum_to_surface_areas() {
         let scene = crate::scene::Scene::cornell_box();
         let prims: Vec<Primitive> = scene.primitives().map(|(_, p)| *p).collect();
-        let patches = Patches::new(&prims, 0.02).unwrap();
+        let surfaces: Vec<u32> = scene.primitives().map(|(s, _)| s).collect();
+        let patches = Patches::new(&prims, &surfaces, 0.02).unwrap();
         for (i, (prim, pp)) in prims.iter().zip(&patches.primitives).enumerate() {
             let n = pp.grid.cell_count() as usize;
-            let s: f64 = patches.area[pp.first_patch as usize..][..n]
-                .iter()
-                .map(|&a| a as f64)
-                .sum();
+            let s: f64 = patches.area[pp.first_patch as usize..][..n].iter().map(|&a| a as f64).sum();
             assert!(
                 (s - prim.area() as f64).abs() < 1e-6 * prim.area() as f64 + 1e-9,
                 "primitive {i}: {s} vs {}",
                 prim.area()
             );
         }
-        let tri = Primitive::triangle(
-            Vec3::ZERO,
-            Vec3::new(1.0, 0.0, 0.0),
-            Vec3::new(0.0, 0.0, -1.0),
-        );
-        let p = Patches::new(&[tri], 0.1).unwrap();
+        let tri = Primitive::triangle(Vec3::ZERO, Vec3::new(1.0, 0.0, 0.0), Vec3::new(0.0, 0.0, -1.0));
+        let p = Patches::new(&[tri], &[0], 0.1).unwrap();
         assert_eq!(p.len(), 14 * 14, "k = round(hypotenuse / size)");
         let s: f32 = p.area.iter().sum();
         assert!((s - 0.5).abs() < 1e-5);
         // Every interior quad patch has four neighbours, CSR is consistent.
-        assert_eq!(
-            *patches.adjacency_offsets.last().unwrap() as usize,
-            patches.adjacency.len()
-        );
+        assert_eq!(*patches.adjacency_offsets.last().unwrap() as usize, patches.adjacency.len());
     }
 }

@@ -42,9 +42,6 @@ impl PinholeCamera {
         let aspect = self.width as f32 / self.height as f32;
         let sx = (2.0 * x / self.width as f32 - 1.0) * aspect * self.tan_half_fov;
         let sy = (1.0 - 2.0 * y / self.height as f32) * self.tan_half_fov;
-        (
-            self.origin,
-            (self.forward + sx * self.right + sy * self.up).normalize(),
-        )
+        (self.origin, (self.forward + sx * self.right + sy * self.up).normalize())
     }
 }

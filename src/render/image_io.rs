@@ -11,11 +11,7 @@ use super::Image;
 /// The sRGB transfer function (IEC 61966-2-1) of a linear value in `[0, 1]`.
 pub fn srgb_encode(linear: f32) -> f32 {
     let x = linear.clamp(0.0, 1.0);
-    if x <= 0.003_130_8 {
-        12.92 * x
-    } else {
-        1.055 * x.powf(1.0 / 2.4) - 0.055
-    }
+    if x <= 0.003_130_8 { 12.92 * x } else { 1.055 * x.powf(1.0 / 2.4) - 0.055 }
 }
 
 fn save_atomic(
@@ -27,11 +23,7 @@ fn save_atomic(
         _ => Path::new("."),
     };
     let err = |e: &dyn std::fmt::Display| format!("{}: {e}", path.display());
-    let mut tmp = tempfile::Builder::new()
-        .prefix(".illumnet-")
-        .suffix(".tmp")
-        .tempfile_in(dir)
-        .map_err(|e| err(&e))?;
+    let mut tmp = tempfile::Builder::new().prefix(".illumnet-").suffix(".tmp").tempfile_in(dir).map_err(|e| err(&e))?;
     {
         let mut w = BufWriter::new(tmp.as_file_mut());
         write(&mut w).map_err(|e| err(&e))?;
@@ -45,40 +37,25 @@ fn save_atomic(
 /// Writes linear radiance as a 32-bit float RGB OpenEXR file.
 pub fn write_exr(image: &Image, path: &Path) -> Result<(), String> {
     let data: Vec<f32> = image.pixels.iter().flatten().copied().collect();
-    let img =
-        Rgb32FImage::from_raw(image.width, image.height, data).ok_or("image size mismatch")?;
+    let img = Rgb32FImage::from_raw(image.width, image.height, data).ok_or("image size mismatch")?;
     save_atomic(path, |w| img.write_to(w, ImageFormat::OpenExr))
 }
 
 /// Writes an 8-bit sRGB PNG: radiance times `exposure`, clamped to `[0, 1]`,
 /// sRGB-encoded.
 pub fn write_png(image: &Image, path: &Path, exposure: f32) -> Result<(), String> {
-    let data: Vec<u8> = image
-        .pixels
-        .iter()
-        .flatten()
-        .map(|&v| (srgb_encode(v * exposure) * 255.0 + 0.5) as u8)
-        .collect();
+    let data: Vec<u8> =
+        image.pixels.iter().flatten().map(|&v| (srgb_encode(v * exposure) * 255.0 + 0.5) as u8).collect();
     let img = RgbImage::from_raw(image.width, image.height, data).ok_or("image size mismatch")?;
     save_atomic(path, |w| img.write_to(w, ImageFormat::Png))
 }
 
 /// Reads an OpenEXR file as linear RGB (for comparisons with references).
 pub fn read_exr(path: &Path) -> Result<Image, String> {
-    let img = image::open(path)
-        .map_err(|e| format!("{}: {e}", path.display()))?
-        .into_rgb32f();
+    let img = image::open(path).map_err(|e| format!("{}: {e}", path.display()))?.into_rgb32f();
     let (width, height) = img.dimensions();
-    let pixels = img
-        .into_raw()
-        .chunks_exact(3)
-        .map(|c| [c[0], c[1], c[2]])
-        .collect();
-    Ok(Image {
-        width,
-        height,
-        pixels,
-    })
+    let pixels = img.into_raw().chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
+    Ok(Image { width, height, pixels })
 }
 
 /// Relative L2 error ‖a − ref‖ / ‖ref‖ over the RGB values of pixels whose
@@ -151,23 +128,12 @@ pub fn compare(image: &Image, reference: &Image) -> Result<(ImageError, Vec<f32>
 
 /// Writes a per-pixel error map as a PNG: black at 0, through red and
 /// yellow, to white at `full_scale` and above.
-pub fn write_heatmap(
-    width: u32,
-    height: u32,
-    values: &[f32],
-    full_scale: f32,
-    path: &Path,
-) -> Result<(), String> {
+pub fn write_heatmap(width: u32, height: u32, values: &[f32], full_scale: f32, path: &Path) -> Result<(), String> {
     let data: Vec<u8> = values
         .iter()
         .flat_map(|&v| {
             let t = (v / full_scale).clamp(0.0, 1.0) * 3.0;
-            [
-                t.min(1.0),
-                (t - 1.0).clamp(0.0, 1.0),
-                (t - 2.0).clamp(0.0, 1.0),
-            ]
-            .map(|c| (c * 255.0 + 0.5) as u8)
+            [t.min(1.0), (t - 1.0).clamp(0.0, 1.0), (t - 2.0).clamp(0.0, 1.0)].map(|c| (c * 255.0 + 0.5) as u8)
         })
         .collect();
     let img = RgbImage::from_raw(width, height, data).ok_or("image size mismatch")?;

@@ -64,9 +64,7 @@ pub struct RenderOptions {
 
 impl Default for RenderOptions {
     fn default() -> Self {
-        Self {
-            samples_per_axis: 4,
-        }
+        Self { samples_per_axis: 4 }
     }
 }
 
@@ -83,39 +81,19 @@ pub fn vertex_radiance(v: &InetView<'_>, patch_radiance: &[[f32; 3]]) -> Vec<[f3
             s[3] += a;
         }
     }
-    sum.iter()
-        .map(|s| {
-            if s[3] > 0.0 {
-                [0, 1, 2].map(|k| (s[k] / s[3]) as f32)
-            } else {
-                [0.0; 3]
-            }
-        })
-        .collect()
+    sum.iter().map(|s| if s[3] > 0.0 { [0, 1, 2].map(|k| (s[k] / s[3]) as f32) } else { [0.0; 3] }).collect()
 }
 
 fn primitive_of(r: &PrimitiveRecord) -> (Primitive, PatchGrid) {
-    let kind = if r.kind == 0 {
-        PrimitiveKind::Quad
-    } else {
-        PrimitiveKind::Triangle
-    };
+    let kind = if r.kind == 0 { PrimitiveKind::Quad } else { PrimitiveKind::Triangle };
     let p = r.corners.map(Vec3::from);
-    (
-        Primitive { kind, p },
-        PatchGrid {
-            kind,
-            n_u: r.grid_u,
-            n_v: r.grid_v,
-        },
-    )
+    (Primitive { kind, p }, PatchGrid { kind, n_u: r.grid_u, n_v: r.grid_v })
 }
 
 /// Renders the archive's camera view from per-patch radiance.
 pub fn render(v: &InetView<'_>, patch_radiance: &[[f32; 3]], opts: &RenderOptions) -> Image {
     let camera = PinholeCamera::from_record(v.camera);
-    let (prims, grids): (Vec<Primitive>, Vec<PatchGrid>) =
-        v.primitives.iter().map(primitive_of).unzip();
+    let (prims, grids): (Vec<Primitive>, Vec<PatchGrid>) = v.primitives.iter().map(primitive_of).unzip();
     let normals: Vec<Vec3> = prims.iter().map(|p| p.normal()).collect();
     let bvh = PrimitiveBvh::new(&prims);
     let vrad = vertex_radiance(v, patch_radiance);
@@ -123,40 +101,31 @@ pub fn render(v: &InetView<'_>, patch_radiance: &[[f32; 3]], opts: &RenderOption
     let inv = 1.0 / (n * n) as f32;
     let (w, h) = (camera.width, camera.height);
     let mut pixels = vec![[0.0f32; 3]; (w * h) as usize];
-    pixels
-        .par_chunks_mut(w as usize)
-        .enumerate()
-        .for_each(|(y, row)| {
-            for (x, px) in row.iter_mut().enumerate() {
-                let mut acc = Vec3::ZERO;
-                for sy in 0..n {
-                    for sx in 0..n {
-                        let s =
-                            Vec2::new((sx as f32 + 0.5) / n as f32, (sy as f32 + 0.5) / n as f32);
-                        let (o, d) = camera.ray(x as f32 + s.x, y as f32 + s.y);
-                        let Some(hit) = bvh.closest_hit(o, d, 0.0) else {
-                            continue;
-                        };
-                        let pi = hit.primitive as usize;
-                        if normals[pi].dot(d) >= 0.0 {
-                            continue; // back face: surfaces are one-sided
-                        }
-                        let loc = grids[pi].locate(hit.hit.uv);
-                        let first_vertex = v.primitives[pi].first_vertex;
-                        for k in 0..4 {
-                            if loc.corners[k] != NO_VERTEX && loc.weights[k] != 0.0 {
-                                acc += loc.weights[k]
-                                    * Vec3::from(vrad[(first_vertex + loc.corners[k]) as usize]);
-                            }
+    pixels.par_chunks_mut(w as usize).enumerate().for_each(|(y, row)| {
+        for (x, px) in row.iter_mut().enumerate() {
+            let mut acc = Vec3::ZERO;
+            for sy in 0..n {
+                for sx in 0..n {
+                    let s = Vec2::new((sx as f32 + 0.5) / n as f32, (sy as f32 + 0.5) / n as f32);
+                    let (o, d) = camera.ray(x as f32 + s.x, y as f32 + s.y);
+                    let Some(hit) = bvh.closest_hit(o, d, 0.0) else {
+                        continue;
+                    };
+                    let pi = hit.primitive as usize;
+                    if normals[pi].dot(d) >= 0.0 {
+                        continue; // back face: surfaces are one-sided
+                    }
+                    let loc = grids[pi].locate(hit.hit.uv);
+                    let first_vertex = v.primitives[pi].first_vertex;
+                    for k in 0..4 {
+                        if loc.corners[k] != NO_VERTEX && loc.weights[k] != 0.0 {
+                            acc += loc.weights[k] * Vec3::from(vrad[(first_vertex + loc.corners[k]) as usize]);
                         }
                     }
                 }
-                *px = (acc * inv).to_array();
             }
-        });
-    Image {
-        width: w,
-        height: h,
-        pixels,
-    }
+            *px = (acc * inv).to_array();
+        }
+    });
+    Image { width: w, height: h, pixels }
 }

@@ -75,6 +75,8 @@ pub struct BuildHints {
     pub frequency: Option<u32>,
     /// Distance between parallel rays (m).
     pub ray_spacing: Option<f32>,
+    /// Widest bucket (§3.4); 0 turns buckets off.
+    pub buckets: Option<u32>,
 }
 
 /// A parsed, validated scene.
@@ -96,39 +98,26 @@ impl Scene {
     /// Reads and parses a scene file; OBJ paths resolve relative to it.
     pub fn from_file(path: &Path) -> Result<Self, SceneError> {
         let text = std::fs::read_to_string(path).map_err(|e| SceneError::io(path, e))?;
-        let name = path
-            .file_stem()
-            .map(|s| s.to_string_lossy().into_owned())
-            .unwrap_or_default();
+        let name = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
         parse::parse(&text, path, path.parent().unwrap_or(Path::new(".")), name)
     }
 
     /// Parses scene text; `origin` names it in errors and `base_dir` resolves
     /// OBJ paths.
     pub fn from_toml(text: &str, origin: &Path, base_dir: &Path) -> Result<Self, SceneError> {
-        let name = origin
-            .file_stem()
-            .map(|s| s.to_string_lossy().into_owned())
-            .unwrap_or_default();
+        let name = origin.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
         parse::parse(text, origin, base_dir, name)
     }
 
     /// The embedded Cornell box (`scenes/cornell_box.toml`).
     pub fn cornell_box() -> Self {
-        Self::from_toml(
-            crate::CORNELL_BOX_TOML,
-            Path::new("cornell_box.toml"),
-            Path::new("."),
-        )
-        .expect("the embedded Cornell box parses")
+        Self::from_toml(crate::CORNELL_BOX_TOML, Path::new("cornell_box.toml"), Path::new("."))
+            .expect("the embedded Cornell box parses")
     }
 
     /// Every primitive with its surface index, in surface order.
     pub fn primitives(&self) -> impl Iterator<Item = (u32, &Primitive)> {
-        self.surfaces
-            .iter()
-            .enumerate()
-            .flat_map(|(s, surf)| surf.primitives.iter().map(move |p| (s as u32, p)))
+        self.surfaces.iter().enumerate().flat_map(|(s, surf)| surf.primitives.iter().map(move |p| (s as u32, p)))
     }
 
     /// Axis-aligned bounds of all primitives.

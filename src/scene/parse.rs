@@ -28,13 +28,7 @@ pub struct SceneError {
 
 impl SceneError {
     pub(super) fn io(path: &Path, e: std::io::Error) -> Self {
-        Self {
-            file: path.into(),
-            line: 0,
-            column: 0,
-            field: String::new(),
-            message: format!("cannot read: {e}"),
-        }
+        Self { file: path.into(), line: 0, column: 0, field: String::new(), message: format!("cannot read: {e}") }
     }
 }
 
@@ -86,6 +80,7 @@ struct RawBuild {
     patch_size: Option<Spanned<f32>>,
     frequency: Option<Spanned<u32>>,
     ray_spacing: Option<Spanned<f32>>,
+    buckets: Option<Spanned<u32>>,
 }
 
 #[derive(Deserialize)]
@@ -136,20 +131,9 @@ struct Ctx<'a> {
 }
 
 impl Ctx<'_> {
-    fn err(
-        &self,
-        span: Range<usize>,
-        field: impl Into<String>,
-        message: impl Into<String>,
-    ) -> SceneError {
+    fn err(&self, span: Range<usize>, field: impl Into<String>, message: impl Into<String>) -> SceneError {
         let (line, column) = line_col(self.text, span.start);
-        SceneError {
-            file: self.file.into(),
-            line,
-            column,
-            field: field.into(),
-            message: message.into(),
-        }
+        SceneError { file: self.file.into(), line, column, field: field.into(), message: message.into() }
     }
 }
 
@@ -157,12 +141,7 @@ fn line_col(text: &str, offset: usize) -> (usize, usize) {
     let offset = offset.min(text.len());
     let before = &text.as_bytes()[..offset];
     let line = before.iter().filter(|&&b| b == b'\n').count() + 1;
-    let column = offset
-        - before
-            .iter()
-            .rposition(|&b| b == b'\n')
-            .map_or(0, |p| p + 1)
-        + 1;
+    let column = offset - before.iter().rposition(|&b| b == b'\n').map_or(0, |p| p + 1) + 1;
     (line, column)
 }
 
@@ -170,12 +149,7 @@ fn finite3(v: &[f32; 3]) -> bool {
     v.iter().all(|x| x.is_finite())
 }
 
-pub(super) fn parse(
-    text: &str,
-    file: &Path,
-    base_dir: &Path,
-    name: String,
-) -> Result<Scene, SceneError> {
+pub(super) fn parse(text: &str, file: &Path, base_dir: &Path, name: String) -> Result<Scene, SceneError> {
     let cx = Ctx { text, file };
     let raw: RawScene = toml::from_str(text).map_err(|e| {
         let span = e.span().unwrap_or(0..0);
@@ -189,11 +163,7 @@ pub(super) fn parse(
     if !finite3(&c.position) || !finite3(&c.look_at) || !finite3(&c.up) {
         return Err(cx.err(cspan, "camera", "position, look_at and up must be finite"));
     }
-    let (position, look_at, up) = (
-        Vec3::from(c.position),
-        Vec3::from(c.look_at),
-        Vec3::from(c.up),
-    );
+    let (position, look_at, up) = (Vec3::from(c.position), Vec3::from(c.look_at), Vec3::from(c.up));
     let forward = look_at - position;
     if forward.length() <= 0.0 || forward.normalize().cross(up).length() < 1e-6 {
         return Err(cx.err(
@@ -204,29 +174,15 @@ pub(super) fn parse(
     }
     let fov = *c.fov_y_deg.get_ref();
     if !(fov > 0.0 && fov < 180.0) {
-        return Err(cx.err(
-            c.fov_y_deg.span(),
-            "camera.fov_y_deg",
-            format!("must be in (0, 180) degrees, got {fov}"),
-        ));
+        return Err(cx.err(c.fov_y_deg.span(), "camera.fov_y_deg", format!("must be in (0, 180) degrees, got {fov}")));
     }
     for (v, f) in [(&c.width, "camera.width"), (&c.height, "camera.height")] {
         if !(1..=16384).contains(v.get_ref()) {
-            return Err(cx.err(
-                v.span(),
-                f,
-                format!("must be in 1..=16384 pixels, got {}", v.get_ref()),
-            ));
+            return Err(cx.err(v.span(), f, format!("must be in 1..=16384 pixels, got {}", v.get_ref())));
         }
     }
-    let camera = Camera {
-        position,
-        look_at,
-        up,
-        fov_y_deg: fov,
-        width: *c.width.get_ref(),
-        height: *c.height.get_ref(),
-    };
+    let camera =
+        Camera { position, look_at, up, fov_y_deg: fov, width: *c.width.get_ref(), height: *c.height.get_ref() };
 
     // Build hints.
     let mut build = BuildHints::default();
@@ -234,23 +190,21 @@ pub(super) fn parse(
         let b = b.get_ref();
         if let Some(p) = &b.patch_size {
             if !(p.get_ref().is_finite() && *p.get_ref() > 0.0) {
-                return Err(cx.err(
-                    p.span(),
-                    "build.patch_size",
-                    "must be a positive length in metres",
-                ));
+                return Err(cx.err(p.span(), "build.patch_size", "must be a positive length in metres"));
             }
             build.patch_size = Some(*p.get_ref());
         }
         if let Some(r) = &b.ray_spacing {
             if !(r.get_ref().is_finite() && *r.get_ref() > 0.0) {
-                return Err(cx.err(
-                    r.span(),
-                    "build.ray_spacing",
-                    "must be a positive length in metres",
-                ));
+                return Err(cx.err(r.span(), "build.ray_spacing", "must be a positive length in metres"));
             }
             build.ray_spacing = Some(*r.get_ref());
+        }
+        if let Some(k) = &b.buckets {
+            if *k.get_ref() > crate::build::MAX_BUCKET {
+                return Err(cx.err(k.span(), "build.buckets", format!("must be in 0..={}", crate::build::MAX_BUCKET)));
+            }
+            build.buckets = Some(*k.get_ref());
         }
         if let Some(f) = &b.frequency {
             if !(1..=crate::geodesic::MAX_FREQUENCY).contains(f.get_ref()) {
@@ -279,22 +233,12 @@ pub(super) fn parse(
         let model = match m.kind.get_ref().as_str() {
             "diffuse" => {
                 let r = m.reflectance.as_ref().ok_or_else(|| {
-                    cx.err(
-                        m.kind.span(),
-                        field("reflectance"),
-                        "a diffuse material needs `reflectance = [r, g, b]`",
-                    )
+                    cx.err(m.kind.span(), field("reflectance"), "a diffuse material needs `reflectance = [r, g, b]`")
                 })?;
                 if !r.get_ref().iter().all(|x| (0.0..=1.0).contains(x)) {
-                    return Err(cx.err(
-                        r.span(),
-                        field("reflectance"),
-                        "each component must be in [0, 1]",
-                    ));
+                    return Err(cx.err(r.span(), field("reflectance"), "each component must be in [0, 1]"));
                 }
-                ReflectanceModel::Diffuse {
-                    reflectance: *r.get_ref(),
-                }
+                ReflectanceModel::Diffuse { reflectance: *r.get_ref() }
             }
             other => {
                 return Err(cx.err(
@@ -304,10 +248,7 @@ pub(super) fn parse(
                 ));
             }
         };
-        materials.push(Material {
-            name: m.name.get_ref().clone(),
-            model,
-        });
+        materials.push(Material { name: m.name.get_ref().clone(), model });
     }
 
     // Surfaces.
@@ -318,52 +259,28 @@ pub(super) fn parse(
         let field = |f: &str| format!("surface[{i}].{f}");
         let name = s.name.get_ref().clone();
         if surfaces.iter().any(|x| x.name == name) {
-            return Err(cx.err(
-                s.name.span(),
-                field("name"),
-                format!("duplicate surface name `{name}`"),
-            ));
+            return Err(cx.err(s.name.span(), field("name"), format!("duplicate surface name `{name}`")));
         }
-        let material = materials
-            .iter()
-            .position(|m| m.name == *s.material.get_ref())
-            .ok_or_else(|| {
-                let known: Vec<&str> = materials.iter().map(|m| m.name.as_str()).collect();
-                cx.err(
-                    s.material.span(),
-                    field("material"),
-                    format!(
-                        "no material named `{}` (known: {})",
-                        s.material.get_ref(),
-                        known.join(", ")
-                    ),
-                )
-            })? as u32;
+        let material = materials.iter().position(|m| m.name == *s.material.get_ref()).ok_or_else(|| {
+            let known: Vec<&str> = materials.iter().map(|m| m.name.as_str()).collect();
+            cx.err(
+                s.material.span(),
+                field("material"),
+                format!("no material named `{}` (known: {})", s.material.get_ref(), known.join(", ")),
+            )
+        })? as u32;
         let emission = match &s.emission {
             Some(e) => {
                 if !e.get_ref().iter().all(|x| x.is_finite() && *x >= 0.0) {
-                    return Err(cx.err(
-                        e.span(),
-                        field("emission"),
-                        "each component must be finite and non-negative",
-                    ));
+                    return Err(cx.err(e.span(), field("emission"), "each component must be finite and non-negative"));
                 }
                 *e.get_ref()
             }
             None => [0.0; 3],
         };
-        let given = [
-            s.quad.is_some(),
-            s.quads.is_some(),
-            s.cuboid.is_some(),
-            s.mesh.is_some(),
-        ];
+        let given = [s.quad.is_some(), s.quads.is_some(), s.cuboid.is_some(), s.mesh.is_some()];
         if given.iter().filter(|&&g| g).count() != 1 {
-            return Err(cx.err(
-                sspan,
-                field("quad"),
-                "give exactly one of `quad`, `quads`, `box` or `mesh`",
-            ));
+            return Err(cx.err(sspan, field("quad"), "give exactly one of `quad`, `quads`, `box` or `mesh`"));
         }
         let mut prims: Vec<Primitive> = Vec::new();
         let mut geometry_span = sspan.clone();
@@ -373,11 +290,7 @@ pub(super) fn parse(
             geometry_span = q.span();
         }
         if let Some(qs) = &s.quads {
-            prims.extend(
-                qs.get_ref()
-                    .iter()
-                    .map(|q| Primitive::quad(q.map(Vec3::from))),
-            );
+            prims.extend(qs.get_ref().iter().map(|q| Primitive::quad(q.map(Vec3::from))));
             geometry_span = qs.span();
             geometry_field = field("quads");
         }
@@ -393,8 +306,7 @@ pub(super) fn parse(
             prims.extend(load_obj(&path).map_err(|msg| cx.err(m.span(), field("mesh"), msg))?);
         }
         if let Some(t) = &s.transform {
-            let m = transform_matrix(t.get_ref())
-                .map_err(|msg| cx.err(t.span(), field("transform"), msg))?;
+            let m = transform_matrix(t.get_ref()).map_err(|msg| cx.err(t.span(), field("transform"), msg))?;
             let mirrored = m.0.determinant() < 0.0;
             for p in &mut prims {
                 for v in &mut p.p {
@@ -411,37 +323,18 @@ pub(super) fn parse(
         }
         for (k, p) in prims.iter().enumerate() {
             check_primitive(p).map_err(|msg| {
-                cx.err(
-                    geometry_span.clone(),
-                    geometry_field.clone(),
-                    format!("primitive {k}: {msg}"),
-                )
+                cx.err(geometry_span.clone(), geometry_field.clone(), format!("primitive {k}: {msg}"))
             })?;
         }
         if prims.is_empty() {
-            return Err(cx.err(
-                geometry_span,
-                geometry_field,
-                "the surface has no primitives",
-            ));
+            return Err(cx.err(geometry_span, geometry_field, "the surface has no primitives"));
         }
-        surfaces.push(Surface {
-            name,
-            material,
-            emission,
-            primitives: prims,
-        });
+        surfaces.push(Surface { name, material, emission, primitives: prims });
     }
     if surfaces.is_empty() {
         return Err(cx.err(0..0, "surface", "the scene has no surfaces"));
     }
-    Ok(Scene {
-        name,
-        materials,
-        surfaces,
-        camera,
-        build,
-    })
+    Ok(Scene { name, materials, surfaces, camera, build })
 }
 
 /// Rejects non-finite, degenerate, non-planar and non-convex primitives.
@@ -457,14 +350,9 @@ fn check_primitive(p: &Primitive) -> Result<(), String> {
     }
     if n == 4 {
         let nrm = p.normal();
-        let off = (p.p[3] - p.p[0])
-            .dot(nrm)
-            .abs()
-            .max((p.p[1] - p.p[0]).dot(nrm).abs());
+        let off = (p.p[3] - p.p[0]).dot(nrm).abs().max((p.p[1] - p.p[0]).dot(nrm).abs());
         if off > 1e-4 * size {
-            return Err(format!(
-                "quad is not planar (a corner is {off:.3e} m off its plane)"
-            ));
+            return Err(format!("quad is not planar (a corner is {off:.3e} m off its plane)"));
         }
         for k in 0..4 {
             let e0 = p.p[(k + 1) % 4] - p.p[k];
@@ -485,10 +373,7 @@ fn box_quads(b: &RawBox) -> Result<Vec<Primitive>, String> {
     const FACES: [&str; 6] = ["-x", "+x", "-y", "+y", "-z", "+z"];
     for o in &b.omit {
         if !FACES.contains(&o.as_str()) {
-            return Err(format!(
-                "unknown face `{o}` in omit (known: {})",
-                FACES.join(", ")
-            ));
+            return Err(format!("unknown face `{o}` in omit (known: {})", FACES.join(", ")));
         }
     }
     let mut out = Vec::new();
@@ -507,12 +392,7 @@ fn box_quads(b: &RawBox) -> Result<Vec<Primitive>, String> {
                 v
             };
             // e_b × e_c = +e_axis: this order faces +axis.
-            let mut q = [
-                corner(false, false),
-                corner(true, false),
-                corner(true, true),
-                corner(false, true),
-            ];
+            let mut q = [corner(false, false), corner(true, false), corner(true, true), corner(false, true)];
             if positive == b.inward {
                 q.reverse();
             }
@@ -536,13 +416,8 @@ fn transform_matrix(t: &RawTransform) -> Result<(Mat3, Vec3), String> {
 }
 
 fn load_obj(path: &Path) -> Result<Vec<Primitive>, String> {
-    let opts = tobj::LoadOptions {
-        triangulate: true,
-        single_index: true,
-        ..Default::default()
-    };
-    let (models, _) = tobj::load_obj(path, &opts)
-        .map_err(|e| format!("cannot load OBJ `{}`: {e}", path.display()))?;
+    let opts = tobj::LoadOptions { triangulate: true, single_index: true, ..Default::default() };
+    let (models, _) = tobj::load_obj(path, &opts).map_err(|e| format!("cannot load OBJ `{}`: {e}", path.display()))?;
     let mut out = Vec::new();
     for m in models {
         let pos = &m.mesh.positions;
@@ -570,8 +445,7 @@ mod tests {
         parse(s, Path::new("t.toml"), Path::new("."), "t".into())
     }
 
-    const CAM: &str =
-        "[camera]\nposition=[0,0,-1]\nlook_at=[0,0,0]\nfov_y_deg=40\nwidth=8\nheight=8\n";
+    const CAM: &str = "[camera]\nposition=[0,0,-1]\nlook_at=[0,0,0]\nfov_y_deg=40\nwidth=8\nheight=8\n";
 
     #[test]
     fn errors_name_line_and_field() {
@@ -583,16 +457,10 @@ mod tests {
         assert_eq!(e.field, "surface[0].material");
         assert!(e.to_string().starts_with("t.toml:13:"), "{e}");
 
-        let e = parse_str(&s.replace("reflectance=[0.5,0.5,0.5]", "reflectance=[1.5,0.5,0.5]"))
-            .unwrap_err();
-        assert_eq!(
-            (e.line, e.field.as_str()),
-            (10, "material[0].reflectance"),
-            "{e}"
-        );
+        let e = parse_str(&s.replace("reflectance=[0.5,0.5,0.5]", "reflectance=[1.5,0.5,0.5]")).unwrap_err();
+        assert_eq!((e.line, e.field.as_str()), (10, "material[0].reflectance"), "{e}");
 
-        let e =
-            parse_str(&s.replace("'nope'", "'w'").replace("[0,1,0]]", "[0,1,0.5]]")).unwrap_err();
+        let e = parse_str(&s.replace("'nope'", "'w'").replace("[0,1,0]]", "[0,1,0.5]]")).unwrap_err();
         assert!(e.message.contains("not planar"), "{e}");
 
         let e = parse_str(&s.replace("fov_y_deg=40", "fov_y_deg=400")).unwrap_err();

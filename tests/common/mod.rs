@@ -10,7 +10,8 @@ use illumnet::progress::NoProgress;
 use illumnet::scene::{BuildHints, Scene};
 
 /// A camera block for scenes that are never rendered.
-pub const CAMERA: &str = "[camera]\nposition = [0.5, 0.5, -3.0]\nlook_at = [0.5, 0.5, 0.0]\nfov_y_deg = 40\nwidth = 16\nheight = 16\n";
+pub const CAMERA: &str =
+    "[camera]\nposition = [0.5, 0.5, -3.0]\nlook_at = [0.5, 0.5, 0.0]\nfov_y_deg = 40\nwidth = 16\nheight = 16\n";
 
 pub fn scene(toml: &str) -> Scene {
     Scene::from_toml(toml, Path::new("test.toml"), Path::new(".")).unwrap_or_else(|e| panic!("{e}"))
@@ -25,22 +26,12 @@ pub fn build_archive(scene: &Scene, hints: BuildHints) -> Archive {
 }
 
 pub fn solve(archive: &Archive) -> Solution {
-    distribute::distribute(
-        &archive.view(),
-        &DistributeOptions {
-            tolerance: 1e-7,
-            ..Default::default()
-        },
-        &NoProgress,
-    )
+    distribute::distribute(&archive.view(), &DistributeOptions { tolerance: 1e-7, ..Default::default() }, &NoProgress)
 }
 
 /// Surface index of every patch.
 pub fn patch_surface(v: &InetView<'_>) -> Vec<u32> {
-    v.patch_primitive
-        .iter()
-        .map(|&p| v.primitives[p as usize].surface)
-        .collect()
+    v.patch_primitive.iter().map(|&p| v.primitives[p as usize].surface).collect()
 }
 
 /// Total of `per_patch` (summed over RGB) over the patches of `surface`.
