@@ -143,7 +143,10 @@ fn grid_for(dir: Vec3, pair: u32, lo: Vec3, hi: Vec3, layout: &BundleLayout) -> 
             axes.rotate_left(a);
             let cos = dir.dot(ea);
             // Common intercept points: every direction of a face uses one grid.
-            (axes[1], axes[2], Vec2::splat(0.5), radius / cos.abs(), Some((ea, cos)))
+            // A ray through intercept point p passes closest to the centre up to
+            // R·tan θ along d from p: start R·(1 + tan θ) before the plane.
+            let tan = (1.0 - cos * cos).max(0.0).sqrt() / cos.abs();
+            (axes[1], axes[2], Vec2::splat(0.5), radius * (1.0 + tan), Some((ea, cos)))
         }
     };
     let project = |p: Vec3| match intercept {

@@ -58,7 +58,12 @@ pub fn render(path: &Path, png: &Path, exr: Option<&Path>, args: RenderArgs, pro
     let archive = Archive::open(path).with_context(|| format!("cannot open {}", path.display()))?;
     let view = archive.view();
     let t_open = t.elapsed().as_secs_f64();
-    let opts = DistributeOptions { tolerance: args.tolerance, ..Default::default() };
+    let opts = DistributeOptions {
+        tolerance: args.tolerance,
+        buckets: !args.no_buckets,
+        patch_size_correction: !args.no_patch_size_correction,
+        ..Default::default()
+    };
     let t1 = Instant::now();
     let solution = distribute::distribute(&view, &opts, progress);
     let t_dist = t1.elapsed().as_secs_f64();

@@ -61,6 +61,12 @@ struct RenderArgs {
     /// Multiply radiance by this before sRGB encoding the PNG.
     #[arg(long, default_value_t = 1.0, value_name = "X")]
     exposure: f32,
+    /// For measurement: ignore the archive's buckets (no spreading).
+    #[arg(long)]
+    no_buckets: bool,
+    /// For measurement: drop the H_p/H_u patch-size correction of §3.4.
+    #[arg(long)]
+    no_patch_size_correction: bool,
 }
 
 #[derive(Subcommand)]

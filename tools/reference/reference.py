@@ -7,7 +7,8 @@ a linear-RGB float32 OpenEXR image (PIZ-compressed, lossless).
 Usage:
     python3 tools/reference/reference.py SCENE.toml -o OUT.exr \
         [--spp N] [--pass-spp N] [--seed S] \
-        [--variant llvm_ad_rgb|scalar_rgb] [--max-depth -1] [--png OUT.png]
+        [--variant llvm_ad_rgb|scalar_rgb] [--max-depth -1] [--png OUT.png] \
+        [--compare REF.exr]
 
 See tools/reference/README.md.
 """
@@ -240,6 +241,14 @@ def read_exr(mi, path):
     return np.array(mi.Bitmap(path), dtype=np.float64)[..., :3]
 
 
+def relative_l2(img, ref):
+    """||img - ref||_2 / ||ref||_2 over all RGB values of the pixels whose
+    reference max channel is < 1.0 (directly seen emitters are excluded)."""
+    mask = ref.max(axis=-1) < 1.0
+    a, r = img[mask], ref[mask]
+    return float(np.linalg.norm(a - r) / np.linalg.norm(r)), int(mask.sum())
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("scene", help="illumnet TOML scene")
@@ -252,6 +261,9 @@ def main(argv=None):
     ap.add_argument("--max-depth", type=int, default=-1,
                     help="path integrator max_depth (-1 = unbounded, the default)")
     ap.add_argument("--png", help="also write an sRGB preview PNG (clamped at 1)")
+    ap.add_argument("--compare", metavar="REF.exr",
+                    help="after rendering, print the relative L2 error against REF.exr "
+                         "(pixels whose reference max channel is < 1)")
     args = ap.parse_args(argv)
     if args.spp < 1 or args.pass_spp < 1:
         ap.error("--spp and --pass-spp must be >= 1")
@@ -281,6 +293,14 @@ def main(argv=None):
         write_png(mi, img, args.png)
     print(f"wrote {args.output}: {img.shape[1]}x{img.shape[0]}, {args.spp} spp, "
           f"{el:.1f} s, variant {args.variant}, max_depth {args.max_depth}", file=sys.stderr)
+    if args.compare:
+        ref = read_exr(mi, args.compare)
+        if ref.shape != img.shape:
+            print(f"error: {args.compare} is {ref.shape}, render is {img.shape}", file=sys.stderr)
+            return 1
+        err, n = relative_l2(img, ref)
+        print(f"relative L2 error vs {args.compare}: {err:.5f} "
+              f"({n} of {ref.shape[0] * ref.shape[1]} pixels)")
     return 0
 
 
