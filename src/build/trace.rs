@@ -223,12 +223,7 @@ pub fn trace_all(
     max_bucket: u32,
     progress: &dyn Progress,
 ) -> Result<Traced, String> {
-    let (mut lo, mut hi) = (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN));
-    for p in prims {
-        let (a, b) = p.bounds();
-        lo = lo.min(a);
-        hi = hi.max(b);
-    }
+    let (lo, hi) = crate::geometry::bounds_of(prims);
     let pairs = (dirs.len() / 2) as u32;
     let dir_of = |k: u32| Vec3::from(dirs.directions[2 * k as usize]);
     let layouts: Vec<BundleLayout> = (0..pairs).map(|k| layout(dirs, delta, k)).collect();

@@ -37,13 +37,7 @@ impl PrimitiveBvh {
     /// Builds the BVH. Bounds are padded slightly so that flat, axis-aligned
     /// primitives have non-empty boxes.
     pub fn new(primitives: &[Primitive]) -> Self {
-        let mut lo = Vec3::splat(f32::MAX);
-        let mut hi = Vec3::splat(f32::MIN);
-        for p in primitives {
-            let (a, b) = p.bounds();
-            lo = lo.min(a);
-            hi = hi.max(b);
-        }
+        let (lo, hi) = super::bounds_of(primitives);
         let pad = ((hi - lo).max_element() * 1e-6).max(1e-9);
         let aabbs: Vec<Aabb> = primitives
             .iter()

@@ -39,6 +39,17 @@ pub struct Primitive {
     pub p: [Vec3; 4],
 }
 
+/// Axis-aligned bounds of a set of primitives (inverted, `MAX..MIN`, when empty).
+pub fn bounds_of<'a>(primitives: impl IntoIterator<Item = &'a Primitive>) -> (Vec3, Vec3) {
+    let (mut lo, mut hi) = (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN));
+    for p in primitives {
+        let (a, b) = p.bounds();
+        lo = lo.min(a);
+        hi = hi.max(b);
+    }
+    (lo, hi)
+}
+
 /// A ray-primitive intersection: distance and surface coordinates.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SurfaceHit {

@@ -122,14 +122,7 @@ impl Scene {
 
     /// Axis-aligned bounds of all primitives.
     pub fn bounds(&self) -> (Vec3, Vec3) {
-        let mut lo = Vec3::splat(f32::MAX);
-        let mut hi = Vec3::splat(f32::MIN);
-        for (_, p) in self.primitives() {
-            let (a, b) = p.bounds();
-            lo = lo.min(a);
-            hi = hi.max(b);
-        }
-        (lo, hi)
+        crate::geometry::bounds_of(self.primitives().map(|(_, p)| p))
     }
 
     /// Total surface area (m²).
