@@ -54,25 +54,148 @@ pub struct BuildStats {
     pub assemble_s: f64,
 }
 
-/// Builds the I-net of `scene` with `settings`.
+/// Builds the I-net of a still `scene` with `settings`. Animated scenes go
+/// through [`build_sequence`] (or [`Scene::at_frame`] for one frame).
 pub fn build(
     scene: &Scene,
     settings: &BuildSettings,
     progress: &dyn Progress,
 ) -> Result<(ArchiveContents, BuildStats), String> {
+    if scene.surfaces.iter().any(|s| s.motion.is_some()) {
+        return Err("the scene is animated: build one frame (Scene::at_frame, `--frame N`) or a sequence".into());
+    }
+    let seq = build_sequence(scene, settings, progress)?;
+    Ok((seq.contents, seq.stats))
+}
+
+/// A primitive set present over a range of frames: a permanent surface
+/// (all frames) or one temporal instance of a moving surface (§2).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Instance {
+    /// Surface index.
+    pub surface: u32,
+    /// Inclusive frame range.
+    pub frames: (u32, u32),
+    /// The surface's primitives placed for those frames.
+    pub primitives: Vec<Primitive>,
+}
+
+/// One merged link of frame 0.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
+pub struct LinkRecord {
+    /// Direction pair.
+    pub pair: u32,
+    /// Patch facing along the pair's first direction.
+    pub a: u32,
+    /// Patch facing back.
+    pub b: u32,
+    /// Bucket at `a`.
+    pub bucket_a: u8,
+    /// Bucket at `b`.
+    pub bucket_b: u8,
+    /// Rays merged.
+    pub weight: u32,
+}
+
+/// An I-net built for a whole sequence in one trace (§2): permanent
+/// surfaces once, moving surfaces once per run of frames with the same
+/// transform, frame 0's links in `contents`, later frames as deltas.
+#[derive(Debug, Clone)]
+pub struct Sequence {
+    /// Archive contents with frame 0's links.
+    pub contents: ArchiveContents,
+    /// Build measurements.
+    pub stats: BuildStats,
+    /// Frames in the sequence.
+    pub frames: u32,
+    /// The instances, in primitive order.
+    pub instances: Vec<Instance>,
+    /// Frame 0's links, by pair.
+    pub base: Vec<LinkRecord>,
+    /// Changes at frames ≥ 1, sorted by frame.
+    pub deltas: Vec<trace::DeltaEntry>,
+    /// Per patch: (surface, primitive index within its surface, cell), the
+    /// same in every build of the same surfaces and resolution.
+    pub patch_identity: Vec<(u32, u32, u32)>,
+    /// Bounds the ray grids covered.
+    pub bounds: (glam::Vec3, glam::Vec3),
+}
+
+/// A link keyed by build-independent patch identities.
+pub type LinkIdentity = (u32, (u32, u32, u32), (u32, u32, u32), u8, u8);
+
+impl Sequence {
+    /// The multiset of links active at `frame`: frame 0's links plus every
+    /// delta up to `frame`, keyed by patch identity, with ray counts.
+    pub fn active_links(&self, frame: u32) -> std::collections::BTreeMap<LinkIdentity, i64> {
+        let id = |p: u32| self.patch_identity[p as usize];
+        let mut m = std::collections::BTreeMap::new();
+        for l in &self.base {
+            *m.entry((l.pair, id(l.a), id(l.b), l.bucket_a, l.bucket_b)).or_insert(0) += l.weight as i64;
+        }
+        for d in self.deltas.iter().take_while(|d| d.frame <= frame) {
+            *m.entry((d.pair, id(d.a), id(d.b), d.bucket_a, d.bucket_b)).or_insert(0) += d.count as i64;
+        }
+        m.retain(|_, n| *n != 0);
+        m
+    }
+}
+
+/// The instances of `scene`: each still surface once; each moving surface
+/// once per run of consecutive frames with bitwise the same transform.
+pub fn instances(scene: &Scene) -> Vec<Instance> {
+    let last = scene.frame_count() - 1;
+    let mut out = Vec::new();
+    for (s, surf) in scene.surfaces.iter().enumerate() {
+        match &surf.motion {
+            None => out.push(Instance { surface: s as u32, frames: (0, last), primitives: surf.primitives.clone() }),
+            Some(m) => {
+                let mut f0 = 0;
+                for f in 1..=last + 1 {
+                    if f == last + 1 || !m.same_transform(f0, f) {
+                        out.push(Instance {
+                            surface: s as u32,
+                            frames: (f0, f - 1),
+                            primitives: m.apply(f0, &surf.primitives),
+                        });
+                        f0 = f;
+                    }
+                }
+            }
+        }
+    }
+    out
+}
+
+/// Builds `scene` (still or animated) in one trace; see [`Sequence`].
+pub fn build_sequence(scene: &Scene, settings: &BuildSettings, progress: &dyn Progress) -> Result<Sequence, String> {
     settings.validate()?;
     let t0 = Instant::now();
     let dirs = match settings.direction_set {
         DirectionSetKind::Geodesic => DirectionSet::new(settings.frequency)?,
         DirectionSetKind::RaySpace => crate::geodesic::ray_space(ray_space_divisions(settings.frequency))?,
     };
-    let prims: Vec<Primitive> = scene.primitives().map(|(_, p)| *p).collect();
-    let prim_surface: Vec<u32> = scene.primitives().map(|(s, _)| s).collect();
+    let instances = instances(scene);
+    let mut prims: Vec<Primitive> = Vec::new();
+    let mut prim_surface = Vec::new();
+    let mut active = Vec::new();
+    let mut sort_key = Vec::new();
+    for inst in &instances {
+        for (i, p) in inst.primitives.iter().enumerate() {
+            prims.push(*p);
+            prim_surface.push(inst.surface);
+            active.push(inst.frames);
+            sort_key.push(((inst.surface as u64) << 32) | i as u64);
+        }
+    }
     let patches = Patches::new(&prims, &prim_surface, settings.patch_size)?;
     let setup_s = t0.elapsed().as_secs_f64();
+    let bounds = settings.grid_bounds.unwrap_or_else(|| crate::geometry::bounds_of(&prims));
+    let input =
+        trace::TraceInput { prims: &prims, active: &active, sort_key: &sort_key, frames: scene.frame_count(), bounds };
 
     let t1 = Instant::now();
-    let traced = trace::trace_all(&prims, &patches, &dirs, settings.ray_spacing, settings.max_bucket, progress)?;
+    let traced = trace::trace_all(&input, &patches, &dirs, settings.ray_spacing, settings.max_bucket, progress)?;
     let trace_s = t1.elapsed().as_secs_f64();
 
     let t2 = Instant::now();
@@ -99,8 +222,8 @@ pub fn build(
 
     let mut surfaces = Vec::with_capacity(scene.surfaces.len());
     let mut first = 0u32;
-    for s in &scene.surfaces {
-        let n = s.primitives.len() as u32;
+    for (si, s) in scene.surfaces.iter().enumerate() {
+        let n = instances.iter().filter(|i| i.surface == si as u32).map(|i| i.primitives.len() as u32).sum::<u32>();
         surfaces.push(SurfaceRecord {
             material: s.material,
             first_primitive: first,
@@ -122,6 +245,7 @@ pub fn build(
             }
         })
         .collect();
+    let seq_primitives = patches.primitives.clone();
     let primitives = prims
         .iter()
         .zip(&patches.primitives)
@@ -210,5 +334,34 @@ pub fn build(
             material_names: scene.materials.iter().map(|m| m.name.clone()).collect(),
         },
     };
-    Ok((contents, stats))
+    let mut patch_identity = Vec::with_capacity(prims.len());
+    for (pi, pp) in seq_primitives.iter().enumerate() {
+        for cell in 0..pp.grid.cell_count() {
+            patch_identity.push((prim_surface[pi], (sort_key[pi] & 0xffff_ffff) as u32, cell));
+        }
+    }
+    let base = traced
+        .bundles
+        .iter()
+        .flat_map(|b| {
+            (0..b.a.len()).map(move |i| LinkRecord {
+                pair: b.pair,
+                a: b.a[i],
+                b: b.b[i],
+                bucket_a: b.bucket_a[i],
+                bucket_b: b.bucket_b[i],
+                weight: b.w[i],
+            })
+        })
+        .collect();
+    Ok(Sequence {
+        contents,
+        stats,
+        frames: scene.frame_count(),
+        instances,
+        base,
+        deltas: traced.deltas,
+        patch_identity,
+        bounds,
+    })
 }

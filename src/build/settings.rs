@@ -18,6 +18,9 @@ pub struct BuildSettings {
     pub direction_set: DirectionSetKind,
     /// Widest bucket (§3.4) a link end may get; 0 turns buckets off.
     pub max_bucket: u32,
+    /// Bounds the ray grids cover; `None`: the scene's (all frames'). Set it to
+    /// a sequence's bounds to build one frame with the sequence's ray grid.
+    pub grid_bounds: Option<(glam::Vec3, glam::Vec3)>,
 }
 
 /// Widest bucket supported.
@@ -53,6 +56,7 @@ impl BuildSettings {
                 .unwrap_or(diagonal * DEFAULT_SPACING_FRACTION),
             direction_set: DirectionSetKind::Geodesic,
             max_bucket: overrides.buckets.or(scene.build.buckets).unwrap_or(DEFAULT_MAX_BUCKET),
+            grid_bounds: None,
         }
     }
 

@@ -50,16 +50,6 @@ pub struct BundleStats {
     pub links: u64,
 }
 
-/// Everything tracing produces.
-pub struct Traced {
-    /// One bundle per direction pair, in pair order.
-    pub bundles: Vec<Bundle>,
-    /// `H_p`: hits per patch.
-    pub hits: Vec<u32>,
-    /// Totals.
-    pub stats: BundleStats,
-}
-
 /// The ray grid of one direction: ray `(i, j)` starts at
 /// `origin + e1·(i + offset.x)·step + e2·(j + offset.y)·step`.
 struct Grid {
@@ -214,16 +204,211 @@ struct RayHitRecord {
     uv: Vec2,
 }
 
+/// A link as traced: `(a << 32 | b, bucket at a, bucket at b)`.
+type LinkKey = (u64, u8, u8);
+
+/// One change of the active link multiset at a frame (issue #5): `count`
+/// rays of pair `pair` start (`> 0`) or stop (`< 0`) joining `a → b`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
+pub struct DeltaEntry {
+    /// Frame the change applies from.
+    pub frame: u32,
+    /// Direction pair.
+    pub pair: u32,
+    /// Patch facing along the pair's first direction.
+    pub a: u32,
+    /// Patch facing back.
+    pub b: u32,
+    /// Bucket at `a`.
+    pub bucket_a: u8,
+    /// Bucket at `b`.
+    pub bucket_b: u8,
+    /// Signed number of rays.
+    pub count: i32,
+}
+
+/// What to trace: primitives with the frames each is present in.
+pub struct TraceInput<'a> {
+    /// All primitives: permanent ones and temporal instances.
+    pub prims: &'a [Primitive],
+    /// Inclusive frame range each primitive is present in.
+    pub active: &'a [(u32, u32)],
+    /// Build-independent tie-break for hits at equal distance
+    /// (`surface << 32 | index within surface`), so that an animated build and
+    /// a from-scratch build of one frame order coincident hits alike.
+    pub sort_key: &'a [u64],
+    /// Frames in the sequence (1 for a still).
+    pub frames: u32,
+    /// Bounds the ray grids cover (all frames' geometry).
+    pub bounds: (Vec3, Vec3),
+}
+
+/// Per-thread scratch space.
+#[derive(Default)]
+struct Scratch {
+    hits: Vec<RayHitRecord>,
+    keys: Vec<LinkKey>,
+    frame_links: Vec<LinkKey>,
+    prev_links: Vec<LinkKey>,
+    change_frames: Vec<u32>,
+    deltas: Vec<DeltaEntry>,
+}
+
+/// Shared, read-only state of one bundle's walk along its rays.
+struct Walk<'a> {
+    input: &'a TraceInput<'a>,
+    patches: &'a Patches,
+    normals: &'a [Vec3],
+    hit_counts: &'a [AtomicU32],
+    layout: &'a BundleLayout,
+    dir: Vec3,
+    eps_t: f32,
+    max_bucket: u32,
+}
+
+impl Walk<'_> {
+    /// Walks the hits present in `frame`, in order: consecutive hits facing
+    /// each other become links (appended to `links`). Hits count towards
+    /// `H_p` in the first frame they are present in. Returns hits counted.
+    fn frame(&self, hits: &[RayHitRecord], frame: u32, links: &mut Vec<LinkKey>) -> u64 {
+        let mut counted = 0;
+        let mut prev: Option<(u32, f32, u32, bool, f32)> = None; // (patch, t, primitive, faces +d, cos)
+        for h in hits {
+            let (lo, hi) = self.input.active[h.primitive as usize];
+            if frame < lo || frame > hi {
+                continue;
+            }
+            let cos = self.normals[h.primitive as usize].dot(self.dir);
+            if cos == 0.0 {
+                continue;
+            }
+            let forward = cos > 0.0;
+            if let Some((_, pt, pp, pf, _)) = prev {
+                // One crossing reported twice (shared edge of coplanar
+                // primitives): keep the first.
+                if h.t - pt <= self.eps_t
+                    && pf == forward
+                    && pp != h.primitive
+                    && self.normals[pp as usize] == self.normals[h.primitive as usize]
+                {
+                    continue;
+                }
+            }
+            let pp = &self.patches.primitives[h.primitive as usize];
+            let patch = pp.first_patch + pp.grid.locate(h.uv).cell;
+            if frame == lo {
+                self.hit_counts[patch as usize].fetch_add(1, Ordering::Relaxed);
+                counted += 1;
+            }
+            // A link: the previous hit faces down the ray, this one faces back.
+            if let (Some((prev_patch, pt, _, true, pcos)), false) = (prev, forward) {
+                // Buckets: each end's footprint from its own incidence.
+                let r = h.t - pt;
+                let area = &self.patches.area;
+                let ba = bucket(self.layout, r, pcos, area[prev_patch as usize], self.max_bucket);
+                let bb = bucket(self.layout, r, cos, area[patch as usize], self.max_bucket);
+                links.push((((prev_patch as u64) << 32) | patch as u64, ba, bb));
+            }
+            prev = Some((patch, h.t, h.primitive, forward, cos));
+        }
+        counted
+    }
+
+    /// One ray: frame 0's links go to `s.keys`; for rays that meet temporal
+    /// instances, the changes at later frames go to `s.deltas`.
+    fn ray(&self, pair: u32, s: &mut Scratch) -> u64 {
+        let last = self.input.frames - 1;
+        let temporal = s.hits.iter().any(|h| self.input.active[h.primitive as usize] != (0, last));
+        if !temporal {
+            return self.frame(&s.hits, 0, &mut s.keys);
+        }
+        // The active hits change only where an instance appears or leaves.
+        s.change_frames.clear();
+        for h in &s.hits {
+            let (lo, hi) = self.input.active[h.primitive as usize];
+            if lo > 0 {
+                s.change_frames.push(lo);
+            }
+            if hi < last {
+                s.change_frames.push(hi + 1);
+            }
+        }
+        s.change_frames.sort_unstable();
+        s.change_frames.dedup();
+        s.prev_links.clear();
+        let mut counted = self.frame(&s.hits, 0, &mut s.prev_links);
+        s.keys.extend_from_slice(&s.prev_links);
+        s.prev_links.sort_unstable();
+        for i in 0..s.change_frames.len() {
+            let f = s.change_frames[i];
+            s.frame_links.clear();
+            counted += self.frame(&s.hits, f, &mut s.frame_links);
+            s.frame_links.sort_unstable();
+            diff(&s.prev_links, &s.frame_links, |key, count| {
+                s.deltas.push(DeltaEntry {
+                    frame: f,
+                    pair,
+                    a: (key.0 >> 32) as u32,
+                    b: key.0 as u32,
+                    bucket_a: key.1,
+                    bucket_b: key.2,
+                    count,
+                })
+            });
+            std::mem::swap(&mut s.prev_links, &mut s.frame_links);
+        }
+        counted
+    }
+}
+
+/// Calls `out(key, ±n)` for the multiset difference `new − old` (both sorted).
+fn diff(old: &[LinkKey], new: &[LinkKey], mut out: impl FnMut(LinkKey, i32)) {
+    let (mut i, mut j) = (0, 0);
+    while i < old.len() || j < new.len() {
+        let next = match (old.get(i), new.get(j)) {
+            (Some(a), Some(b)) => *a.min(b),
+            (Some(a), None) => *a,
+            (None, Some(b)) => *b,
+            (None, None) => unreachable!(),
+        };
+        let mut n = 0i32;
+        while old.get(i) == Some(&next) {
+            n -= 1;
+            i += 1;
+        }
+        while new.get(j) == Some(&next) {
+            n += 1;
+            j += 1;
+        }
+        if n != 0 {
+            out(next, n);
+        }
+    }
+}
+
+/// Everything tracing produces.
+pub struct Traced {
+    /// One bundle per direction pair, in pair order: the links of frame 0.
+    pub bundles: Vec<Bundle>,
+    /// `H_p`: hits per patch.
+    pub hits: Vec<u32>,
+    /// Changes of the link multiset at frames ≥ 1, merged and sorted by
+    /// `(frame, pair, a, b, buckets)`; empty for stills.
+    pub deltas: Vec<DeltaEntry>,
+    /// Totals.
+    pub stats: BundleStats,
+}
+
 /// Traces every direction pair; see the module docs.
 pub fn trace_all(
-    prims: &[Primitive],
+    input: &TraceInput<'_>,
     patches: &Patches,
     dirs: &DirectionSet,
     delta: f32,
     max_bucket: u32,
     progress: &dyn Progress,
 ) -> Result<Traced, String> {
-    let (lo, hi) = crate::geometry::bounds_of(prims);
+    let (lo, hi) = input.bounds;
     let pairs = (dirs.len() / 2) as u32;
     let dir_of = |k: u32| Vec3::from(dirs.directions[2 * k as usize]);
     let layouts: Vec<BundleLayout> = (0..pairs).map(|k| layout(dirs, delta, k)).collect();
@@ -238,96 +423,100 @@ pub fn trace_all(
             "ray spacing {delta} m would trace {total_rays} rays (limit {MAX_RAYS}); use a larger spacing"
         ));
     }
+    let prims = input.prims;
     let bvh = PrimitiveBvh::new(prims);
     let normals: Vec<Vec3> = prims.iter().map(|p| p.normal()).collect();
-    let hits: Vec<AtomicU32> = (0..patches.len()).map(|_| AtomicU32::new(0)).collect();
+    let hit_counts: Vec<AtomicU32> = (0..patches.len()).map(|_| AtomicU32::new(0)).collect();
     let eps_t = (hi - lo).length() * 1e-6;
     progress.start("tracing direction bundles", pairs as u64);
-    let results: Vec<(Bundle, BundleStats)> = (0..pairs)
+    let results: Vec<(Bundle, Vec<DeltaEntry>, BundleStats)> = (0..pairs)
         .into_par_iter()
-        .map_init(
-            || (Vec::<RayHitRecord>::new(), Vec::<(u64, u8, u8)>::new()),
-            |(ray_hits, keys), k| {
-                let d = dir_of(k);
-                let lay = &layouts[k as usize];
-                let g = grid_for(d, k, lo, hi, lay);
-                let delta = g.step;
-                let mut stats = BundleStats { rays: g.nu * g.nv, ..Default::default() };
-                keys.clear();
-                for jj in 0..g.nv {
-                    let v = ((g.j0 + jj as i64) as f32 + g.offset.y) * delta;
-                    for ii in 0..g.nu {
-                        let u = ((g.i0 + ii as i64) as f32 + g.offset.x) * delta;
-                        let origin = g.origin + g.e1 * u + g.e2 * v;
-                        ray_hits.clear();
-                        bvh.all_hits(origin, d, |h| {
-                            ray_hits.push(RayHitRecord { t: h.hit.t, primitive: h.primitive, uv: h.hit.uv })
-                        });
-                        if ray_hits.is_empty() {
-                            continue;
-                        }
-                        ray_hits.sort_unstable_by(|x, y| x.t.total_cmp(&y.t).then(x.primitive.cmp(&y.primitive)));
-                        // Walk the hits in order: (patch, facing) of the previous kept hit.
-                        let mut prev: Option<(u32, f32, u32, bool, f32)> = None; // (patch, t, primitive, faces +d, cos)
-                        for h in ray_hits.iter() {
-                            let cos = normals[h.primitive as usize].dot(d);
-                            if cos == 0.0 {
-                                continue;
-                            }
-                            let forward = cos > 0.0;
-                            if let Some((_, pt, pp, pf, _)) = prev {
-                                // One crossing reported twice (shared edge of one primitive
-                                // set): keep the first.
-                                if h.t - pt <= eps_t
-                                    && pf == forward
-                                    && pp != h.primitive
-                                    && normals[pp as usize] == normals[h.primitive as usize]
-                                {
-                                    continue;
-                                }
-                            }
-                            let pp = &patches.primitives[h.primitive as usize];
-                            let patch = pp.first_patch + pp.grid.locate(h.uv).cell;
-                            hits[patch as usize].fetch_add(1, Ordering::Relaxed);
-                            stats.hits += 1;
-                            // A link: the previous hit faces down the ray, this one faces back.
-                            if let (Some((prev_patch, pt, _, true, pcos)), false) = (prev, forward) {
-                                // Buckets: each end's footprint from its own incidence.
-                                let r = h.t - pt;
-                                let ba = bucket(lay, r, pcos, patches.area[prev_patch as usize], max_bucket);
-                                let bb = bucket(lay, r, cos, patches.area[patch as usize], max_bucket);
-                                keys.push((((prev_patch as u64) << 32) | patch as u64, ba, bb));
-                            }
-                            prev = Some((patch, h.t, h.primitive, forward, cos));
-                        }
+        .map_init(Scratch::default, |s, k| {
+            let d = dir_of(k);
+            let lay = &layouts[k as usize];
+            let g = grid_for(d, k, lo, hi, lay);
+            let walk = Walk {
+                input,
+                patches,
+                normals: &normals,
+                hit_counts: &hit_counts,
+                layout: lay,
+                dir: d,
+                eps_t,
+                max_bucket,
+            };
+            let mut stats = BundleStats { rays: g.nu * g.nv, ..Default::default() };
+            s.keys.clear();
+            s.deltas.clear();
+            for jj in 0..g.nv {
+                let v = ((g.j0 + jj as i64) as f32 + g.offset.y) * g.step;
+                for ii in 0..g.nu {
+                    let u = ((g.i0 + ii as i64) as f32 + g.offset.x) * g.step;
+                    let origin = g.origin + g.e1 * u + g.e2 * v;
+                    s.hits.clear();
+                    bvh.all_hits(origin, d, |h| {
+                        s.hits.push(RayHitRecord { t: h.hit.t, primitive: h.primitive, uv: h.hit.uv })
+                    });
+                    if s.hits.is_empty() {
+                        continue;
                     }
+                    let key = input.sort_key;
+                    s.hits.sort_unstable_by(|x, y| {
+                        x.t.total_cmp(&y.t).then(key[x.primitive as usize].cmp(&key[y.primitive as usize]))
+                    });
+                    stats.hits += walk.ray(k, s);
                 }
-                stats.links = keys.len() as u64;
-                keys.sort_unstable();
-                let mut bundle = Bundle { pair: k, ..Default::default() };
-                for run in keys.chunk_by(|x, y| x == y) {
-                    let (key, ba, bb) = run[0];
-                    bundle.a.push((key >> 32) as u32);
-                    bundle.b.push(key as u32);
-                    bundle.w.push(run.len() as u32);
-                    bundle.bucket_a.push(ba);
-                    bundle.bucket_b.push(bb);
-                }
-                progress.advance(1);
-                (bundle, stats)
-            },
-        )
+            }
+            stats.links = s.keys.len() as u64;
+            s.keys.sort_unstable();
+            let mut bundle = Bundle { pair: k, ..Default::default() };
+            for run in s.keys.chunk_by(|x, y| x == y) {
+                let (key, ba, bb) = run[0];
+                bundle.a.push((key >> 32) as u32);
+                bundle.b.push(key as u32);
+                bundle.w.push(run.len() as u32);
+                bundle.bucket_a.push(ba);
+                bundle.bucket_b.push(bb);
+            }
+            let deltas = merge_deltas(&mut s.deltas);
+            progress.advance(1);
+            (bundle, deltas, stats)
+        })
         .collect();
     progress.finish();
     let mut stats = BundleStats::default();
     let mut bundles = Vec::with_capacity(results.len());
-    for (b, s) in results {
+    let mut deltas = Vec::new();
+    for (b, d, s) in results {
         stats.rays += s.rays;
         stats.hits += s.hits;
         stats.links += s.links;
         bundles.push(b);
+        deltas.extend(d);
     }
-    Ok(Traced { bundles, hits: hits.into_iter().map(AtomicU32::into_inner).collect(), stats })
+    // Bundles come in pair order; within a pair deltas are sorted by frame
+    // first, so a stable sort by frame gives (frame, pair, …) order.
+    deltas.sort_by_key(|d| d.frame);
+    Ok(Traced { bundles, hits: hit_counts.into_iter().map(AtomicU32::into_inner).collect(), deltas, stats })
+}
+
+/// Sums entries with the same `(frame, pair, a, b, buckets)`, drops zeros.
+fn merge_deltas(raw: &mut [DeltaEntry]) -> Vec<DeltaEntry> {
+    raw.sort_unstable_by_key(|d| (d.frame, d.pair, d.a, d.b, d.bucket_a, d.bucket_b));
+    let mut out: Vec<DeltaEntry> = Vec::new();
+    for d in raw.iter() {
+        match out.last_mut() {
+            Some(l)
+                if (l.frame, l.pair, l.a, l.b, l.bucket_a, l.bucket_b)
+                    == (d.frame, d.pair, d.a, d.b, d.bucket_a, d.bucket_b) =>
+            {
+                l.count += d.count
+            }
+            _ => out.push(*d),
+        }
+    }
+    out.retain(|d| d.count != 0);
+    out
 }
 
 #[cfg(test)]

@@ -42,8 +42,17 @@ fn build_scene(scene: &Scene, output: &Path, args: BuildArgs, progress: &dyn Pro
     Ok(())
 }
 
-pub fn build(scene: &Path, output: &Path, args: BuildArgs, progress: &dyn Progress) -> Result<()> {
-    let scene = Scene::from_file(scene)?;
+pub fn build(scene: &Path, output: &Path, frame: Option<u32>, args: BuildArgs, progress: &dyn Progress) -> Result<()> {
+    let mut scene = Scene::from_file(scene)?;
+    let frames = scene.frame_count();
+    match frame {
+        Some(f) if f >= frames => bail!("--frame {f} is outside the sequence 0..{frames}"),
+        Some(f) => scene = scene.at_frame(f),
+        None if scene.surfaces.iter().any(|s| s.motion.is_some()) => bail!(
+            "the scene is animated ({frames} frames): pass --frame N to build one frame; sequence archives are not written yet"
+        ),
+        None => {}
+    }
     build_scene(&scene, output, args, progress)
 }
 

@@ -78,6 +78,10 @@ enum Command {
         /// Archive to write.
         #[arg(short, long, value_name = "ARCHIVE")]
         output: PathBuf,
+        /// For an animated scene: build this frame's still (sequence
+        /// archives are not written yet).
+        #[arg(long, value_name = "N")]
+        frame: Option<u32>,
         #[command(flatten)]
         settings: BuildArgs,
     },
@@ -140,7 +144,9 @@ pub fn main() -> ExitCode {
     }
     let progress = progress_bar::BarProgress::new(cli.quiet);
     let result = match cli.command {
-        Command::Build { scene, output, settings } => commands::build(&scene, &output, settings, &progress),
+        Command::Build { scene, output, frame, settings } => {
+            commands::build(&scene, &output, frame, settings, &progress)
+        }
         Command::Render { archive, output, exr, render } => {
             commands::render(&archive, &output, exr.as_deref(), render, &progress)
         }

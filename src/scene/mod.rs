@@ -6,6 +6,7 @@
 //! `format-spec/scene.md`; [`parse`] turns text into a [`Scene`] or a
 //! [`SceneError`] naming the file, line, column and field.
 
+pub mod motion;
 mod parse;
 
 use std::path::Path;
@@ -45,8 +46,11 @@ pub struct Surface {
     pub material: u32,
     /// Emitted radiance (W·sr⁻¹·m⁻², linear RGB) from the front face.
     pub emission: [f32; 3],
-    /// The surface's primitives, in world space.
+    /// The surface's primitives, in world space (for a moving surface, before
+    /// its motion is applied).
     pub primitives: Vec<Primitive>,
+    /// Keyframed motion; `None` for a surface that never moves.
+    pub motion: Option<motion::Motion>,
 }
 
 /// A pinhole camera.
@@ -92,6 +96,8 @@ pub struct Scene {
     pub camera: Camera,
     /// Build settings from the `[build]` table.
     pub build: BuildHints,
+    /// Sequence length and rate; `None` for a still.
+    pub animation: Option<motion::Animation>,
 }
 
 impl Scene {
@@ -115,14 +121,43 @@ impl Scene {
             .expect("the embedded Cornell box parses")
     }
 
+    /// Frames in the sequence (1 for a still).
+    pub fn frame_count(&self) -> u32 {
+        self.animation.map_or(1, |a| a.frames)
+    }
+
+    /// The still scene of frame `frame`: moving surfaces placed where their
+    /// motion puts them, and no motion left.
+    pub fn at_frame(&self, frame: u32) -> Scene {
+        let mut s = self.clone();
+        for surf in &mut s.surfaces {
+            if let Some(m) = surf.motion.take() {
+                surf.primitives = m.apply(frame, &surf.primitives);
+            }
+        }
+        s.animation = None;
+        s
+    }
+
     /// Every primitive with its surface index, in surface order.
     pub fn primitives(&self) -> impl Iterator<Item = (u32, &Primitive)> {
         self.surfaces.iter().enumerate().flat_map(|(s, surf)| surf.primitives.iter().map(move |p| (s as u32, p)))
     }
 
-    /// Axis-aligned bounds of all primitives.
+    /// Axis-aligned bounds of all primitives over all frames.
     pub fn bounds(&self) -> (Vec3, Vec3) {
-        crate::geometry::bounds_of(self.primitives().map(|(_, p)| p))
+        let (mut lo, mut hi) =
+            crate::geometry::bounds_of(self.surfaces.iter().filter(|s| s.motion.is_none()).flat_map(|s| &s.primitives));
+        for s in &self.surfaces {
+            if let Some(m) = &s.motion {
+                for f in 0..self.frame_count() {
+                    let (a, b) = crate::geometry::bounds_of(&m.apply(f, &s.primitives));
+                    lo = lo.min(a);
+                    hi = hi.max(b);
+                }
+            }
+        }
+        (lo, hi)
     }
 
     /// Total surface area (m²).

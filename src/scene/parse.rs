@@ -8,6 +8,7 @@ use glam::{Mat3, Vec3};
 use serde::Deserialize;
 use toml::Spanned;
 
+use super::motion::{Animation, Interpolation, Keyframe, Motion, rotation_from_degrees};
 use super::{BuildHints, Camera, Material, ReflectanceModel, Scene, Surface};
 use crate::geometry::{Primitive, PrimitiveKind};
 
@@ -56,6 +57,28 @@ struct RawScene {
     material: Vec<Spanned<RawMaterial>>,
     #[serde(default)]
     surface: Vec<Spanned<RawSurface>>,
+    animation: Option<Spanned<RawAnimation>>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawAnimation {
+    frames: Spanned<u32>,
+    #[serde(default = "default_fps")]
+    fps: Spanned<f32>,
+}
+
+fn default_fps() -> Spanned<f32> {
+    Spanned::new(0..0, 24.0)
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawKeyframe {
+    frame: u32,
+    translate: Option<[f32; 3]>,
+    rotate_deg: Option<[f32; 3]>,
+    scale: Option<[f32; 3]>,
 }
 
 #[derive(Deserialize)]
@@ -104,6 +127,9 @@ struct RawSurface {
     cuboid: Option<Spanned<RawBox>>,
     mesh: Option<Spanned<String>>,
     transform: Option<Spanned<RawTransform>>,
+    keyframes: Option<Spanned<Vec<RawKeyframe>>>,
+    interpolation: Option<Spanned<String>>,
+    pivot: Option<Spanned<[f32; 3]>>,
 }
 
 #[derive(Deserialize)]
@@ -329,12 +355,26 @@ pub(super) fn parse(text: &str, file: &Path, base_dir: &Path, name: String) -> R
         if prims.is_empty() {
             return Err(cx.err(geometry_span, geometry_field, "the surface has no primitives"));
         }
-        surfaces.push(Surface { name, material, emission, primitives: prims });
+        let motion = parse_motion(&cx, s, &raw.animation, &field)?;
+        surfaces.push(Surface { name, material, emission, primitives: prims, motion });
     }
     if surfaces.is_empty() {
         return Err(cx.err(0..0, "surface", "the scene has no surfaces"));
     }
-    Ok(Scene { name, materials, surfaces, camera, build })
+    let animation = match &raw.animation {
+        Some(a) => {
+            let (frames, fps) = (a.get_ref().frames.get_ref(), a.get_ref().fps.get_ref());
+            if !(1..=100_000).contains(frames) {
+                return Err(cx.err(a.get_ref().frames.span(), "animation.frames", "must be in 1..=100000"));
+            }
+            if !(fps.is_finite() && *fps > 0.0) {
+                return Err(cx.err(a.get_ref().fps.span(), "animation.fps", "must be positive"));
+            }
+            Some(Animation { frames: *frames, fps: *fps })
+        }
+        None => None,
+    };
+    Ok(Scene { name, materials, surfaces, camera, build, animation })
 }
 
 /// Rejects non-finite, degenerate, non-planar and non-convex primitives.
@@ -400,6 +440,77 @@ fn box_quads(b: &RawBox) -> Result<Vec<Primitive>, String> {
         }
     }
     Ok(out)
+}
+
+/// The surface's keyframes, checked against `[animation]`.
+fn parse_motion(
+    cx: &Ctx<'_>,
+    s: &RawSurface,
+    animation: &Option<Spanned<RawAnimation>>,
+    field: &dyn Fn(&str) -> String,
+) -> Result<Option<Motion>, SceneError> {
+    let Some(keys) = &s.keyframes else {
+        if let Some(i) = &s.interpolation {
+            return Err(cx.err(i.span(), field("interpolation"), "interpolation without keyframes"));
+        }
+        return Ok(None);
+    };
+    let frames = match animation {
+        Some(a) => *a.get_ref().frames.get_ref(),
+        None => {
+            return Err(cx.err(keys.span(), field("keyframes"), "keyframes need an [animation] table with `frames`"));
+        }
+    };
+    if keys.get_ref().is_empty() {
+        return Err(cx.err(keys.span(), field("keyframes"), "give at least one keyframe"));
+    }
+    let mut out = Vec::new();
+    for (i, k) in keys.get_ref().iter().enumerate() {
+        let f = format!("keyframes[{i}]");
+        if k.frame >= frames {
+            return Err(cx.err(
+                keys.span(),
+                field(&f),
+                format!("frame {} is outside the sequence 0..{frames}", k.frame),
+            ));
+        }
+        if let Some(prev) = out.last().map(|p: &Keyframe| p.frame)
+            && k.frame <= prev
+        {
+            return Err(cx.err(
+                keys.span(),
+                field(&f),
+                format!(
+                    "keyframes out of order: frame {} follows frame {prev}; list them by increasing frame",
+                    k.frame
+                ),
+            ));
+        }
+        let t = Vec3::from(k.translate.unwrap_or([0.0; 3]));
+        let r = Vec3::from(k.rotate_deg.unwrap_or([0.0; 3]));
+        let sc = Vec3::from(k.scale.unwrap_or([1.0; 3]));
+        if !(t.is_finite() && r.is_finite() && sc.is_finite()) || sc.cmpeq(Vec3::ZERO).any() {
+            return Err(cx.err(keys.span(), field(&f), "values must be finite and scale non-zero"));
+        }
+        out.push(Keyframe { frame: k.frame, translate: t, rotation: rotation_from_degrees(r), scale: sc });
+    }
+    let interpolation = match s.interpolation.as_ref().map(|i| i.get_ref().as_str()) {
+        None | Some("linear") => Interpolation::Linear,
+        Some("hold") => Interpolation::Hold,
+        Some(other) => {
+            let span = s.interpolation.as_ref().map(|i| i.span()).unwrap_or(0..0);
+            return Err(cx.err(
+                span,
+                field("interpolation"),
+                format!("unknown interpolation `{other}` (known: linear, hold)"),
+            ));
+        }
+    };
+    let pivot = s.pivot.as_ref().map_or(Vec3::ZERO, |p| Vec3::from(*p.get_ref()));
+    if !pivot.is_finite() {
+        return Err(cx.err(s.pivot.as_ref().map(|p| p.span()).unwrap_or(0..0), field("pivot"), "must be finite"));
+    }
+    Ok(Some(Motion { pivot, interpolation, keyframes: out }))
 }
 
 fn transform_matrix(t: &RawTransform) -> Result<(Mat3, Vec3), String> {

@@ -1,0 +1,130 @@
+//! Animation exactness (issue #5): the links active at frame k after
+//! applying the deltas of one sequence build equal, bit for bit, the links of
+//! a from-scratch build of frame k's geometry with the same ray grid.
+
+use illumnet::build::{self, BuildSettings};
+use illumnet::progress::NoProgress;
+use illumnet::scene::{BuildHints, Scene};
+
+/// A closed room with a moving light and three movers: two whose paths
+/// cross (overlapping in space at frame 3), one that enters the space
+/// another has just left, and one static for the first half.
+const ADVERSARIAL: &str = r#"
+[camera]
+position = [1, 1, -2]
+look_at = [1, 1, 1]
+fov_y_deg = 50
+width = 16
+height = 16
+
+[animation]
+frames = 7
+fps = 10
+
+[[material]]
+name = "grey"
+type = "diffuse"
+reflectance = [0.6, 0.5, 0.4]
+
+[[surface]]
+name = "room"
+material = "grey"
+box = { min = [0, 0, 0], max = [2, 2, 2], inward = true }
+
+[[surface]]
+name = "lamp"
+material = "grey"
+emission = [5, 5, 5]
+quad = [[0.8, 1.9, 0.8], [1.2, 1.9, 0.8], [1.2, 1.9, 1.2], [0.8, 1.9, 1.2]]
+pivot = [1, 1.9, 1]
+keyframes = [{ frame = 0, translate = [-0.5, 0, 0] }, { frame = 6, translate = [0.5, 0, 0.3], rotate_deg = [0, 90, 0] }]
+
+[[surface]]
+name = "mover_a"
+material = "grey"
+box = { min = [0.2, 0.2, 0.2], max = [0.6, 0.6, 0.6] }
+keyframes = [{ frame = 0 }, { frame = 6, translate = [1.2, 0.3, 1.0] }]
+
+[[surface]]
+name = "mover_b"
+material = "grey"
+box = { min = [1.4, 0.2, 1.4], max = [1.8, 0.7, 1.8] }
+keyframes = [{ frame = 0 }, { frame = 6, translate = [-1.2, 0.2, -1.0] }]
+
+[[surface]]
+name = "late_starter"
+material = "grey"
+box = { min = [0.2, 1.0, 1.4], max = [0.5, 1.3, 1.7] }
+interpolation = "hold"
+keyframes = [{ frame = 0 }, { frame = 3, translate = [0.3, 0, -0.2], rotate_deg = [0, 30, 0] }, { frame = 5, translate = [0.9, -0.4, -0.6] }]
+"#;
+
+#[test]
+fn sequence_links_equal_from_scratch_links_at_every_frame() {
+    let scene =
+        Scene::from_toml(ADVERSARIAL, std::path::Path::new("adversarial.toml"), std::path::Path::new(".")).unwrap();
+    let hints = BuildHints { patch_size: Some(0.2), frequency: Some(5), ray_spacing: Some(0.03), buckets: Some(1) };
+    let settings = BuildSettings::resolve(&scene, hints);
+    let seq = build::build_sequence(&scene, &settings, &NoProgress).unwrap();
+    assert!(!seq.deltas.is_empty(), "movers must change links");
+    // `hold` makes the late starter one instance per held run: 3 instances.
+    let late = scene.surfaces.iter().position(|s| s.name == "late_starter").unwrap() as u32;
+    assert_eq!(seq.instances.iter().filter(|i| i.surface == late).count(), 3);
+    let mut total_links = 0;
+    for k in 0..scene.frame_count() {
+        let still_settings = BuildSettings { grid_bounds: Some(seq.bounds), ..settings };
+        let still = build::build_sequence(&scene.at_frame(k), &still_settings, &NoProgress).unwrap();
+        let want = still.active_links(0);
+        let got = seq.active_links(k);
+        let missing = want.iter().filter(|(key, n)| got.get(key) != Some(n)).count();
+        let extra = got.iter().filter(|(key, n)| want.get(key) != Some(n)).count();
+        assert!(
+            missing == 0 && extra == 0,
+            "frame {k}: {missing} links differ from scratch, {extra} extra ({} vs {})",
+            got.len(),
+            want.len()
+        );
+        total_links += want.len();
+        // Hit counts H_p of the patches present at frame k agree too.
+        let present = |p: usize| {
+            let prim = seq.contents.patch_primitive[p] as usize;
+            let mut first = 0;
+            seq.instances.iter().any(|i| {
+                let inside = prim >= first && prim < first + i.primitives.len();
+                first += i.primitives.len();
+                inside && i.frames.0 <= k && k <= i.frames.1
+            })
+        };
+        let mut seq_hits = std::collections::BTreeMap::new();
+        for p in (0..seq.patch_identity.len()).filter(|&p| present(p)) {
+            seq_hits.insert(seq.patch_identity[p], seq.contents.patch_hits[p]);
+        }
+        let still_hits: std::collections::BTreeMap<_, _> =
+            still.patch_identity.iter().copied().zip(still.contents.patch_hits.iter().copied()).collect();
+        assert_eq!(seq_hits, still_hits, "frame {k}: hit counts differ");
+    }
+    eprintln!(
+        "{} frames, {} active links checked, {} delta entries",
+        scene.frame_count(),
+        total_links,
+        seq.deltas.len()
+    );
+}
+
+#[test]
+fn bad_animation_input_is_a_clear_error() {
+    let bad = ADVERSARIAL.replace(
+        "keyframes = [{ frame = 0 }, { frame = 6, translate = [1.2, 0.3, 1.0] }]",
+        "keyframes = [{ frame = 6, translate = [1.2, 0.3, 1.0] }, { frame = 0 }]",
+    );
+    let e = Scene::from_toml(&bad, std::path::Path::new("a.toml"), std::path::Path::new(".")).unwrap_err();
+    assert!(e.message.contains("out of order") && e.field.contains("keyframes[1]"), "{e}");
+    assert_eq!(e.line, 35, "the line of mover_a's keyframes: {e}");
+    let bad = ADVERSARIAL.replace("{ frame = 6, translate = [1.2, 0.3, 1.0] }", "{ frame = 9 }");
+    let e = Scene::from_toml(&bad, std::path::Path::new("a.toml"), std::path::Path::new(".")).unwrap_err();
+    assert!(e.message.contains("outside the sequence 0..7"), "{e}");
+    // A still build of an animated scene says what to do instead.
+    let scene = Scene::from_toml(ADVERSARIAL, std::path::Path::new("a.toml"), std::path::Path::new(".")).unwrap();
+    let err = build::build(&scene, &BuildSettings::resolve(&scene, BuildHints::default()), &NoProgress).unwrap_err();
+    assert!(err.contains("animated"), "{err}");
+}
