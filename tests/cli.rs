@@ -58,7 +58,7 @@ fn build_inspect_render_with_json() {
     illumnet(&["build", "-q", scene.to_str().unwrap(), "-o", a, "--frequency", "6", "--patch-size", "0.05"]);
     let out = illumnet(&["inspect", a, "--json"]);
     let json: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
-    assert_eq!(json["format_version"], 2);
+    assert_eq!(json["format_version"], 3);
     assert_eq!(json["version_read"], 1);
     assert_eq!(json["directions"], 362);
     assert!(json["patches"].as_u64().unwrap() > 500);
@@ -88,4 +88,38 @@ fn bad_input_gives_clear_errors() {
     let out = Command::new(env!("CARGO_BIN_EXE_illumnet")).args(["inspect", junk.to_str().unwrap()]).output().unwrap();
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("corrupt archive"));
+}
+
+#[test]
+fn sequence_archives_render_frame_ranges() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = dir.path().join("anim.toml");
+    std::fs::write(
+        &scene,
+        "[camera]\nposition = [1, 1, -2]\nlook_at = [1, 1, 1]\nfov_y_deg = 50\nwidth = 24\nheight = 16\n\
+         [animation]\nframes = 4\n\
+         [[material]]\nname = 'w'\ntype = 'diffuse'\nreflectance = [0.5, 0.5, 0.5]\n\
+         [[surface]]\nname = 'room'\nmaterial = 'w'\nbox = { min = [0, 0, 0], max = [2, 2, 2], inward = true, omit = ['-z'] }\n\
+         [[surface]]\nname = 'lamp'\nmaterial = 'w'\nemission = [4, 4, 4]\nbox = { min = [0.8, 1.6, 0.8], max = [1.2, 1.8, 1.2] }\n\
+         keyframes = [{ frame = 0 }, { frame = 3, translate = [0.4, 0, 0.4] }]\n",
+    )
+    .unwrap();
+    let a = dir.path().join("anim.inet");
+    let (s, a) = (scene.to_str().unwrap(), a.to_str().unwrap());
+    illumnet(&["build", "-q", s, "-o", a, "--frequency", "4", "--patch-size", "0.25"]);
+    let pattern = dir.path().join("f_%03d.png");
+    illumnet(&["render", "-q", a, "--frames", "1..4", "-o", pattern.to_str().unwrap(), "--samples", "1"]);
+    for f in 1..4 {
+        assert!(dir.path().join(format!("f_{f:03}.png")).exists(), "frame {f}");
+    }
+    assert!(!dir.path().join("f_000.png").exists());
+    let fail = |args: &[&str], needle: &str| {
+        let out = Command::new(env!("CARGO_BIN_EXE_illumnet")).args(args).output().unwrap();
+        assert!(!out.status.success());
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(err.contains(needle), "{args:?}: {err}");
+    };
+    fail(&["render", a, "--frames", "2..9", "-o", pattern.to_str().unwrap()], "outside the archive's sequence 0..4");
+    fail(&["render", a, "--frames", "0..2", "-o", dir.path().join("x.png").to_str().unwrap()], "frame number pattern");
+    fail(&["build", s, "--frame", "4", "-o", a], "outside the sequence 0..4");
 }

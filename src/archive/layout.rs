@@ -10,15 +10,18 @@ use bytemuck::{Pod, Zeroable};
 /// File magic, bytes 0..8 (§3).
 pub const MAGIC: [u8; 8] = *b"ILLUMNET";
 /// The format version this code writes (§3, `version_write`).
-pub const VERSION_WRITE: u32 = 2;
+pub const VERSION_WRITE: u32 = 3;
 /// The oldest reader version able to read a geodesic archive this code
 /// writes (§3, `version_read`): version 2 only added optional content.
 pub const VERSION_READ: u32 = 1;
 /// `version_read` of ray-space baseline archives, which version 1 readers
 /// would misread as geodesic.
 pub const VERSION_READ_RAY_SPACE: u32 = 2;
+/// `version_read` of sequence archives (animation sections, §5.13), which
+/// older readers would render with every temporal instance at once.
+pub const VERSION_READ_SEQUENCE: u32 = 3;
 /// The highest `version_read` this code can read (§6).
-pub const READER_VERSION: u32 = 2;
+pub const READER_VERSION: u32 = 3;
 /// Header size in bytes (§3).
 pub const HEADER_SIZE: usize = 128;
 /// Section table entry size in bytes (§4).
@@ -103,6 +106,14 @@ pub mod tag {
     pub const LINK_BUCKET: Tag = *b"LBKT";
     /// Names and provenance, rkyv + zstd (§5.11).
     pub const META: Tag = *b"META";
+    /// Sequence parameters (§5.13).
+    pub const ANIMATION: Tag = *b"ANIM";
+    /// Temporal instances (§5.13).
+    pub const INSTANCES: Tag = *b"INST";
+    /// Per-frame delta index (§5.13).
+    pub const DELTA_INDEX: Tag = *b"DIDX";
+    /// Per-frame link deltas, one zstd frame each (§5.13).
+    pub const DELTAS: Tag = *b"DELT";
 }
 
 /// The file header at offset 0 (§3).
@@ -284,7 +295,77 @@ pub struct DirectionRecord {
     pub neighbours: [u32; 6],
 }
 
+/// Sequence parameters (§5.13).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Default, Pod, Zeroable)]
+pub struct AnimationRecord {
+    /// Frames in the sequence.
+    pub frames: u32,
+    /// Frame rate.
+    pub fps: f32,
+    /// Number of `INST` records.
+    pub instance_count: u32,
+    /// Reserved, zero.
+    pub reserved: [u32; 5],
+}
+
+/// A set of primitives present over a range of frames (§5.13).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Default, Pod, Zeroable)]
+pub struct InstanceRecord {
+    /// Surface index.
+    pub surface: u32,
+    /// First primitive index.
+    pub first_primitive: u32,
+    /// Number of primitives.
+    pub primitive_count: u32,
+    /// First frame present.
+    pub frame_first: u32,
+    /// Last frame present (inclusive).
+    pub frame_last: u32,
+    /// Reserved, zero.
+    pub reserved: [u32; 3],
+}
+
+/// Where frame `f`'s delta lies in `DELT` (§5.13).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Default, Pod, Zeroable)]
+pub struct DeltaIndexRecord {
+    /// Offset of the frame's zstd frame within the `DELT` payload.
+    pub offset: u64,
+    /// Its compressed length (0 when the frame has no changes).
+    pub stored_length: u64,
+    /// Number of [`DeltaRecord`]s it decompresses to.
+    pub count: u64,
+    /// XXH3-64 of the decompressed records.
+    pub checksum: u64,
+}
+
+/// One change of the active link multiset relative to frame 0 (§5.13).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Pod, Zeroable)]
+pub struct DeltaRecord {
+    /// Direction pair k (directions 2k, 2k+1).
+    pub pair: u32,
+    /// Patch facing along direction 2k.
+    pub a: u32,
+    /// Patch facing back.
+    pub b: u32,
+    /// Signed number of rays added (> 0) or removed (< 0).
+    pub count: i32,
+    /// Bucket at `a`.
+    pub bucket_a: u8,
+    /// Bucket at `b`.
+    pub bucket_b: u8,
+    /// Reserved, zero.
+    pub reserved: u16,
+}
+
 const _: () = {
+    assert!(size_of::<AnimationRecord>() == 32);
+    assert!(size_of::<InstanceRecord>() == 32);
+    assert!(size_of::<DeltaIndexRecord>() == 32);
+    assert!(size_of::<DeltaRecord>() == 20);
     assert!(size_of::<HeaderRecord>() == HEADER_SIZE);
     assert!(size_of::<SectionEntry>() == ENTRY_SIZE);
     assert!(size_of::<BuildRecord>() == 128);

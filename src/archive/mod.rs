@@ -24,7 +24,7 @@ mod write;
 use std::fmt;
 use std::path::PathBuf;
 
-pub use read::{Archive, InetView};
+pub use read::{Archive, InetView, SequenceView};
 pub use write::{write, write_to_vec};
 
 use layout::{BuildRecord, CameraRecord, DirectionRecord, MaterialRecord, PrimitiveRecord, SurfaceRecord, Tag};
@@ -91,6 +91,20 @@ pub struct ArchiveContents {
     pub link_bucket: Vec<u8>,
     /// `META`.
     pub meta: ArchiveMeta,
+    /// `ANIM`, `INST`, `DIDX`, `DELT`: present for sequence archives.
+    pub sequence: Option<SequenceContents>,
+}
+
+/// The animation sections of a sequence archive (§5.13).
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct SequenceContents {
+    /// `ANIM`.
+    pub record: layout::AnimationRecord,
+    /// `INST`: every primitive belongs to exactly one instance.
+    pub instances: Vec<layout::InstanceRecord>,
+    /// Per frame, the changes of the link multiset relative to frame 0
+    /// (frame 0's list is empty); stored as `DIDX` + `DELT`.
+    pub deltas: Vec<Vec<layout::DeltaRecord>>,
 }
 
 /// Why an archive could not be written or opened.

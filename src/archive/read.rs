@@ -6,8 +6,8 @@ use bytemuck::{Pod, pod_read_unaligned};
 use xxhash_rust::xxh3::xxh3_64;
 
 use super::layout::{
-    self, BuildRecord, CameraRecord, DirectionRecord, HeaderRecord, MaterialRecord, PrimitiveRecord, SectionEntry,
-    SurfaceRecord, Tag, compression, tag,
+    self, AnimationRecord, BuildRecord, CameraRecord, DeltaIndexRecord, DeltaRecord, DirectionRecord, HeaderRecord,
+    InstanceRecord, MaterialRecord, PrimitiveRecord, SectionEntry, SurfaceRecord, Tag, compression, tag,
 };
 use super::{ArchiveError, ArchiveMeta, tag_name};
 
@@ -80,12 +80,90 @@ pub struct InetView<'a> {
     /// `LBKT`, when present (written since version 2): the bucket of the
     /// light each link end's owner receives.
     pub link_bucket: Option<&'a [u8]>,
+    /// The animation sections of a sequence archive.
+    pub sequence: Option<SequenceView<'a>>,
+}
+
+/// Zero-copy views of a sequence archive's animation sections (§5.13).
+#[derive(Clone, Copy)]
+pub struct SequenceView<'a> {
+    /// `ANIM`.
+    pub record: &'a AnimationRecord,
+    /// `INST`.
+    pub instances: &'a [InstanceRecord],
+    /// `DIDX`.
+    pub index: &'a [DeltaIndexRecord],
+    /// `DELT` payload.
+    pub payload: &'a [u8],
+    patch_count: u32,
+    pair_count: u32,
+    max_bucket: u8,
+}
+
+impl SequenceView<'_> {
+    /// Frames in the sequence.
+    pub fn frames(&self) -> u32 {
+        self.record.frames
+    }
+
+    /// Whether instance `i` is present at `frame`.
+    pub fn instance_present(&self, i: usize, frame: u32) -> bool {
+        let r = &self.instances[i];
+        r.frame_first <= frame && frame <= r.frame_last
+    }
+
+    /// Decodes and validates frame `frame`'s changes relative to frame 0.
+    pub fn frame_delta(&self, frame: u32) -> Result<Vec<DeltaRecord>, ArchiveError> {
+        let Some(ix) = self.index.get(frame as usize) else {
+            return Err(ArchiveError::corrupt(format!("frame {frame} is outside the sequence 0..{}", self.frames())));
+        };
+        if ix.count == 0 {
+            return Ok(Vec::new());
+        }
+        let stored = &self.payload[ix.offset as usize..(ix.offset + ix.stored_length) as usize];
+        let len = ix.count as usize * size_of::<DeltaRecord>();
+        let raw = zstd::bulk::decompress(stored, len)
+            .map_err(|e| bad(format!("DELT frame {frame}: does not decompress: {e}")))?;
+        if raw.len() != len || xxh3_64(&raw) != ix.checksum {
+            return Err(bad(format!("DELT frame {frame}: wrong length or checksum after decompression")));
+        }
+        let records: Vec<DeltaRecord> = raw.chunks_exact(size_of::<DeltaRecord>()).map(pod_read_unaligned).collect();
+        for (i, d) in records.iter().enumerate() {
+            if d.a >= self.patch_count
+                || d.b >= self.patch_count
+                || d.pair >= self.pair_count
+                || d.bucket_a > self.max_bucket
+                || d.bucket_b > self.max_bucket
+                || d.count == 0
+            {
+                return Err(bad(format!("DELT frame {frame}, record {i}: index out of range")));
+            }
+        }
+        Ok(records)
+    }
 }
 
 impl<'a> InetView<'a> {
     /// Number of patches.
     pub fn patch_count(&self) -> usize {
         self.patch_area.len()
+    }
+
+    /// Which primitives are present at `frame` (all of them in a still archive).
+    pub fn present_primitives(&self, frame: u32) -> Vec<bool> {
+        match &self.sequence {
+            None => vec![true; self.primitives.len()],
+            Some(s) => {
+                let mut out = vec![false; self.primitives.len()];
+                for (i, inst) in s.instances.iter().enumerate() {
+                    if s.instance_present(i, frame) {
+                        let first = inst.first_primitive as usize;
+                        out[first..first + inst.primitive_count as usize].fill(true);
+                    }
+                }
+                out
+            }
+        }
     }
 
     /// Link ends of patch `p`: `(other patch, weight, outgoing direction)` columns.
@@ -242,6 +320,21 @@ impl Archive {
             link_bucket: match self.entries.iter().any(|e| e.tag == tag::LINK_BUCKET) {
                 true => Some(self.column(tag::LINK_BUCKET)?),
                 false => None,
+            },
+            sequence: match self.entries.iter().any(|e| e.tag == tag::ANIMATION) {
+                false => None,
+                true => {
+                    let b: &BuildRecord = self.one(tag::BUILD)?;
+                    Some(SequenceView {
+                        record: self.one(tag::ANIMATION)?,
+                        instances: self.column(tag::INSTANCES)?,
+                        index: self.column(tag::DELTA_INDEX)?,
+                        payload: self.stored(self.entry(tag::DELTAS)?),
+                        patch_count: b.patch_count,
+                        pair_count: b.direction_count / 2,
+                        max_bucket: b.max_bucket.min(255) as u8,
+                    })
+                }
             },
         })
     }
@@ -497,6 +590,27 @@ fn validate_contents(v: &InetView<'_>, meta: &ArchiveMeta) -> Result<(), Archive
         count("LBKT", buckets.len(), ends)?;
         let max = b.max_bucket as u8;
         check(buckets.iter().all(|&k| k <= max), || format!("LBKT: bucket above BILD.max_bucket {max}"))?;
+    }
+    if let Some(s) = &v.sequence {
+        let frames = s.record.frames;
+        check(frames >= 1, || "ANIM: no frames".into())?;
+        count("INST", s.instances.len(), s.record.instance_count as usize)?;
+        count("DIDX", s.index.len(), frames as usize)?;
+        let mut next = 0u64;
+        for (i, r) in s.instances.iter().enumerate() {
+            check(r.first_primitive as u64 == next && r.primitive_count > 0, || {
+                format!("INST[{i}]: primitives not contiguous")
+            })?;
+            next += r.primitive_count as u64;
+            check(r.frame_first <= r.frame_last && r.frame_last < frames, || format!("INST[{i}]: bad frame range"))?;
+            check((r.surface as usize) < v.surfaces.len(), || format!("INST[{i}]: surface out of range"))?;
+        }
+        check(next == v.primitives.len() as u64, || "INST: instances do not cover all primitives".into())?;
+        for (f, ix) in s.index.iter().enumerate() {
+            let end = ix.offset.checked_add(ix.stored_length);
+            check(end.is_some_and(|e| e <= s.payload.len() as u64), || format!("DIDX[{f}]: outside DELT"))?;
+            check(ix.count <= (1 << 40) && (f > 0 || ix.count == 0), || format!("DIDX[{f}]: bad count"))?;
+        }
     }
     Ok(())
 }

@@ -108,6 +108,9 @@ fn write_all<W: Write + Seek>(out: W, c: &ArchiveContents) -> Result<W, ArchiveE
     if c.build.direction_set != 0 {
         w.version_read = layout::VERSION_READ_RAY_SPACE;
     }
+    if c.sequence.is_some() {
+        w.version_read = layout::VERSION_READ_SEQUENCE;
+    }
     let mut sections = || -> std::io::Result<()> {
         w.column(tag::BUILD, std::slice::from_ref(&c.build))?;
         w.column(tag::CAMERA, std::slice::from_ref(&c.camera))?;
@@ -131,6 +134,35 @@ fn write_all<W: Write + Seek>(out: W, c: &ArchiveContents) -> Result<W, ArchiveE
         w.column(tag::LINK_DIRECTION, &c.link_direction)?;
         w.column(tag::LINK_BUCKET, &c.link_bucket)?;
         w.raw(tag::META, compression::ZSTD, &meta_z, meta.len() as u64, 1, 0)?;
+        if let Some(seq) = &c.sequence {
+            w.column(tag::ANIMATION, std::slice::from_ref(&seq.record))?;
+            w.column(tag::INSTANCES, &seq.instances)?;
+            // Each frame's records are one zstd frame: any frame decodes alone.
+            use rayon::prelude::*;
+            let compressed: Vec<std::io::Result<Vec<u8>>> = seq
+                .deltas
+                .par_iter()
+                .map(|records| {
+                    let raw: &[u8] = cast_slice(records);
+                    if records.is_empty() { Ok(Vec::new()) } else { zstd::bulk::compress(raw, 3) }
+                })
+                .collect();
+            let mut payload = Vec::new();
+            let mut index = Vec::with_capacity(seq.deltas.len());
+            for (records, stored) in seq.deltas.iter().zip(compressed) {
+                let raw: &[u8] = cast_slice(records);
+                let stored = stored?;
+                index.push(layout::DeltaIndexRecord {
+                    offset: payload.len() as u64,
+                    stored_length: stored.len() as u64,
+                    count: records.len() as u64,
+                    checksum: xxh3_64(raw),
+                });
+                payload.extend_from_slice(&stored);
+            }
+            w.column(tag::DELTA_INDEX, &index)?;
+            w.raw(tag::DELTAS, compression::NONE, &payload, payload.len() as u64, seq.deltas.len() as u64, 0)?;
+        }
         Ok(())
     };
     sections().map_err(io)?;

@@ -24,7 +24,8 @@ pub use trace::BundleStats;
 use crate::archive::layout::{
     self, BuildRecord, CameraRecord, DirectionRecord, MaterialRecord, PrimitiveRecord, SurfaceRecord,
 };
-use crate::archive::{ArchiveContents, ArchiveMeta};
+use crate::archive::layout::{AnimationRecord, DeltaRecord, InstanceRecord};
+use crate::archive::{ArchiveContents, ArchiveMeta, SequenceContents};
 use crate::geodesic::{DirectionSet, DirectionSetKind};
 use crate::geometry::Primitive;
 use crate::patch::Patches;
@@ -112,8 +113,8 @@ pub struct Sequence {
     pub instances: Vec<Instance>,
     /// Frame 0's links, by pair.
     pub base: Vec<LinkRecord>,
-    /// Changes at frames ≥ 1, sorted by frame.
-    pub deltas: Vec<trace::DeltaEntry>,
+    /// Per frame, the link changes relative to frame 0 (frame 0: none).
+    pub cumulative: Vec<Vec<trace::DeltaEntry>>,
     /// Per patch: (surface, primitive index within its surface, cell), the
     /// same in every build of the same surfaces and resolution.
     pub patch_identity: Vec<(u32, u32, u32)>,
@@ -133,7 +134,7 @@ impl Sequence {
         for l in &self.base {
             *m.entry((l.pair, id(l.a), id(l.b), l.bucket_a, l.bucket_b)).or_insert(0) += l.weight as i64;
         }
-        for d in self.deltas.iter().take_while(|d| d.frame <= frame) {
+        for d in self.cumulative.get(frame as usize).into_iter().flatten() {
             *m.entry((d.pair, id(d.a), id(d.b), d.bucket_a, d.bucket_b)).or_insert(0) += d.count as i64;
         }
         m.retain(|_, n| *n != 0);
@@ -167,6 +168,62 @@ pub fn instances(scene: &Scene) -> Vec<Instance> {
     out
 }
 
+/// The animation sections for an animated scene: instances and, per frame,
+/// the link changes relative to frame 0 (cumulative, so that any frame is
+/// reached by decoding one record; see `format-spec/archive.md` §5.13).
+fn sequence_sections(
+    scene: &Scene,
+    instances: &[Instance],
+    cumulative: &[Vec<trace::DeltaEntry>],
+) -> Option<SequenceContents> {
+    let anim = scene.animation?;
+    if scene.surfaces.iter().all(|s| s.motion.is_none()) {
+        return None;
+    }
+    let mut first = 0;
+    let records = instances
+        .iter()
+        .map(|i| {
+            let r = InstanceRecord {
+                surface: i.surface,
+                first_primitive: first,
+                primitive_count: i.primitives.len() as u32,
+                frame_first: i.frames.0,
+                frame_last: i.frames.1,
+                reserved: [0; 3],
+            };
+            first += i.primitives.len() as u32;
+            r
+        })
+        .collect();
+    let deltas = cumulative
+        .iter()
+        .map(|list| {
+            list.iter()
+                .map(|d| DeltaRecord {
+                    pair: d.pair,
+                    a: d.a,
+                    b: d.b,
+                    count: d.count,
+                    bucket_a: d.bucket_a,
+                    bucket_b: d.bucket_b,
+                    reserved: 0,
+                })
+                .collect()
+        })
+        .collect();
+    Some(SequenceContents {
+        record: AnimationRecord {
+            frames: anim.frames,
+            fps: anim.fps,
+            instance_count: instances.len() as u32,
+            reserved: [0; 5],
+        },
+        instances: records,
+        deltas,
+    })
+}
+
 /// Builds `scene` (still or animated) in one trace; see [`Sequence`].
 pub fn build_sequence(scene: &Scene, settings: &BuildSettings, progress: &dyn Progress) -> Result<Sequence, String> {
     settings.validate()?;
@@ -188,7 +245,14 @@ pub fn build_sequence(scene: &Scene, settings: &BuildSettings, progress: &dyn Pr
             sort_key.push(((inst.surface as u64) << 32) | i as u64);
         }
     }
-    let patches = Patches::new(&prims, &prim_surface, settings.patch_size)?;
+    // Adjacency may cross primitive edges only within one instance: two
+    // instances of a surface are never present in the same frame.
+    let prim_instance: Vec<u32> = instances
+        .iter()
+        .enumerate()
+        .flat_map(|(i, inst)| std::iter::repeat_n(i as u32, inst.primitives.len()))
+        .collect();
+    let patches = Patches::new(&prims, &prim_instance, settings.patch_size)?;
     let setup_s = t0.elapsed().as_secs_f64();
     let bounds = settings.grid_bounds.unwrap_or_else(|| crate::geometry::bounds_of(&prims));
     let input =
@@ -333,6 +397,7 @@ pub fn build_sequence(scene: &Scene, settings: &BuildSettings, progress: &dyn Pr
             surface_names: scene.surfaces.iter().map(|s| s.name.clone()).collect(),
             material_names: scene.materials.iter().map(|m| m.name.clone()).collect(),
         },
+        sequence: sequence_sections(scene, &instances, &traced.cumulative),
     };
     let mut patch_identity = Vec::with_capacity(prims.len());
     for (pi, pp) in seq_primitives.iter().enumerate() {
@@ -360,7 +425,7 @@ pub fn build_sequence(scene: &Scene, settings: &BuildSettings, progress: &dyn Pr
         frames: scene.frame_count(),
         instances,
         base,
-        deltas: traced.deltas,
+        cumulative: traced.cumulative,
         patch_identity,
         bounds,
     })

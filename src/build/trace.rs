@@ -392,9 +392,10 @@ pub struct Traced {
     pub bundles: Vec<Bundle>,
     /// `H_p`: hits per patch.
     pub hits: Vec<u32>,
-    /// Changes of the link multiset at frames ≥ 1, merged and sorted by
-    /// `(frame, pair, a, b, buckets)`; empty for stills.
-    pub deltas: Vec<DeltaEntry>,
+    /// Per frame, the changes of the link multiset relative to frame 0,
+    /// sorted by `(pair, a, b, buckets)`; frame 0's list is empty, and stills
+    /// have just that one.
+    pub cumulative: Vec<Vec<DeltaEntry>>,
     /// Totals.
     pub stats: BundleStats,
 }
@@ -429,7 +430,7 @@ pub fn trace_all(
     let hit_counts: Vec<AtomicU32> = (0..patches.len()).map(|_| AtomicU32::new(0)).collect();
     let eps_t = (hi - lo).length() * 1e-6;
     progress.start("tracing direction bundles", pairs as u64);
-    let results: Vec<(Bundle, Vec<DeltaEntry>, BundleStats)> = (0..pairs)
+    let results: Vec<(Bundle, Vec<Vec<DeltaEntry>>, BundleStats)> = (0..pairs)
         .into_par_iter()
         .map_init(Scratch::default, |s, k| {
             let d = dir_of(k);
@@ -478,7 +479,7 @@ pub fn trace_all(
                 bundle.bucket_a.push(ba);
                 bundle.bucket_b.push(bb);
             }
-            let deltas = merge_deltas(&mut s.deltas);
+            let deltas = cumulative_deltas(&mut s.deltas, input.frames);
             progress.advance(1);
             (bundle, deltas, stats)
         })
@@ -486,18 +487,45 @@ pub fn trace_all(
     progress.finish();
     let mut stats = BundleStats::default();
     let mut bundles = Vec::with_capacity(results.len());
-    let mut deltas = Vec::new();
+    let mut cumulative: Vec<Vec<DeltaEntry>> = vec![Vec::new(); input.frames as usize];
     for (b, d, s) in results {
         stats.rays += s.rays;
         stats.hits += s.hits;
         stats.links += s.links;
         bundles.push(b);
-        deltas.extend(d);
+        // Bundles come in pair order: concatenation keeps (pair, …) order.
+        for (f, list) in d.into_iter().enumerate() {
+            cumulative[f].extend(list);
+        }
     }
-    // Bundles come in pair order; within a pair deltas are sorted by frame
-    // first, so a stable sort by frame gives (frame, pair, …) order.
-    deltas.sort_by_key(|d| d.frame);
-    Ok(Traced { bundles, hits: hit_counts.into_iter().map(AtomicU32::into_inner).collect(), deltas, stats })
+    Ok(Traced { bundles, hits: hit_counts.into_iter().map(AtomicU32::into_inner).collect(), cumulative, stats })
+}
+
+/// One bundle's per-frame changes relative to frame 0, from its per-ray
+/// incremental changes: frame `f`'s list sums every change at frames ≤ f.
+/// Empty lists for bundles whose links never change.
+fn cumulative_deltas(raw: &mut [DeltaEntry], frames: u32) -> Vec<Vec<DeltaEntry>> {
+    if raw.is_empty() {
+        return Vec::new();
+    }
+    let merged = merge_deltas(raw);
+    let mut out = vec![Vec::new(); frames as usize];
+    let mut acc: std::collections::BTreeMap<(u32, u32, u8, u8), i32> = Default::default();
+    let mut next = 0;
+    for f in 1..frames {
+        while next < merged.len() && merged[next].frame == f {
+            let d = &merged[next];
+            *acc.entry((d.a, d.b, d.bucket_a, d.bucket_b)).or_insert(0) += d.count;
+            next += 1;
+        }
+        acc.retain(|_, n| *n != 0);
+        let pair = merged[0].pair;
+        out[f as usize] = acc
+            .iter()
+            .map(|(&(a, b, bucket_a, bucket_b), &count)| DeltaEntry { frame: f, pair, a, b, bucket_a, bucket_b, count })
+            .collect();
+    }
+    out
 }
 
 /// Sums entries with the same `(frame, pair, a, b, buckets)`, drops zeros.

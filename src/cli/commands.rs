@@ -24,11 +24,15 @@ fn build_scene(scene: &Scene, output: &Path, args: BuildArgs, progress: &dyn Pro
         settings.direction_set = DirectionSetKind::RaySpace;
     }
     let t = Instant::now();
-    let (contents, stats) = build::build(scene, &settings, progress).map_err(anyhow::Error::msg)?;
+    let seq = build::build_sequence(scene, &settings, progress).map_err(anyhow::Error::msg)?;
+    let (contents, stats) = (seq.contents, seq.stats);
+    let t_w = Instant::now();
     let bytes = archive::write(output, &contents)?;
+    let t_write = t_w.elapsed().as_secs_f64();
     let secs = t.elapsed().as_secs_f64();
     println!(
-        "built {}: {} patches, {} directions, {} rays ({:.1} M rays/s), {} links ({} ends), {:.1} MB, {:.2} s",
+        "built {}: {} patches, {} directions, {} rays ({:.1} M rays/s), {} links ({} ends), {:.1} MB, {:.2} s \
+         (setup {:.2} s, trace {:.2} s, links {:.2} s, write {:.2} s)",
         output.display(),
         stats.patches,
         stats.directions,
@@ -37,7 +41,11 @@ fn build_scene(scene: &Scene, output: &Path, args: BuildArgs, progress: &dyn Pro
         stats.links,
         stats.link_ends,
         bytes as f64 / 1e6,
-        secs
+        secs,
+        stats.setup_s,
+        stats.trace_s,
+        stats.assemble_s,
+        t_write,
     );
     Ok(())
 }
@@ -48,15 +56,51 @@ pub fn build(scene: &Path, output: &Path, frame: Option<u32>, args: BuildArgs, p
     match frame {
         Some(f) if f >= frames => bail!("--frame {f} is outside the sequence 0..{frames}"),
         Some(f) => scene = scene.at_frame(f),
-        None if scene.surfaces.iter().any(|s| s.motion.is_some()) => bail!(
-            "the scene is animated ({frames} frames): pass --frame N to build one frame; sequence archives are not written yet"
-        ),
         None => {}
     }
     build_scene(&scene, output, args, progress)
 }
 
-pub fn render(path: &Path, png: &Path, exr: Option<&Path>, args: RenderArgs, progress: &dyn Progress) -> Result<()> {
+/// Replaces a printf-style `%d` / `%0Nd` in `pattern` with `frame`.
+fn frame_path(pattern: &Path, frame: u32) -> Option<std::path::PathBuf> {
+    let text = pattern.to_str()?;
+    let start = text.find('%')?;
+    let rest = &text[start + 1..];
+    let digits: String = rest.chars().take_while(|c| c.is_ascii_digit()).collect();
+    if !rest[digits.len()..].starts_with('d') {
+        return None;
+    }
+    let width: usize = digits.parse().unwrap_or(0);
+    let number = format!("{frame:0width$}");
+    Some(format!("{}{}{}", &text[..start], number, &rest[digits.len() + 1..]).into())
+}
+
+/// Parses `A..B` (B exclusive) or a single frame `A`.
+pub fn parse_frames(text: &str) -> Result<std::ops::Range<u32>> {
+    let parse = |t: &str| t.trim().parse::<u32>().with_context(|| format!("`{text}` is not a frame range like 0..60"));
+    match text.split_once("..") {
+        Some((a, b)) => {
+            let (a, b) = (parse(a)?, parse(b)?);
+            if a >= b {
+                bail!("frame range `{text}` is empty");
+            }
+            Ok(a..b)
+        }
+        None => {
+            let a = parse(text)?;
+            Ok(a..a + 1)
+        }
+    }
+}
+
+pub fn render(
+    path: &Path,
+    png: &Path,
+    exr: Option<&Path>,
+    frames: Option<&str>,
+    args: RenderArgs,
+    progress: &dyn Progress,
+) -> Result<()> {
     if !(args.tolerance > 0.0 && args.tolerance < 1.0) {
         bail!("--tolerance must be in (0, 1), got {}", args.tolerance);
     }
@@ -67,41 +111,68 @@ pub fn render(path: &Path, png: &Path, exr: Option<&Path>, args: RenderArgs, pro
     let archive = Archive::open(path).with_context(|| format!("cannot open {}", path.display()))?;
     let view = archive.view();
     let t_open = t.elapsed().as_secs_f64();
+    let total_frames = view.sequence.map_or(1, |s| s.frames());
+    let range = match frames {
+        Some(f) => parse_frames(f)?,
+        None => 0..1,
+    };
+    if range.end > total_frames {
+        bail!("frames {}..{} are outside the archive's sequence 0..{total_frames}", range.start, range.end);
+    }
+    let sequence_output = range.len() > 1;
+    let out_path = |pattern: &Path, f: u32| -> Result<std::path::PathBuf> {
+        match frame_path(pattern, f) {
+            Some(p) => Ok(p),
+            None if !sequence_output => Ok(pattern.to_path_buf()),
+            None => bail!(
+                "{} needs a frame number pattern such as frame_%04d.png to render several frames",
+                pattern.display()
+            ),
+        }
+    };
     let opts = DistributeOptions {
         tolerance: args.tolerance,
         buckets: !args.no_buckets,
         patch_size_correction: !args.no_patch_size_correction,
         ..Default::default()
     };
-    let t1 = Instant::now();
-    let solution = distribute::distribute(&view, &opts, progress);
-    let t_dist = t1.elapsed().as_secs_f64();
-    let b = &solution.balance;
+    let (mut t_dist, mut t_render, mut ends) = (0.0, 0.0, 0.0);
     let sum = |a: &[f64; 3]| a.iter().sum::<f64>();
-    println!(
-        "energy balance: emitted {:.4} W, absorbed {:.4} W, escaped {:.4} W, residual {:.2e} W (imbalance {:.1e}), {} iterations{}",
-        sum(&b.emitted),
-        sum(&b.absorbed),
-        sum(&b.escaped),
-        sum(&b.residual),
-        b.imbalance(),
-        b.iterations,
-        if b.converged { "" } else { " (NOT converged: raise the iteration limit or the tolerance)" }
-    );
-    let t2 = Instant::now();
-    let image = render::render(&view, &solution.radiance, &RenderOptions { samples_per_axis: args.samples });
-    let t_render = t2.elapsed().as_secs_f64();
-    image_io::write_png(&image, png, args.exposure).map_err(anyhow::Error::msg)?;
-    if let Some(exr) = exr {
-        image_io::write_exr(&image, exr).map_err(anyhow::Error::msg)?;
+    for f in range.clone() {
+        let t1 = Instant::now();
+        let solution = distribute::distribute_frame(&view, f, &opts, progress)?;
+        t_dist += t1.elapsed().as_secs_f64();
+        let b = &solution.balance;
+        ends += view.link_other.len() as f64 * b.iterations as f64;
+        println!(
+            "{}energy balance: emitted {:.4} W, absorbed {:.4} W, escaped {:.4} W, residual {:.2e} W (imbalance {:.1e}), {} iterations{}",
+            if sequence_output { format!("frame {f}: ") } else { String::new() },
+            sum(&b.emitted),
+            sum(&b.absorbed),
+            sum(&b.escaped),
+            sum(&b.residual),
+            b.imbalance(),
+            b.iterations,
+            if b.converged { "" } else { " (NOT converged: raise the iteration limit or the tolerance)" }
+        );
+        let t2 = Instant::now();
+        let image =
+            render::render_frame(&view, f, &solution.radiance, &RenderOptions { samples_per_axis: args.samples });
+        t_render += t2.elapsed().as_secs_f64();
+        image_io::write_png(&image, &out_path(png, f)?, args.exposure).map_err(anyhow::Error::msg)?;
+        if let Some(exr) = exr {
+            image_io::write_exr(&image, &out_path(exr, f)?).map_err(anyhow::Error::msg)?;
+        }
     }
-    let ends = view.link_other.len() as f64 * b.iterations as f64;
+    let c = view.camera;
     println!(
-        "rendered {}{}: {}×{}, open {:.3} s, distribution {:.3} s ({:.0} M link ends/s), render {:.3} s",
+        "rendered {} frame{} to {}{}: {}×{}, open {:.3} s, distribution {:.3} s ({:.0} M link ends/s), render {:.3} s",
+        range.len(),
+        if range.len() == 1 { "" } else { "s" },
         png.display(),
         exr.map(|e| format!(" and {}", e.display())).unwrap_or_default(),
-        image.width,
-        image.height,
+        c.width,
+        c.height,
         t_open,
         t_dist,
         ends / t_dist.max(1e-9) / 1e6,
@@ -224,5 +295,5 @@ pub fn demo(dir: &Path, build_args: BuildArgs, render_args: RenderArgs, progress
     let scene = Scene::cornell_box();
     let archive = dir.join("cornell_box.inet");
     build_scene(&scene, &archive, build_args, progress)?;
-    render(&archive, &dir.join("cornell_box.png"), Some(&dir.join("cornell_box.exr")), render_args, progress)
+    render(&archive, &dir.join("cornell_box.png"), Some(&dir.join("cornell_box.exr")), None, render_args, progress)
 }

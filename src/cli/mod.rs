@@ -78,8 +78,8 @@ enum Command {
         /// Archive to write.
         #[arg(short, long, value_name = "ARCHIVE")]
         output: PathBuf,
-        /// For an animated scene: build this frame's still (sequence
-        /// archives are not written yet).
+        /// For an animated scene: build only this frame, as a still archive
+        /// (default: the whole sequence in one archive).
         #[arg(long, value_name = "N")]
         frame: Option<u32>,
         #[command(flatten)]
@@ -95,6 +95,10 @@ enum Command {
         /// Also write linear radiance as OpenEXR.
         #[arg(long, value_name = "IMAGE.exr")]
         exr: Option<PathBuf>,
+        /// Frames of a sequence archive to render, `A..B` (B excluded) or `N`;
+        /// outputs then need a frame number pattern, e.g. out/frame_%04d.png.
+        #[arg(long, value_name = "A..B")]
+        frames: Option<String>,
         #[command(flatten)]
         render: RenderArgs,
     },
@@ -147,8 +151,8 @@ pub fn main() -> ExitCode {
         Command::Build { scene, output, frame, settings } => {
             commands::build(&scene, &output, frame, settings, &progress)
         }
-        Command::Render { archive, output, exr, render } => {
-            commands::render(&archive, &output, exr.as_deref(), render, &progress)
+        Command::Render { archive, output, exr, frames, render } => {
+            commands::render(&archive, &output, exr.as_deref(), frames.as_deref(), render, &progress)
         }
         Command::Inspect { archive, json } => commands::inspect(&archive, json),
         Command::Compare { image, reference, heatmap, full_scale } => {

@@ -169,8 +169,84 @@ fn gather_buckets(
 
 /// Runs the energy balance on an archive's links.
 pub fn distribute(v: &InetView<'_>, opts: &DistributeOptions, progress: &dyn Progress) -> Solution {
+    distribute_frame(v, 0, opts, progress).expect("frame 0 of a validated archive has no delta to decode")
+}
+
+/// Link ends a frame adds to or removes from frame 0's table (negative
+/// weights remove), as CSR by owner patch.
+struct Overlay {
+    offsets: Vec<u32>,
+    other: Vec<u32>,
+    weight: Vec<f32>,
+    bucket: Vec<u8>,
+}
+
+impl Overlay {
+    fn new(n: usize, records: &[crate::archive::layout::DeltaRecord]) -> Self {
+        let mut count = vec![0u32; n + 1];
+        for d in records {
+            count[d.a as usize + 1] += 1;
+            count[d.b as usize + 1] += 1;
+        }
+        for i in 0..n {
+            count[i + 1] += count[i];
+        }
+        let offsets = count.clone();
+        let mut cursor = count;
+        let m = offsets[n] as usize;
+        let (mut other, mut weight, mut bucket) = (vec![0; m], vec![0.0; m], vec![0; m]);
+        for d in records {
+            for (me, them, k) in [(d.a, d.b, d.bucket_a), (d.b, d.a, d.bucket_b)] {
+                let e = cursor[me as usize] as usize;
+                other[e] = them;
+                weight[e] = d.count as f32;
+                bucket[e] = k;
+                cursor[me as usize] += 1;
+            }
+        }
+        Self { offsets, other, weight, bucket }
+    }
+
+    /// Adds the overlay's contribution to `recv` (bucketed as in [`gather_buckets`]).
+    fn gather(&self, buckets: usize, shoot: &[[f32; 4]], recv: &mut [[f32; 4]]) {
+        for q in 0..self.offsets.len() - 1 {
+            for e in self.offsets[q] as usize..self.offsets[q + 1] as usize {
+                let k = if buckets > 1 { self.bucket[e] as usize } else { 0 };
+                let s = shoot[self.other[e] as usize];
+                for c in 0..4 {
+                    recv[q * buckets + k][c] += self.weight[e] * s[c];
+                }
+            }
+        }
+    }
+}
+
+/// Runs the energy balance for `frame` of a sequence archive (frame 0 for a
+/// still): frame 0's links plus the frame's delta; patches of temporal
+/// instances absent from the frame neither emit nor take part.
+pub fn distribute_frame(
+    v: &InetView<'_>,
+    frame: u32,
+    opts: &DistributeOptions,
+    progress: &dyn Progress,
+) -> Result<Solution, crate::archive::ArchiveError> {
     let n = v.patch_count();
-    let (rho, emit) = patch_materials(v);
+    let (rho, mut emit) = patch_materials(v);
+    let overlay = match &v.sequence {
+        Some(s) => {
+            let present = v.present_primitives(frame);
+            for p in 0..n {
+                if !present[v.patch_primitive[p] as usize] {
+                    emit[p] = [0.0; 3];
+                }
+            }
+            Some(Overlay::new(n, &s.frame_delta(frame)?))
+        }
+        None if frame == 0 => None,
+        None => {
+            return Err(crate::archive::ArchiveError::Corrupt(format!("frame {frame} requested from a still archive")));
+        }
+    };
     // Share of a patch's power each link end carries, and the area used for irradiance.
     let mut share = vec![0.0f32; n];
     let mut area_eff = vec![0.0f32; n];
@@ -186,6 +262,10 @@ pub fn distribute(v: &InetView<'_>, opts: &DistributeOptions, progress: &dyn Pro
         }
         let (_, w, _) = v.link_ends(p);
         linked[p] = w.iter().map(|&x| x as f64).sum();
+        if let Some(o) = &overlay {
+            linked[p] +=
+                o.weight[o.offsets[p] as usize..o.offsets[p + 1] as usize].iter().map(|&x| x as f64).sum::<f64>();
+        }
     }
     // Buckets (§3.4): rings of neighbours to spread light over.
     let bucket_column = v.link_bucket.filter(|_| opts.buckets && v.build.max_bucket > 0);
@@ -226,10 +306,16 @@ pub fn distribute(v: &InetView<'_>, opts: &DistributeOptions, progress: &dyn Pro
         match (bucket_column, &rings) {
             (Some(bk), Some(rings)) => {
                 gather_buckets(v.link_offsets, v.link_other, v.link_weight, bk, nb, &shoot, &mut recv);
+                if let Some(o) = &overlay {
+                    o.gather(nb, &shoot, &mut recv);
+                }
                 rings.spread(&recv, nb, &mut spread);
             }
             _ => {
                 gather(v.link_offsets, v.link_other, v.link_weight, &shoot, &mut recv);
+                if let Some(o) = &overlay {
+                    o.gather(1, &shoot, &mut recv);
+                }
                 spread.fill([0.0; 4]);
             }
         }
@@ -265,5 +351,5 @@ pub fn distribute(v: &InetView<'_>, opts: &DistributeOptions, progress: &dyn Pro
         })
         .collect();
     let received = (0..n).map(|p| [0, 1, 2].map(|c| total_direct[p][c] + total_spread[p][c])).collect();
-    Solution { radiance, received, balance: bal }
+    Ok(Solution { radiance, received, balance: bal })
 }

@@ -102,16 +102,16 @@ fn boundary_edges(prim: &Primitive, pp: &PrimitivePatches) -> Vec<(u32, Vec3, Ve
     out
 }
 
-/// Pairs of patches of different, coplanar primitives of one surface whose
+/// Pairs of patches of different, coplanar primitives of one group whose
 /// boundary edges overlap over a positive length.
-fn coplanar_neighbours(prims: &[Primitive], surface_of: &[u32], patches: &Patches) -> Vec<(u32, u32)> {
+fn coplanar_neighbours(prims: &[Primitive], group_of: &[u32], patches: &Patches) -> Vec<(u32, u32)> {
     let mut pairs = Vec::new();
     let n = prims.len();
     for i in 0..n {
         for j in i + 1..n {
             let (pi, pj) = (&prims[i], &prims[j]);
             let (ni, nj) = (pi.normal(), pj.normal());
-            if surface_of[i] != surface_of[j] || ni.dot(nj) < 0.9999 {
+            if group_of[i] != group_of[j] || ni.dot(nj) < 0.9999 {
                 continue;
             }
             let (lo_i, hi_i) = pi.bounds();
@@ -145,9 +145,10 @@ fn coplanar_neighbours(prims: &[Primitive], surface_of: &[u32], patches: &Patche
 }
 
 impl Patches {
-    /// Cuts `primitives` (of surfaces `surface_of[i]`) into patches of about
-    /// `size` metres.
-    pub fn new(primitives: &[Primitive], surface_of: &[u32], size: f32) -> Result<Self, String> {
+    /// Cuts `primitives` into patches of about `size` metres. Adjacency
+    /// crosses the edges between coplanar primitives with the same
+    /// `group_of` value (the same surface, or the same temporal instance).
+    pub fn new(primitives: &[Primitive], group_of: &[u32], size: f32) -> Result<Self, String> {
         let grids: Vec<PatchGrid> = primitives.iter().map(|p| grid_for(p, size)).collect();
         let total: u64 = grids.iter().map(|g| g.cell_count() as u64).sum();
         if total > MAX_PATCHES {
@@ -190,7 +191,7 @@ impl Patches {
                 lists.push(nb.iter().map(|&c| pp.first_patch + c).collect());
             }
         }
-        for (a, b) in coplanar_neighbours(primitives, surface_of, &out) {
+        for (a, b) in coplanar_neighbours(primitives, group_of, &out) {
             lists[a as usize].push(b);
             lists[b as usize].push(a);
         }

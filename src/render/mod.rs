@@ -92,9 +92,17 @@ fn primitive_of(r: &PrimitiveRecord) -> (Primitive, PatchGrid) {
 
 /// Renders the archive's camera view from per-patch radiance.
 pub fn render(v: &InetView<'_>, patch_radiance: &[[f32; 3]], opts: &RenderOptions) -> Image {
+    render_frame(v, 0, patch_radiance, opts)
+}
+
+/// Renders `frame` of a sequence archive: only the primitives present then.
+pub fn render_frame(v: &InetView<'_>, frame: u32, patch_radiance: &[[f32; 3]], opts: &RenderOptions) -> Image {
     let camera = PinholeCamera::from_record(v.camera);
-    let (prims, grids): (Vec<Primitive>, Vec<PatchGrid>) = v.primitives.iter().map(primitive_of).unzip();
-    let normals: Vec<Vec3> = prims.iter().map(|p| p.normal()).collect();
+    let present = v.present_primitives(frame);
+    let (all_prims, grids): (Vec<Primitive>, Vec<PatchGrid>) = v.primitives.iter().map(primitive_of).unzip();
+    let normals: Vec<Vec3> = all_prims.iter().map(|p| p.normal()).collect();
+    let kept: Vec<u32> = (0..all_prims.len() as u32).filter(|&i| present[i as usize]).collect();
+    let prims: Vec<Primitive> = kept.iter().map(|&i| all_prims[i as usize]).collect();
     let bvh = PrimitiveBvh::new(&prims);
     let vrad = vertex_radiance(v, patch_radiance);
     let n = opts.samples_per_axis.max(1);
@@ -111,7 +119,7 @@ pub fn render(v: &InetView<'_>, patch_radiance: &[[f32; 3]], opts: &RenderOption
                     let Some(hit) = bvh.closest_hit(o, d, 0.0) else {
                         continue;
                     };
-                    let pi = hit.primitive as usize;
+                    let pi = kept[hit.primitive as usize] as usize;
                     if normals[pi].dot(d) >= 0.0 {
                         continue; // back face: surfaces are one-sided
                     }
