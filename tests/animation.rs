@@ -194,3 +194,35 @@ fn corrupt_sequence_sections_are_errors() {
     }
     assert_eq!(checked, 12);
 }
+
+#[test]
+fn warm_start_converges_to_the_same_light_in_fewer_iterations() {
+    use illumnet::archive::{self, Archive};
+    use illumnet::distribute::{self, DistributeOptions};
+    let scene = Scene::from_toml(ADVERSARIAL, std::path::Path::new("a.toml"), std::path::Path::new(".")).unwrap();
+    let hints = BuildHints { patch_size: Some(0.25), frequency: Some(4), ray_spacing: Some(0.04), buckets: Some(1) };
+    let seq = build::build_sequence(&scene, &BuildSettings::resolve(&scene, hints), &NoProgress).unwrap();
+    let arch = Archive::from_bytes(&archive::write_to_vec(&seq.contents).unwrap()).unwrap();
+    let v = arch.view();
+    let opts = DistributeOptions { tolerance: 1e-5, ..Default::default() };
+    let (mut cold_iterations, mut warm_iterations, mut worst) = (0, 0, 0.0f64);
+    let mut previous = distribute::distribute_frame(&v, 0, &opts, &NoProgress).unwrap();
+    for k in 1..scene.frame_count() {
+        let cold = distribute::distribute_frame(&v, k, &opts, &NoProgress).unwrap();
+        let warm = distribute::distribute_frame_from(&v, k, &opts, Some(&previous), &NoProgress).unwrap();
+        cold_iterations += cold.balance.iterations;
+        warm_iterations += warm.balance.iterations;
+        assert!(warm.balance.imbalance().abs() < 1e-5, "frame {k}: {:?}", warm.balance);
+        for (a, b) in cold.radiance.iter().zip(&warm.radiance) {
+            for c in 0..3 {
+                worst = worst.max((a[c] - b[c]).abs() as f64 / (a[c].abs() as f64).max(1e-2));
+            }
+        }
+        previous = warm;
+    }
+    eprintln!(
+        "iterations over frames 1..7: cold {cold_iterations}, warm {warm_iterations}; worst difference {worst:.1e}"
+    );
+    assert!(worst < 1e-3, "warm and cold solutions differ by {worst}");
+    assert!(warm_iterations < cold_iterations, "warm {warm_iterations} vs cold {cold_iterations}");
+}

@@ -123,3 +123,55 @@ fn sequence_archives_render_frame_ranges() {
     fail(&["render", a, "--frames", "0..2", "-o", dir.path().join("x.png").to_str().unwrap()], "frame number pattern");
     fail(&["build", s, "--frame", "4", "-o", a], "outside the sequence 0..4");
 }
+
+#[test]
+fn relighting_changes_light_without_a_rebuild() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/cornell_box.toml");
+    let a = dir.path().join("box.inet");
+    let a = a.to_str().unwrap();
+    illumnet(&["build", "-q", scene.to_str().unwrap(), "-o", a, "--frequency", "6", "--patch-size", "0.05"]);
+    let render = |name: &str, sets: &[&str]| {
+        let png = dir.path().join(format!("{name}.png"));
+        let exr = dir.path().join(format!("{name}.exr"));
+        let mut args =
+            vec!["render", "-q", a, "-o", png.to_str().unwrap(), "--exr", exr.to_str().unwrap(), "--samples", "1"];
+        for s in sets {
+            args.extend(["--set", s]);
+        }
+        illumnet(&args);
+        read_exr(&exr).unwrap()
+    };
+    let base = render("base", &[]);
+    // Twice the light: everything lit doubles (the light is the only emitter).
+    let double = render("double", &["light.emission=36.774,27.9746,13.50714"]);
+    let (b, d) = (base.mean(60, 60, 200, 200), double.mean(60, 60, 200, 200));
+    for c in 0..3 {
+        assert!((d[c] / b[c] - 2.0).abs() < 1e-3, "band {c}: {} vs {}", d[c], b[c]);
+    }
+    // A grey red wall: no more red bleeding onto the back wall near it.
+    let grey = render("grey", &["red_wall.reflectance=0.5,0.5,0.5"]);
+    let rg = |img: &illumnet::render::Image| {
+        let m = img.mean(58, 60, 70, 90);
+        m[0] / m[1]
+    };
+    assert!(rg(&grey) < rg(&base) * 0.9, "bleeding {} vs {}", rg(&grey), rg(&base));
+    // Unknown names and bad values are clear errors.
+    for (set, needle) in [
+        ("lamp.emission=1,1,1", "no surface named `lamp`"),
+        ("light.colour=1,1,1", "unknown field `colour`"),
+        ("white.reflectance=2,0,0", "in [0, 1]"),
+        ("light.emission=1,1", "three numbers"),
+    ] {
+        let out = Command::new(env!("CARGO_BIN_EXE_illumnet"))
+            .args(["render", a, "-o", dir.path().join("x.png").to_str().unwrap(), "--set", set])
+            .output()
+            .unwrap();
+        assert!(!out.status.success());
+        assert!(
+            String::from_utf8_lossy(&out.stderr).contains(needle),
+            "{set}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+    }
+}

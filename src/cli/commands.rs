@@ -93,12 +93,68 @@ pub fn parse_frames(text: &str) -> Result<std::ops::Range<u32>> {
     }
 }
 
+/// Applies `--set NAME.FIELD=R,G,B` changes to `lighting`.
+fn relight(lighting: &mut distribute::Lighting, archive: &Archive, sets: &[String]) -> Result<()> {
+    let meta = archive.meta();
+    let materials = archive.view().surfaces.iter().map(|s| s.material as usize).collect::<Vec<_>>();
+    for set in sets {
+        let (target, value) =
+            set.split_once('=').with_context(|| format!("--set `{set}`: expected NAME.FIELD=R,G,B"))?;
+        let (name, field) =
+            target.rsplit_once('.').with_context(|| format!("--set `{set}`: expected NAME.FIELD=R,G,B"))?;
+        let v: Vec<f32> = value
+            .split(',')
+            .map(|x| x.trim().parse::<f32>())
+            .collect::<Result<_, _>>()
+            .ok()
+            .filter(|v: &Vec<f32>| v.len() == 3 && v.iter().all(|x| x.is_finite()))
+            .with_context(|| format!("--set `{set}`: the value must be three numbers R,G,B"))?;
+        let rgb = [v[0], v[1], v[2]];
+        let surface = meta.surface_names.iter().position(|s| s == name);
+        let material = meta.material_names.iter().position(|m| m == name);
+        match field {
+            "emission" => {
+                let s = surface.with_context(|| {
+                    format!("--set `{set}`: no surface named `{name}` (surfaces: {})", meta.surface_names.join(", "))
+                })?;
+                if rgb.iter().any(|&x| x < 0.0) {
+                    bail!("--set `{set}`: emission must be non-negative");
+                }
+                lighting.emission[s] = rgb;
+            }
+            "reflectance" => {
+                if rgb.iter().any(|&x| !(0.0..=1.0).contains(&x)) {
+                    bail!("--set `{set}`: reflectance components must be in [0, 1]");
+                }
+                match (surface, material) {
+                    (Some(s), _) => lighting.reflectance[s] = rgb,
+                    (None, Some(m)) => {
+                        for (s, &sm) in materials.iter().enumerate() {
+                            if sm == m {
+                                lighting.reflectance[s] = rgb;
+                            }
+                        }
+                    }
+                    (None, None) => bail!(
+                        "--set `{set}`: no surface or material named `{name}` (surfaces: {}; materials: {})",
+                        meta.surface_names.join(", "),
+                        meta.material_names.join(", ")
+                    ),
+                }
+            }
+            other => bail!("--set `{set}`: unknown field `{other}` (known: emission, reflectance)"),
+        }
+    }
+    Ok(())
+}
+
 pub fn render(
     path: &Path,
     png: &Path,
     exr: Option<&Path>,
     frames: Option<&str>,
     args: RenderArgs,
+    sets: &[String],
     progress: &dyn Progress,
 ) -> Result<()> {
     if !(args.tolerance > 0.0 && args.tolerance < 1.0) {
@@ -138,9 +194,16 @@ pub fn render(
     };
     let (mut t_dist, mut t_render, mut ends) = (0.0, 0.0, 0.0);
     let sum = |a: &[f64; 3]| a.iter().sum::<f64>();
+    let mut lighting = distribute::Lighting::from_view(&view);
+    relight(&mut lighting, &archive, sets)?;
+    let distributor = distribute::Distributor::new(&view, &opts, &lighting)?;
+    let mut previous: Option<distribute::Solution> = None;
+    let mut iterations = 0;
     for f in range.clone() {
         let t1 = Instant::now();
-        let solution = distribute::distribute_frame(&view, f, &opts, progress)?;
+        let start = if args.cold { None } else { previous.as_ref() };
+        let solution = distributor.frame(f, start, progress)?;
+        iterations += solution.balance.iterations;
         t_dist += t1.elapsed().as_secs_f64();
         let b = &solution.balance;
         ends += view.link_other.len() as f64 * b.iterations as f64;
@@ -163,10 +226,11 @@ pub fn render(
         if let Some(exr) = exr {
             image_io::write_exr(&image, &out_path(exr, f)?).map_err(anyhow::Error::msg)?;
         }
+        previous = Some(solution);
     }
     let c = view.camera;
     println!(
-        "rendered {} frame{} to {}{}: {}×{}, open {:.3} s, distribution {:.3} s ({:.0} M link ends/s), render {:.3} s",
+        "rendered {} frame{} to {}{}: {}×{}, open {:.3} s, distribution {:.3} s ({} iterations, {:.0} M link ends/s), render {:.3} s",
         range.len(),
         if range.len() == 1 { "" } else { "s" },
         png.display(),
@@ -175,6 +239,7 @@ pub fn render(
         c.height,
         t_open,
         t_dist,
+        iterations,
         ends / t_dist.max(1e-9) / 1e6,
         t_render
     );
@@ -295,5 +360,5 @@ pub fn demo(dir: &Path, build_args: BuildArgs, render_args: RenderArgs, progress
     let scene = Scene::cornell_box();
     let archive = dir.join("cornell_box.inet");
     build_scene(&scene, &archive, build_args, progress)?;
-    render(&archive, &dir.join("cornell_box.png"), Some(&dir.join("cornell_box.exr")), None, render_args, progress)
+    render(&archive, &dir.join("cornell_box.png"), Some(&dir.join("cornell_box.exr")), None, render_args, &[], progress)
 }

@@ -67,6 +67,20 @@ struct RenderArgs {
     /// For measurement: drop the H_p/H_u patch-size correction of §3.4.
     #[arg(long)]
     no_patch_size_correction: bool,
+    /// Start every frame's distribution from zero instead of from the
+    /// previous frame's light (same answer, more iterations).
+    #[arg(long)]
+    cold: bool,
+}
+
+/// Relighting without a rebuild (repeatable): `SURFACE.emission=R,G,B`,
+/// `SURFACE.reflectance=R,G,B` or `MATERIAL.reflectance=R,G,B`.
+#[derive(Args, Clone, Default)]
+struct RelightArgs {
+    /// Change a surface's emitted radiance or a surface's or material's
+    /// reflectance, e.g. `--set light.emission=20,15,5`.
+    #[arg(long = "set", value_name = "NAME.FIELD=R,G,B")]
+    set: Vec<String>,
 }
 
 #[derive(Subcommand)]
@@ -101,6 +115,8 @@ enum Command {
         frames: Option<String>,
         #[command(flatten)]
         render: RenderArgs,
+        #[command(flatten)]
+        relight: RelightArgs,
     },
     /// Validate an archive and print its header, sections and counts.
     Inspect {
@@ -151,8 +167,8 @@ pub fn main() -> ExitCode {
         Command::Build { scene, output, frame, settings } => {
             commands::build(&scene, &output, frame, settings, &progress)
         }
-        Command::Render { archive, output, exr, frames, render } => {
-            commands::render(&archive, &output, exr.as_deref(), frames.as_deref(), render, &progress)
+        Command::Render { archive, output, exr, frames, render, relight } => {
+            commands::render(&archive, &output, exr.as_deref(), frames.as_deref(), render, &relight.set, &progress)
         }
         Command::Inspect { archive, json } => commands::inspect(&archive, json),
         Command::Compare { image, reference, heatmap, full_scale } => {

@@ -89,18 +89,38 @@ pub struct Solution {
     pub balance: EnergyBalance,
 }
 
-/// Per-patch reflectance and emitted radiance, from primitive → surface → material.
-pub fn patch_materials(v: &InetView<'_>) -> (Vec<[f32; 3]>, Vec<[f32; 3]>) {
-    let n = v.patch_count();
-    let mut rho = Vec::with_capacity(n);
-    let mut emit = Vec::with_capacity(n);
-    for &prim in v.patch_primitive {
-        let s = &v.surfaces[v.primitives[prim as usize].surface as usize];
-        let m = &v.materials[s.material as usize];
-        debug_assert_eq!(m.model, model::DIFFUSE);
-        rho.push([m.params[0], m.params[1], m.params[2]]);
-        emit.push(s.emission);
+/// Emission and reflectance per surface: the archive's, or changed without
+/// a rebuild (the I-net holds geometry only: relighting needs no new build).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Lighting {
+    /// Emitted radiance per surface.
+    pub emission: Vec<[f32; 3]>,
+    /// Diffuse reflectance per surface, each component in [0, 1].
+    pub reflectance: Vec<[f32; 3]>,
+}
+
+impl Lighting {
+    /// The lighting stored in the archive.
+    pub fn from_view(v: &InetView<'_>) -> Self {
+        let emission = v.surfaces.iter().map(|s| s.emission).collect();
+        let reflectance = v
+            .surfaces
+            .iter()
+            .map(|s| {
+                let m = &v.materials[s.material as usize];
+                debug_assert_eq!(m.model, model::DIFFUSE);
+                [m.params[0], m.params[1], m.params[2]]
+            })
+            .collect();
+        Self { emission, reflectance }
     }
+}
+
+/// Per-patch reflectance and emitted radiance, from primitive → surface.
+pub fn patch_materials(v: &InetView<'_>, lighting: &Lighting) -> (Vec<[f32; 3]>, Vec<[f32; 3]>) {
+    let surface = |prim: u32| v.primitives[prim as usize].surface as usize;
+    let rho = v.patch_primitive.iter().map(|&p| lighting.reflectance[surface(p)]).collect();
+    let emit = v.patch_primitive.iter().map(|&p| lighting.emission[surface(p)]).collect();
     (rho, emit)
 }
 
@@ -230,126 +250,230 @@ pub fn distribute_frame(
     opts: &DistributeOptions,
     progress: &dyn Progress,
 ) -> Result<Solution, crate::archive::ArchiveError> {
-    let n = v.patch_count();
-    let (rho, mut emit) = patch_materials(v);
-    let overlay = match &v.sequence {
-        Some(s) => {
-            let present = v.present_primitives(frame);
-            for p in 0..n {
-                if !present[v.patch_primitive[p] as usize] {
-                    emit[p] = [0.0; 3];
-                }
-            }
-            Some(Overlay::new(n, &s.frame_delta(frame)?))
-        }
-        None if frame == 0 => None,
-        None => {
-            return Err(crate::archive::ArchiveError::Corrupt(format!("frame {frame} requested from a still archive")));
-        }
-    };
-    // Share of a patch's power each link end carries, and the area used for irradiance.
-    let mut share = vec![0.0f32; n];
-    let mut area_eff = vec![0.0f32; n];
-    let mut linked = vec![0.0f64; n];
-    for p in 0..n {
-        let (h, hx, a) = (v.patch_hits[p] as f32, v.patch_expected_hits[p], v.patch_area[p]);
-        if opts.patch_size_correction {
-            share[p] = if h > 0.0 { 1.0 / h } else { 0.0 };
-            area_eff[p] = if h > 0.0 && hx > 0.0 { a * h / hx } else { a };
-        } else {
-            share[p] = if hx > 0.0 { 1.0 / hx } else { 0.0 };
-            area_eff[p] = a;
-        }
-        let (_, w, _) = v.link_ends(p);
-        linked[p] = w.iter().map(|&x| x as f64).sum();
-        if let Some(o) = &overlay {
-            linked[p] +=
-                o.weight[o.offsets[p] as usize..o.offsets[p + 1] as usize].iter().map(|&x| x as f64).sum::<f64>();
-        }
-    }
-    // Buckets (§3.4): rings of neighbours to spread light over.
-    let bucket_column = v.link_bucket.filter(|_| opts.buckets && v.build.max_bucket > 0);
-    let nb = bucket_column.map_or(1, |_| v.build.max_bucket as usize + 1);
-    let rings = bucket_column.map(|_| buckets::Rings::new(v.adjacency_offsets, v.adjacency, nb - 1));
+    distribute_frame_from(v, frame, opts, None, progress)
+}
 
-    let mut unshot: Vec<[f32; 4]> = (0..n)
-        .map(|p| {
-            let k = std::f32::consts::PI * v.patch_area[p];
-            [emit[p][0] * k, emit[p][1] * k, emit[p][2] * k, 0.0]
-        })
-        .collect();
-    let mut bal = EnergyBalance::default();
-    for u in &unshot {
-        for c in 0..3 {
-            bal.emitted[c] += u[c] as f64;
+/// [`distribute_frame`] warm-started from `start`, typically the previous
+/// frame's solution. The balance is linear, `O = E + ρ·G(O)` for the power
+/// `O` patches send out: the first iteration sends the guess
+/// `O₀ = E + ρ·received(start)` and keeps the residual `E + ρ·G(O₀) − O₀`
+/// (which may be negative) as unshot power, so the iteration converges to
+/// the same answer, in fewer iterations when the guess is close. The energy
+/// bookkeeping stays exact: emitted = absorbed + escaped + residual.
+pub fn distribute_frame_from(
+    v: &InetView<'_>,
+    frame: u32,
+    opts: &DistributeOptions,
+    start: Option<&Solution>,
+    progress: &dyn Progress,
+) -> Result<Solution, crate::archive::ArchiveError> {
+    distribute_lit(v, frame, opts, &Lighting::from_view(v), start, progress)
+}
+
+/// [`distribute_frame_from`] with the given `lighting` instead of the
+/// archive's (its vectors must have one entry per surface).
+pub fn distribute_lit(
+    v: &InetView<'_>,
+    frame: u32,
+    opts: &DistributeOptions,
+    lighting: &Lighting,
+    start: Option<&Solution>,
+    progress: &dyn Progress,
+) -> Result<Solution, crate::archive::ArchiveError> {
+    Distributor::new(v, opts, lighting)?.frame(frame, start, progress)
+}
+
+/// What distributing light over one archive needs whatever the frame:
+/// per-patch reflectance, emission and link shares, and the bucket rings,
+/// computed once and reused for every frame of a sequence.
+pub struct Distributor<'a> {
+    v: InetView<'a>,
+    opts: DistributeOptions,
+    rho: Vec<[f32; 3]>,
+    emit: Vec<[f32; 3]>,
+    share: Vec<f32>,
+    area_eff: Vec<f32>,
+    linked: Vec<f64>,
+    bucket_column: Option<&'a [u8]>,
+    nb: usize,
+    rings: Option<buckets::Rings>,
+}
+
+impl<'a> Distributor<'a> {
+    /// Prepares `v` with `lighting` (one entry per surface).
+    pub fn new(
+        v: &InetView<'a>,
+        opts: &DistributeOptions,
+        lighting: &Lighting,
+    ) -> Result<Self, crate::archive::ArchiveError> {
+        let n = v.patch_count();
+        if lighting.emission.len() != v.surfaces.len() || lighting.reflectance.len() != v.surfaces.len() {
+            return Err(crate::archive::ArchiveError::Corrupt("lighting does not have one entry per surface".into()));
         }
-    }
-    let emitted_total: f64 = bal.emitted.iter().sum();
-    // Received power, split into what hit the patch itself (bucket 0, whose
-    // density follows the patch's hit count) and what was spread onto it.
-    let mut total_direct = vec![[0.0f32; 4]; n];
-    let mut total_spread = vec![[0.0f32; 4]; n];
-    let mut shoot = vec![[0.0f32; 4]; n];
-    let mut recv = vec![[0.0f32; 4]; n * nb];
-    let mut spread = vec![[0.0f32; 4]; n];
-    progress.start("distributing light", 0);
-    let mut residual_total = emitted_total;
-    while residual_total > opts.tolerance * emitted_total && bal.iterations < opts.max_iterations {
+        let (rho, emit) = patch_materials(v, lighting);
+        // Share of a patch's power each link end carries, and the area used for irradiance.
+        let mut share = vec![0.0f32; n];
+        let mut area_eff = vec![0.0f32; n];
+        let mut linked = vec![0.0f64; n];
         for p in 0..n {
-            let s = share[p];
-            let escape = 1.0 - linked[p] * s as f64;
-            for c in 0..3 {
-                shoot[p][c] = unshot[p][c] * s;
-                bal.escaped[c] += unshot[p][c] as f64 * escape;
+            let (h, hx, a) = (v.patch_hits[p] as f32, v.patch_expected_hits[p], v.patch_area[p]);
+            if opts.patch_size_correction {
+                share[p] = if h > 0.0 { 1.0 / h } else { 0.0 };
+                area_eff[p] = if h > 0.0 && hx > 0.0 { a * h / hx } else { a };
+            } else {
+                share[p] = if hx > 0.0 { 1.0 / hx } else { 0.0 };
+                area_eff[p] = a;
             }
+            let (_, w, _) = v.link_ends(p);
+            linked[p] = w.iter().map(|&x| x as f64).sum();
         }
-        match (bucket_column, &rings) {
-            (Some(bk), Some(rings)) => {
-                gather_buckets(v.link_offsets, v.link_other, v.link_weight, bk, nb, &shoot, &mut recv);
-                if let Some(o) = &overlay {
-                    o.gather(nb, &shoot, &mut recv);
-                }
-                rings.spread(&recv, nb, &mut spread);
-            }
-            _ => {
-                gather(v.link_offsets, v.link_other, v.link_weight, &shoot, &mut recv);
-                if let Some(o) = &overlay {
-                    o.gather(1, &shoot, &mut recv);
-                }
-                spread.fill([0.0; 4]);
-            }
-        }
-        residual_total = 0.0;
-        for p in 0..n {
-            for c in 0..3 {
-                let direct = recv[p * nb][c];
-                let r = direct + spread[p][c];
-                total_direct[p][c] += direct;
-                total_spread[p][c] += spread[p][c];
-                let reflected = r * rho[p][c];
-                unshot[p][c] = reflected;
-                bal.absorbed[c] += (r - reflected) as f64;
-                residual_total += reflected as f64;
-            }
-        }
-        bal.iterations += 1;
-        progress.advance(1);
+        // Buckets (§3.4): rings of neighbours to spread light over.
+        let bucket_column = v.link_bucket.filter(|_| opts.buckets && v.build.max_bucket > 0);
+        let nb = bucket_column.map_or(1, |_| v.build.max_bucket as usize + 1);
+        let rings = bucket_column.map(|_| buckets::Rings::new(v.adjacency_offsets, v.adjacency, nb - 1));
+        Ok(Self { v: *v, opts: *opts, rho, emit, share, area_eff, linked, bucket_column, nb, rings })
     }
-    progress.finish();
-    for u in &unshot {
-        for c in 0..3 {
-            bal.residual[c] += u[c] as f64;
+
+    /// Distributes light for `frame` (0 for a still), warm-started from
+    /// `start` when given (see [`distribute_frame_from`]).
+    pub fn frame(
+        &self,
+        frame: u32,
+        start: Option<&Solution>,
+        progress: &dyn Progress,
+    ) -> Result<Solution, crate::archive::ArchiveError> {
+        let v = &self.v;
+        let opts = &self.opts;
+        let n = v.patch_count();
+        let (rho, share, area_eff, nb, bucket_column, rings) =
+            (&self.rho, &self.share, &self.area_eff, self.nb, self.bucket_column, &self.rings);
+        let mut emit = self.emit.clone();
+        let overlay = match &v.sequence {
+            Some(s) => {
+                let present = v.present_primitives(frame);
+                for p in 0..n {
+                    if !present[v.patch_primitive[p] as usize] {
+                        emit[p] = [0.0; 3];
+                    }
+                }
+                Some(Overlay::new(n, &s.frame_delta(frame)?))
+            }
+            None if frame == 0 => None,
+            None => {
+                return Err(crate::archive::ArchiveError::Corrupt(format!(
+                    "frame {frame} requested from a still archive"
+                )));
+            }
+        };
+        let mut linked = self.linked.clone();
+        if let Some(o) = &overlay {
+            for p in 0..n {
+                linked[p] +=
+                    o.weight[o.offsets[p] as usize..o.offsets[p + 1] as usize].iter().map(|&x| x as f64).sum::<f64>();
+            }
         }
+        let mut unshot: Vec<[f32; 4]> = (0..n)
+            .map(|p| {
+                let k = std::f32::consts::PI * v.patch_area[p];
+                [emit[p][0] * k, emit[p][1] * k, emit[p][2] * k, 0.0]
+            })
+            .collect();
+        let mut bal = EnergyBalance::default();
+        for u in &unshot {
+            for c in 0..3 {
+                bal.emitted[c] += u[c] as f64;
+            }
+        }
+        let emitted_total: f64 = bal.emitted.iter().sum();
+        // Received power, split into what hit the patch itself (bucket 0, whose
+        // density follows the patch's hit count) and what was spread onto it.
+        let mut total_direct = vec![[0.0f32; 4]; n];
+        let mut total_spread = vec![[0.0f32; 4]; n];
+        let mut shoot = vec![[0.0f32; 4]; n];
+        let mut recv = vec![[0.0f32; 4]; n * nb];
+        let mut spread = vec![[0.0f32; 4]; n];
+        // Warm start: send O₀ first; `guess` keeps it to form the residual.
+        let guess: Option<Vec<[f32; 4]>> = start.filter(|s| s.received.len() == n).map(|s| {
+            (0..n)
+                .map(|p| {
+                    let e = unshot[p];
+                    let r = s.received[p];
+                    let on = e[0] + e[1] + e[2] > 0.0 || linked[p] > 0.0;
+                    if on {
+                        [e[0] + rho[p][0] * r[0], e[1] + rho[p][1] * r[1], e[2] + rho[p][2] * r[2], 0.0]
+                    } else {
+                        [0.0; 4]
+                    }
+                })
+                .collect()
+        });
+        let emission = unshot.clone();
+        if let Some(g) = &guess {
+            unshot.copy_from_slice(g);
+        }
+        progress.start("distributing light", 0);
+        let mut residual_total = emitted_total;
+        while residual_total > opts.tolerance * emitted_total && bal.iterations < opts.max_iterations {
+            for p in 0..n {
+                let s = share[p];
+                let escape = 1.0 - linked[p] * s as f64;
+                for c in 0..3 {
+                    shoot[p][c] = unshot[p][c] * s;
+                    bal.escaped[c] += unshot[p][c] as f64 * escape;
+                }
+            }
+            match (bucket_column, &rings) {
+                (Some(bk), Some(rings)) => {
+                    gather_buckets(v.link_offsets, v.link_other, v.link_weight, bk, nb, &shoot, &mut recv);
+                    if let Some(o) = &overlay {
+                        o.gather(nb, &shoot, &mut recv);
+                    }
+                    rings.spread(&recv, nb, &mut spread);
+                }
+                _ => {
+                    gather(v.link_offsets, v.link_other, v.link_weight, &shoot, &mut recv);
+                    if let Some(o) = &overlay {
+                        o.gather(1, &shoot, &mut recv);
+                    }
+                    spread.fill([0.0; 4]);
+                }
+            }
+            residual_total = 0.0;
+            let first_warm = bal.iterations == 0 && guess.is_some();
+            for p in 0..n {
+                for c in 0..3 {
+                    let direct = recv[p * nb][c];
+                    let r = direct + spread[p][c];
+                    total_direct[p][c] += direct;
+                    total_spread[p][c] += spread[p][c];
+                    let reflected = r * rho[p][c];
+                    unshot[p][c] = match (&guess, first_warm) {
+                        (Some(g), true) => emission[p][c] + reflected - g[p][c],
+                        _ => reflected,
+                    };
+                    bal.absorbed[c] += (r - reflected) as f64;
+                    residual_total += unshot[p][c].abs() as f64;
+                }
+            }
+            bal.iterations += 1;
+            progress.advance(1);
+        }
+        progress.finish();
+        for u in &unshot {
+            for c in 0..3 {
+                bal.residual[c] += u[c] as f64;
+            }
+        }
+        bal.converged = residual_total <= opts.tolerance * emitted_total;
+        let inv_pi = 1.0 / std::f32::consts::PI;
+        let radiance = (0..n)
+            .map(|p| {
+                let kd = if area_eff[p] > 0.0 { inv_pi / area_eff[p] } else { 0.0 };
+                let ks = if v.patch_area[p] > 0.0 { inv_pi / v.patch_area[p] } else { 0.0 };
+                [0, 1, 2].map(|c| emit[p][c] + rho[p][c] * (total_direct[p][c] * kd + total_spread[p][c] * ks))
+            })
+            .collect();
+        let received = (0..n).map(|p| [0, 1, 2].map(|c| total_direct[p][c] + total_spread[p][c])).collect();
+        Ok(Solution { radiance, received, balance: bal })
     }
-    bal.converged = residual_total <= opts.tolerance * emitted_total;
-    let inv_pi = 1.0 / std::f32::consts::PI;
-    let radiance = (0..n)
-        .map(|p| {
-            let kd = if area_eff[p] > 0.0 { inv_pi / area_eff[p] } else { 0.0 };
-            let ks = if v.patch_area[p] > 0.0 { inv_pi / v.patch_area[p] } else { 0.0 };
-            [0, 1, 2].map(|c| emit[p][c] + rho[p][c] * (total_direct[p][c] * kd + total_spread[p][c] * ks))
-        })
-        .collect();
-    let received = (0..n).map(|p| [0, 1, 2].map(|c| total_direct[p][c] + total_spread[p][c])).collect();
-    Ok(Solution { radiance, received, balance: bal })
 }
