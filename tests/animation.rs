@@ -226,3 +226,21 @@ fn warm_start_converges_to_the_same_light_in_fewer_iterations() {
     assert!(worst < 1e-3, "warm and cold solutions differ by {worst}");
     assert!(warm_iterations < cold_iterations, "warm {warm_iterations} vs cold {cold_iterations}");
 }
+
+#[test]
+fn fan_room_links_are_exact_at_every_frame() {
+    // See: issue #5 acceptance. The paper's scene, at a coarse resolution to
+    // keep the 60 from-scratch builds quick.
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/fan_room.toml");
+    let scene = Scene::from_file(&path).unwrap();
+    assert_eq!((scene.frame_count(), scene.animation.unwrap().fps), (60, 15.0));
+    let hints = BuildHints { patch_size: Some(0.4), frequency: Some(4), ray_spacing: Some(0.12), buckets: Some(1) };
+    let settings = BuildSettings::resolve(&scene, hints);
+    let seq = build::build_sequence(&scene, &settings, &NoProgress).unwrap();
+    for k in 0..scene.frame_count() {
+        let still_settings = BuildSettings { grid_bounds: Some(seq.bounds), ..settings };
+        let still = build::build_sequence(&scene.at_frame(k), &still_settings, &NoProgress).unwrap();
+        let (want, got) = (still.active_links(0), seq.active_links(k));
+        assert!(want == got, "frame {k}: {} links vs {} from scratch", got.len(), want.len());
+    }
+}
