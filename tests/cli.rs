@@ -108,10 +108,29 @@ fn sequence_archives_render_frame_ranges() {
     let (s, a) = (scene.to_str().unwrap(), a.to_str().unwrap());
     illumnet(&["build", "-q", s, "-o", a, "--frequency", "4", "--patch-size", "0.25"]);
     let pattern = dir.path().join("f_%03d.png");
-    illumnet(&["render", "-q", a, "--frames", "1..4", "-o", pattern.to_str().unwrap(), "--samples", "1"]);
+    let gif = dir.path().join("preview.gif");
+    let sheet = dir.path().join("sheet.png");
+    illumnet(&[
+        "render",
+        "-q",
+        a,
+        "--frames",
+        "1..4",
+        "-o",
+        pattern.to_str().unwrap(),
+        "--samples",
+        "1",
+        "--gif",
+        gif.to_str().unwrap(),
+        "--contact-sheet",
+        sheet.to_str().unwrap(),
+    ]);
     for f in 1..4 {
         assert!(dir.path().join(format!("f_{f:03}.png")).exists(), "frame {f}");
     }
+    assert_eq!(&std::fs::read(&gif).unwrap()[..6], b"GIF89a");
+    let sheet = image::open(&sheet).unwrap();
+    assert_eq!((sheet.width(), sheet.height()), (3 * 24, 16), "three frames in one row");
     assert!(!dir.path().join("f_000.png").exists());
     let fail = |args: &[&str], needle: &str| {
         let out = Command::new(env!("CARGO_BIN_EXE_illumnet")).args(args).output().unwrap();

@@ -148,6 +148,14 @@ fn relight(lighting: &mut distribute::Lighting, archive: &Archive, sets: &[Strin
     Ok(())
 }
 
+/// Optional whole-sequence outputs of `render`.
+#[derive(Clone, Copy, Default)]
+pub struct Extras<'a> {
+    pub gif: Option<&'a Path>,
+    pub contact_sheet: Option<&'a Path>,
+}
+
+#[allow(clippy::too_many_arguments)]
 pub fn render(
     path: &Path,
     png: &Path,
@@ -155,6 +163,7 @@ pub fn render(
     frames: Option<&str>,
     args: RenderArgs,
     sets: &[String],
+    extras: Extras<'_>,
     progress: &dyn Progress,
 ) -> Result<()> {
     if !(args.tolerance > 0.0 && args.tolerance < 1.0) {
@@ -198,6 +207,8 @@ pub fn render(
     relight(&mut lighting, &archive, sets)?;
     let distributor = distribute::Distributor::new(&view, &opts, &lighting)?;
     let mut previous: Option<distribute::Solution> = None;
+    let keep_images = extras.gif.is_some() || extras.contact_sheet.is_some();
+    let mut images = Vec::new();
     let mut iterations = 0;
     for f in range.clone() {
         let t1 = Instant::now();
@@ -227,6 +238,18 @@ pub fn render(
             image_io::write_exr(&image, &out_path(exr, f)?).map_err(anyhow::Error::msg)?;
         }
         previous = Some(solution);
+        if keep_images {
+            images.push(image);
+        }
+    }
+    if let Some(gif) = extras.gif {
+        let fps = view.sequence.map_or(24.0, |s| s.record.fps);
+        image_io::write_gif(&images, fps, args.exposure, gif).map_err(anyhow::Error::msg)?;
+        println!("wrote preview {}", gif.display());
+    }
+    if let Some(sheet) = extras.contact_sheet {
+        image_io::write_contact_sheet(&images, 10, args.exposure, sheet).map_err(anyhow::Error::msg)?;
+        println!("wrote contact sheet {}", sheet.display());
     }
     let c = view.camera;
     println!(
@@ -289,6 +312,8 @@ pub fn inspect(path: &Path, json: bool) -> Result<()> {
             "links": b.link_end_count / 2,
             "links_unmerged": b.link_count,
             "link_ends": b.link_end_count,
+            "frames": v.sequence.map_or(1, |s| s.frames()),
+            "instances": v.sequence.map_or(0, |s| s.instances.len()),
             "sections": sections,
         });
         println!("{}", serde_json::to_string_pretty(&out)?);
@@ -320,6 +345,18 @@ pub fn inspect(path: &Path, json: bool) -> Result<()> {
         b.link_count,
         b.link_end_count
     );
+    if let Some(s) = v.sequence {
+        let changes: u64 = s.index.iter().map(|i| i.count).sum();
+        let stored: u64 = s.index.iter().map(|i| i.stored_length).sum();
+        println!(
+            "  sequence: {} frames at {} fps, {} temporal instances, {} link changes against frame 0 ({:.1} MB zstd)",
+            s.frames(),
+            s.record.fps,
+            s.instances.len(),
+            changes,
+            stored as f64 / 1e6
+        );
+    }
     println!("  sections:");
     println!(
         "    {:4}  {:>12}  {:>12}  {:>12}  {:>6}  {:4}  checksum",
@@ -360,5 +397,14 @@ pub fn demo(dir: &Path, build_args: BuildArgs, render_args: RenderArgs, progress
     let scene = Scene::cornell_box();
     let archive = dir.join("cornell_box.inet");
     build_scene(&scene, &archive, build_args, progress)?;
-    render(&archive, &dir.join("cornell_box.png"), Some(&dir.join("cornell_box.exr")), None, render_args, &[], progress)
+    render(
+        &archive,
+        &dir.join("cornell_box.png"),
+        Some(&dir.join("cornell_box.exr")),
+        None,
+        render_args,
+        &[],
+        Extras::default(),
+        progress,
+    )
 }

@@ -113,6 +113,12 @@ enum Command {
         /// outputs then need a frame number pattern, e.g. out/frame_%04d.png.
         #[arg(long, value_name = "A..B")]
         frames: Option<String>,
+        /// Also write the rendered frames as a looping animated GIF preview.
+        #[arg(long, value_name = "PREVIEW.gif")]
+        gif: Option<PathBuf>,
+        /// Also write the rendered frames side by side as one PNG, 10 per row.
+        #[arg(long, value_name = "SHEET.png")]
+        contact_sheet: Option<PathBuf>,
         #[command(flatten)]
         render: RenderArgs,
         #[command(flatten)]
@@ -167,8 +173,18 @@ pub fn main() -> ExitCode {
         Command::Build { scene, output, frame, settings } => {
             commands::build(&scene, &output, frame, settings, &progress)
         }
-        Command::Render { archive, output, exr, frames, render, relight } => {
-            commands::render(&archive, &output, exr.as_deref(), frames.as_deref(), render, &relight.set, &progress)
+        Command::Render { archive, output, exr, frames, gif, contact_sheet, render, relight } => {
+            let extras = commands::Extras { gif: gif.as_deref(), contact_sheet: contact_sheet.as_deref() };
+            commands::render(
+                &archive,
+                &output,
+                exr.as_deref(),
+                frames.as_deref(),
+                render,
+                &relight.set,
+                extras,
+                &progress,
+            )
         }
         Command::Inspect { archive, json } => commands::inspect(&archive, json),
         Command::Compare { image, reference, heatmap, full_scale } => {

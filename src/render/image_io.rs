@@ -44,8 +44,7 @@ pub fn write_exr(image: &Image, path: &Path) -> Result<(), String> {
 /// Writes an 8-bit sRGB PNG: radiance times `exposure`, clamped to `[0, 1]`,
 /// sRGB-encoded.
 pub fn write_png(image: &Image, path: &Path, exposure: f32) -> Result<(), String> {
-    let data: Vec<u8> =
-        image.pixels.iter().flatten().map(|&v| (srgb_encode(v * exposure) * 255.0 + 0.5) as u8).collect();
+    let data = srgb8(image, exposure);
     let img = RgbImage::from_raw(image.width, image.height, data).ok_or("image size mismatch")?;
     save_atomic(path, |w| img.write_to(w, ImageFormat::Png))
 }
@@ -138,4 +137,49 @@ pub fn write_heatmap(width: u32, height: u32, values: &[f32], full_scale: f32, p
         .collect();
     let img = RgbImage::from_raw(width, height, data).ok_or("image size mismatch")?;
     save_atomic(path, |w| img.write_to(w, ImageFormat::Png))
+}
+
+/// 8-bit sRGB pixels of `image` (radiance × `exposure`, clamped).
+fn srgb8(image: &Image, exposure: f32) -> Vec<u8> {
+    image.pixels.iter().flatten().map(|&v| (srgb_encode(v * exposure) * 255.0 + 0.5) as u8).collect()
+}
+
+/// Writes frames as an animated GIF (looping, `fps` frames per second),
+/// for previews: GIF has 256 colours per frame, so use EXR or PNG frames for
+/// anything else.
+pub fn write_gif(frames: &[Image], fps: f32, exposure: f32, path: &Path) -> Result<(), String> {
+    use image::codecs::gif::{GifEncoder, Repeat};
+    use image::{Delay, Frame, RgbaImage};
+    let delay = Delay::from_saturating_duration(std::time::Duration::from_secs_f32(1.0 / fps.max(0.01)));
+    save_atomic(path, |w| {
+        let mut enc = GifEncoder::new_with_speed(w, 10);
+        enc.set_repeat(Repeat::Infinite)?;
+        for f in frames {
+            let rgb = srgb8(f, exposure);
+            let rgba: Vec<u8> = rgb.chunks_exact(3).flat_map(|c| [c[0], c[1], c[2], 255]).collect();
+            let img = RgbaImage::from_raw(f.width, f.height, rgba).expect("sizes match");
+            enc.encode_frame(Frame::from_parts(img, 0, 0, delay))?;
+        }
+        Ok(())
+    })
+}
+
+/// Writes frames side by side as a contact sheet PNG, `columns` per row.
+pub fn write_contact_sheet(frames: &[Image], columns: u32, exposure: f32, path: &Path) -> Result<(), String> {
+    let Some(first) = frames.first() else { return Err("no frames for the contact sheet".into()) };
+    let (w, h) = (first.width, first.height);
+    let columns = columns.clamp(1, frames.len() as u32);
+    let rows = (frames.len() as u32).div_ceil(columns);
+    let mut sheet = RgbImage::new(w * columns, h * rows);
+    for (i, f) in frames.iter().enumerate() {
+        let rgb = srgb8(f, exposure);
+        let (x0, y0) = ((i as u32 % columns) * w, (i as u32 / columns) * h);
+        for y in 0..h {
+            for x in 0..w {
+                let k = ((y * w + x) * 3) as usize;
+                sheet.put_pixel(x0 + x, y0 + y, image::Rgb([rgb[k], rgb[k + 1], rgb[k + 2]]));
+            }
+        }
+    }
+    save_atomic(path, |wr| sheet.write_to(wr, ImageFormat::Png))
 }
