@@ -7,9 +7,10 @@ use illumnet::build::{self, BuildSettings};
 use illumnet::progress::NoProgress;
 use illumnet::scene::{BuildHints, Scene};
 
-/// A closed room with a moving light and three movers: two whose paths
-/// cross (overlapping in space at frame 3), one that enters the space
-/// another has just left, and one static for the first half.
+/// A closed room with a moving light whose colour changes, a moving camera,
+/// and three movers: two whose paths cross (overlapping in space at frame
+/// 3), one that enters the space another has just left, and one static for
+/// the first half.
 const ADVERSARIAL: &str = r#"
 [camera]
 position = [1, 1, -2]
@@ -17,6 +18,7 @@ look_at = [1, 1, 1]
 fov_y_deg = 50
 width = 16
 height = 16
+keyframes = [{ frame = 0, position = [1, 1, -2], look_at = [1, 1, 1] }, { frame = 6, position = [0.5, 1.2, -2], look_at = [1.2, 0.8, 1] }]
 
 [animation]
 frames = 7
@@ -39,6 +41,7 @@ emission = [5, 5, 5]
 quad = [[0.8, 1.9, 0.8], [1.2, 1.9, 0.8], [1.2, 1.9, 1.2], [0.8, 1.9, 1.2]]
 pivot = [1, 1.9, 1]
 keyframes = [{ frame = 0, translate = [-0.5, 0, 0] }, { frame = 6, translate = [0.5, 0, 0.3], rotate_deg = [0, 90, 0] }]
+emission_keyframes = [{ frame = 0, emission = [5, 5, 5] }, { frame = 6, emission = [1, 3, 9] }]
 
 [[surface]]
 name = "mover_a"
@@ -120,7 +123,8 @@ fn bad_animation_input_is_a_clear_error() {
     );
     let e = Scene::from_toml(&bad, std::path::Path::new("a.toml"), std::path::Path::new(".")).unwrap_err();
     assert!(e.message.contains("out of order") && e.field.contains("keyframes[1]"), "{e}");
-    assert_eq!(e.line, 35, "the line of mover_a's keyframes: {e}");
+    let line = ADVERSARIAL.lines().position(|l| l.contains("translate = [1.2, 0.3, 1.0]")).unwrap() + 1;
+    assert_eq!(e.line, line, "the line of mover_a's keyframes: {e}");
     let bad = ADVERSARIAL.replace("{ frame = 6, translate = [1.2, 0.3, 1.0] }", "{ frame = 9 }");
     let e = Scene::from_toml(&bad, std::path::Path::new("a.toml"), std::path::Path::new(".")).unwrap_err();
     assert!(e.message.contains("outside the sequence 0..7"), "{e}");
@@ -168,6 +172,12 @@ fn frame_radiance_from_the_sequence_archive_equals_from_scratch() {
         assert_eq!(compared, want_by_id.len(), "frame {k}: every present patch compared");
         let (e1, e2): (f64, f64) = (sol.balance.emitted.iter().sum(), want.balance.emitted.iter().sum());
         assert!((e1 / e2 - 1.0).abs() < 1e-6, "frame {k}: emitted {e1} vs {e2}");
+        // The frame's image (keyed camera, present geometry) matches too.
+        let opts_r = illumnet::render::RenderOptions { samples_per_axis: 2 };
+        let img = illumnet::render::render_frame(&v, k, &sol.radiance, &opts_r);
+        let want_img = illumnet::render::render(&still_arch.view(), &want.radiance, &opts_r);
+        let err = illumnet::render::image_io::relative_l2(&img, &want_img).unwrap();
+        assert!(err < 1e-4, "frame {k}: image differs from scratch by {err}");
     }
     eprintln!("worst relative radiance difference sequence vs from scratch: {worst:.2e}");
     assert!(worst < 1e-3, "worst relative difference {worst}");

@@ -114,6 +114,10 @@ pub mod tag {
     pub const DELTA_INDEX: Tag = *b"DIDX";
     /// Per-frame link deltas, one zstd frame each (§5.13).
     pub const DELTAS: Tag = *b"DELT";
+    /// Per-frame cameras (§5.13, optional).
+    pub const FRAME_CAMERAS: Tag = *b"CAMF";
+    /// Per-frame, per-surface emission (§5.13, optional).
+    pub const FRAME_EMISSION: Tag = *b"EMIF";
 }
 
 /// The file header at offset 0 (§3).

@@ -105,6 +105,11 @@ pub struct SequenceContents {
     /// Per frame, the changes of the link multiset relative to frame 0
     /// (frame 0's list is empty); stored as `DIDX` + `DELT`.
     pub deltas: Vec<Vec<layout::DeltaRecord>>,
+    /// `CAMF`: one camera per frame, or empty when the camera is still.
+    pub cameras: Vec<layout::CameraRecord>,
+    /// `EMIF`: frames × surfaces emitted radiances, or empty when no
+    /// emission is keyed.
+    pub emissions: Vec<[f32; 3]>,
 }
 
 /// Why an archive could not be written or opened.

@@ -95,6 +95,10 @@ pub struct SequenceView<'a> {
     pub index: &'a [DeltaIndexRecord],
     /// `DELT` payload.
     pub payload: &'a [u8],
+    /// `CAMF`: the camera of every frame, when it moves.
+    pub cameras: Option<&'a [CameraRecord]>,
+    /// `EMIF`: frames × surfaces emitted radiances, when emission is keyed.
+    pub emissions: Option<&'a [[f32; 3]]>,
     patch_count: u32,
     pair_count: u32,
     max_bucket: u8,
@@ -330,6 +334,14 @@ impl Archive {
                         instances: self.column(tag::INSTANCES)?,
                         index: self.column(tag::DELTA_INDEX)?,
                         payload: self.stored(self.entry(tag::DELTAS)?),
+                        cameras: match self.entries.iter().any(|e| e.tag == tag::FRAME_CAMERAS) {
+                            true => Some(self.column(tag::FRAME_CAMERAS)?),
+                            false => None,
+                        },
+                        emissions: match self.entries.iter().any(|e| e.tag == tag::FRAME_EMISSION) {
+                            true => Some(self.column(tag::FRAME_EMISSION)?),
+                            false => None,
+                        },
                         patch_count: b.patch_count,
                         pair_count: b.direction_count / 2,
                         max_bucket: b.max_bucket.min(255) as u8,
@@ -606,6 +618,20 @@ fn validate_contents(v: &InetView<'_>, meta: &ArchiveMeta) -> Result<(), Archive
             check((r.surface as usize) < v.surfaces.len(), || format!("INST[{i}]: surface out of range"))?;
         }
         check(next == v.primitives.len() as u64, || "INST: instances do not cover all primitives".into())?;
+        if let Some(cams) = s.cameras {
+            count("CAMF", cams.len(), frames as usize)?;
+            for (f, c) in cams.iter().enumerate() {
+                check(finite(&c.position) && finite(&c.look_at) && finite(&c.up), || format!("CAMF[{f}]: non-finite"))?;
+                check(c.fov_y_deg > 0.0 && c.fov_y_deg < 180.0, || format!("CAMF[{f}]: field of view"))?;
+                check((c.width, c.height) == (v.camera.width, v.camera.height), || {
+                    format!("CAMF[{f}]: image size differs from CAMR")
+                })?;
+            }
+        }
+        if let Some(e) = s.emissions {
+            count("EMIF", e.len(), frames as usize * v.surfaces.len())?;
+            check(e.iter().all(|x| x.iter().all(|c| c.is_finite() && *c >= 0.0)), || "EMIF: bad emission".into())?;
+        }
         for (f, ix) in s.index.iter().enumerate() {
             let end = ix.offset.checked_add(ix.stored_length);
             check(end.is_some_and(|e| e <= s.payload.len() as u64), || format!("DIDX[{f}]: outside DELT"))?;

@@ -160,6 +160,12 @@ fn write_all<W: Write + Seek>(out: W, c: &ArchiveContents) -> Result<W, ArchiveE
                 });
                 payload.extend_from_slice(&stored);
             }
+            if !seq.cameras.is_empty() {
+                w.column(tag::FRAME_CAMERAS, &seq.cameras)?;
+            }
+            if !seq.emissions.is_empty() {
+                w.column(tag::FRAME_EMISSION, &seq.emissions)?;
+            }
             w.column(tag::DELTA_INDEX, &index)?;
             w.raw(tag::DELTAS, compression::NONE, &payload, payload.len() as u64, seq.deltas.len() as u64, 0)?;
         }

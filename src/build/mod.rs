@@ -62,7 +62,7 @@ pub fn build(
     settings: &BuildSettings,
     progress: &dyn Progress,
 ) -> Result<(ArchiveContents, BuildStats), String> {
-    if scene.surfaces.iter().any(|s| s.motion.is_some()) {
+    if scene.is_animated() {
         return Err("the scene is animated: build one frame (Scene::at_frame, `--frame N`) or a sequence".into());
     }
     let seq = build_sequence(scene, settings, progress)?;
@@ -177,7 +177,7 @@ fn sequence_sections(
     cumulative: &[Vec<trace::DeltaEntry>],
 ) -> Option<SequenceContents> {
     let anim = scene.animation?;
-    if scene.surfaces.iter().all(|s| s.motion.is_none()) {
+    if !scene.is_animated() {
         return None;
     }
     let mut first = 0;
@@ -212,6 +212,14 @@ fn sequence_sections(
                 .collect()
         })
         .collect();
+    let cameras = match scene.camera_keys.is_empty() {
+        true => Vec::new(),
+        false => (0..anim.frames).map(|f| camera_record(&scene.camera_at(f))).collect(),
+    };
+    let emissions = match scene.surfaces.iter().all(|s| s.emission_keys.is_empty()) {
+        true => Vec::new(),
+        false => (0..anim.frames).flat_map(|f| scene.surfaces.iter().map(move |s| s.emission_at(f))).collect(),
+    };
     Some(SequenceContents {
         record: AnimationRecord {
             frames: anim.frames,
@@ -221,7 +229,20 @@ fn sequence_sections(
         },
         instances: records,
         deltas,
+        cameras,
+        emissions,
     })
+}
+
+fn camera_record(c: &crate::scene::Camera) -> CameraRecord {
+    CameraRecord {
+        position: c.position.to_array(),
+        look_at: c.look_at.to_array(),
+        up: c.up.to_array(),
+        fov_y_deg: c.fov_y_deg,
+        width: c.width,
+        height: c.height,
+    }
 }
 
 /// Builds `scene` (still or animated) in one trace; see [`Sequence`].
@@ -364,14 +385,7 @@ pub fn build_sequence(scene: &Scene, settings: &BuildSettings, progress: &dyn Pr
             hit_count: traced.stats.hits,
             reserved1: [0; 6],
         },
-        camera: CameraRecord {
-            position: c.position.to_array(),
-            look_at: c.look_at.to_array(),
-            up: c.up.to_array(),
-            fov_y_deg: c.fov_y_deg,
-            width: c.width,
-            height: c.height,
-        },
+        camera: camera_record(c),
         surfaces,
         materials,
         primitives,

@@ -121,6 +121,7 @@ fn relight(lighting: &mut distribute::Lighting, archive: &Archive, sets: &[Strin
                     bail!("--set `{set}`: emission must be non-negative");
                 }
                 lighting.emission[s] = rgb;
+                lighting.emission_fixed[s] = true;
             }
             "reflectance" => {
                 if rgb.iter().any(|&x| !(0.0..=1.0).contains(&x)) {

@@ -97,6 +97,9 @@ pub struct Lighting {
     pub emission: Vec<[f32; 3]>,
     /// Diffuse reflectance per surface, each component in [0, 1].
     pub reflectance: Vec<[f32; 3]>,
+    /// Surfaces whose emission was set here: it then replaces the archive's
+    /// keyframed emission in every frame.
+    pub emission_fixed: Vec<bool>,
 }
 
 impl Lighting {
@@ -112,7 +115,7 @@ impl Lighting {
                 [m.params[0], m.params[1], m.params[2]]
             })
             .collect();
-        Self { emission, reflectance }
+        Self { emission, reflectance, emission_fixed: vec![false; v.surfaces.len()] }
     }
 }
 
@@ -297,6 +300,8 @@ pub struct Distributor<'a> {
     bucket_column: Option<&'a [u8]>,
     nb: usize,
     rings: Option<buckets::Rings>,
+    patch_surface: Vec<u32>,
+    emission_fixed: Vec<bool>,
 }
 
 impl<'a> Distributor<'a> {
@@ -331,7 +336,22 @@ impl<'a> Distributor<'a> {
         let bucket_column = v.link_bucket.filter(|_| opts.buckets && v.build.max_bucket > 0);
         let nb = bucket_column.map_or(1, |_| v.build.max_bucket as usize + 1);
         let rings = bucket_column.map(|_| buckets::Rings::new(v.adjacency_offsets, v.adjacency, nb - 1));
-        Ok(Self { v: *v, opts: *opts, rho, emit, share, area_eff, linked, bucket_column, nb, rings })
+        let patch_surface = v.patch_primitive.iter().map(|&p| v.primitives[p as usize].surface).collect();
+        let emission_fixed = lighting.emission_fixed.clone();
+        Ok(Self {
+            v: *v,
+            opts: *opts,
+            rho,
+            emit,
+            share,
+            area_eff,
+            linked,
+            bucket_column,
+            nb,
+            rings,
+            patch_surface,
+            emission_fixed,
+        })
     }
 
     /// Distributes light for `frame` (0 for a still), warm-started from
@@ -351,9 +371,15 @@ impl<'a> Distributor<'a> {
         let overlay = match &v.sequence {
             Some(s) => {
                 let present = v.present_primitives(frame);
+                let keyed = s.emissions.map(|e| &e[frame as usize * v.surfaces.len()..][..v.surfaces.len()]);
                 for p in 0..n {
+                    let surface = self.patch_surface[p] as usize;
                     if !present[v.patch_primitive[p] as usize] {
                         emit[p] = [0.0; 3];
+                    } else if let Some(keyed) = keyed
+                        && !self.emission_fixed.get(surface).copied().unwrap_or(false)
+                    {
+                        emit[p] = keyed[surface];
                     }
                 }
                 Some(Overlay::new(n, &s.frame_delta(frame)?))

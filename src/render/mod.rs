@@ -97,7 +97,8 @@ pub fn render(v: &InetView<'_>, patch_radiance: &[[f32; 3]], opts: &RenderOption
 
 /// Renders `frame` of a sequence archive: only the primitives present then.
 pub fn render_frame(v: &InetView<'_>, frame: u32, patch_radiance: &[[f32; 3]], opts: &RenderOptions) -> Image {
-    let camera = PinholeCamera::from_record(v.camera);
+    let record = v.sequence.and_then(|s| s.cameras).and_then(|c| c.get(frame as usize)).unwrap_or(v.camera);
+    let camera = PinholeCamera::from_record(record);
     let present = v.present_primitives(frame);
     let (all_prims, grids): (Vec<Primitive>, Vec<PatchGrid>) = v.primitives.iter().map(primitive_of).unzip();
     let normals: Vec<Vec3> = all_prims.iter().map(|p| p.normal()).collect();

@@ -51,6 +51,21 @@ pub struct Surface {
     pub primitives: Vec<Primitive>,
     /// Keyframed motion; `None` for a surface that never moves.
     pub motion: Option<motion::Motion>,
+    /// Keyframed emission (linear between keys); empty: `emission` always.
+    pub emission_keys: Vec<motion::EmissionKey>,
+}
+
+impl Surface {
+    /// Emitted radiance at `frame`.
+    pub fn emission_at(&self, frame: u32) -> [f32; 3] {
+        motion::interpolate(
+            &self.emission_keys,
+            frame,
+            |k| k.frame,
+            |a, b, t| motion::EmissionKey { frame, emission: a.emission.lerp(b.emission, t) },
+        )
+        .map_or(self.emission, |k| k.emission.to_array())
+    }
 }
 
 /// A pinhole camera.
@@ -98,6 +113,8 @@ pub struct Scene {
     pub build: BuildHints,
     /// Sequence length and rate; `None` for a still.
     pub animation: Option<motion::Animation>,
+    /// Camera keyframes (position and look-at, linear); empty: a still camera.
+    pub camera_keys: Vec<motion::CameraKey>,
 }
 
 impl Scene {
@@ -126,15 +143,44 @@ impl Scene {
         self.animation.map_or(1, |a| a.frames)
     }
 
+    /// The camera at `frame`.
+    pub fn camera_at(&self, frame: u32) -> Camera {
+        let key = motion::interpolate(
+            &self.camera_keys,
+            frame,
+            |k| k.frame,
+            |a, b, t| motion::CameraKey {
+                frame,
+                position: a.position.lerp(b.position, t),
+                look_at: a.look_at.lerp(b.look_at, t),
+            },
+        );
+        match key {
+            Some(k) => Camera { position: k.position, look_at: k.look_at, ..self.camera },
+            None => self.camera,
+        }
+    }
+
+    /// Whether anything changes over the sequence (geometry, light or camera).
+    pub fn is_animated(&self) -> bool {
+        self.animation.is_some()
+            && (!self.camera_keys.is_empty()
+                || self.surfaces.iter().any(|s| s.motion.is_some() || !s.emission_keys.is_empty()))
+    }
+
     /// The still scene of frame `frame`: moving surfaces placed where their
-    /// motion puts them, and no motion left.
+    /// motion puts them, emission and camera as keyed, and no keys left.
     pub fn at_frame(&self, frame: u32) -> Scene {
         let mut s = self.clone();
         for surf in &mut s.surfaces {
             if let Some(m) = surf.motion.take() {
                 surf.primitives = m.apply(frame, &surf.primitives);
             }
+            surf.emission = surf.emission_at(frame);
+            surf.emission_keys.clear();
         }
+        s.camera = self.camera_at(frame);
+        s.camera_keys.clear();
         s.animation = None;
         s
     }

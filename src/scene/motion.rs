@@ -133,3 +133,43 @@ mod tests {
         assert_eq!(m.at(5).2.x, 0.0);
     }
 }
+
+/// A camera keyframe: where the eye is and what it looks at.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CameraKey {
+    /// Frame number.
+    pub frame: u32,
+    /// Eye position (m).
+    pub position: Vec3,
+    /// Point looked at (m).
+    pub look_at: Vec3,
+}
+
+/// An emission keyframe of a surface.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct EmissionKey {
+    /// Frame number.
+    pub frame: u32,
+    /// Emitted radiance (W·sr⁻¹·m⁻², RGB).
+    pub emission: Vec3,
+}
+
+/// Linear interpolation over keys sorted by frame, holding outside them.
+pub fn interpolate<T: Copy>(
+    keys: &[T],
+    frame: u32,
+    frame_of: impl Fn(&T) -> u32,
+    lerp: impl Fn(T, T, f32) -> T,
+) -> Option<T> {
+    let i = keys.partition_point(|k| frame_of(k) <= frame);
+    match (i, keys.len()) {
+        (_, 0) => None,
+        (0, _) => Some(keys[0]),
+        (i, n) if i == n => Some(keys[n - 1]),
+        (i, _) => {
+            let (a, b) = (keys[i - 1], keys[i]);
+            let t = (frame - frame_of(&a)) as f32 / (frame_of(&b) - frame_of(&a)) as f32;
+            Some(lerp(a, b, t))
+        }
+    }
+}

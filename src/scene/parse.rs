@@ -8,7 +8,7 @@ use glam::{Mat3, Vec3};
 use serde::Deserialize;
 use toml::Spanned;
 
-use super::motion::{Animation, Interpolation, Keyframe, Motion, rotation_from_degrees};
+use super::motion::{Animation, CameraKey, EmissionKey, Interpolation, Keyframe, Motion, rotation_from_degrees};
 use super::{BuildHints, Camera, Material, ReflectanceModel, Scene, Surface};
 use crate::geometry::{Primitive, PrimitiveKind};
 
@@ -91,6 +91,52 @@ struct RawCamera {
     fov_y_deg: Spanned<f32>,
     width: Spanned<u32>,
     height: Spanned<u32>,
+    keyframes: Option<Spanned<Vec<RawCameraKey>>>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawCameraKey {
+    frame: u32,
+    position: [f32; 3],
+    look_at: [f32; 3],
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawEmissionKey {
+    frame: u32,
+    emission: [f32; 3],
+}
+
+/// Checks that keyed frames are in the sequence and strictly increasing.
+fn check_key_frames(
+    cx: &Ctx<'_>,
+    frames: impl Iterator<Item = u32>,
+    span: Range<usize>,
+    field: &str,
+    animation: &Option<Spanned<RawAnimation>>,
+) -> Result<(), SceneError> {
+    let Some(total) = animation.as_ref().map(|a| *a.get_ref().frames.get_ref()) else {
+        return Err(cx.err(span, field, "keyframes need an [animation] table with `frames`"));
+    };
+    let mut prev: Option<u32> = None;
+    for (i, f) in frames.enumerate() {
+        if f >= total {
+            return Err(cx.err(span, format!("{field}[{i}]"), format!("frame {f} is outside the sequence 0..{total}")));
+        }
+        if let Some(p) = prev
+            && f <= p
+        {
+            return Err(cx.err(
+                span,
+                format!("{field}[{i}]"),
+                format!("keyframes out of order: frame {f} follows frame {p}; list them by increasing frame"),
+            ));
+        }
+        prev = Some(f);
+    }
+    Ok(())
 }
 
 fn default_up() -> [f32; 3] {
@@ -128,6 +174,7 @@ struct RawSurface {
     mesh: Option<Spanned<String>>,
     transform: Option<Spanned<RawTransform>>,
     keyframes: Option<Spanned<Vec<RawKeyframe>>>,
+    emission_keyframes: Option<Spanned<Vec<RawEmissionKey>>>,
     interpolation: Option<Spanned<String>>,
     pivot: Option<Spanned<[f32; 3]>>,
 }
@@ -356,7 +403,27 @@ pub(super) fn parse(text: &str, file: &Path, base_dir: &Path, name: String) -> R
             return Err(cx.err(geometry_span, geometry_field, "the surface has no primitives"));
         }
         let motion = parse_motion(&cx, s, &raw.animation, &field)?;
-        surfaces.push(Surface { name, material, emission, primitives: prims, motion });
+        let mut emission_keys = Vec::new();
+        if let Some(keys) = &s.emission_keyframes {
+            check_key_frames(
+                &cx,
+                keys.get_ref().iter().map(|k| k.frame),
+                keys.span(),
+                &field("emission_keyframes"),
+                &raw.animation,
+            )?;
+            for k in keys.get_ref() {
+                if !k.emission.iter().all(|x| x.is_finite() && *x >= 0.0) {
+                    return Err(cx.err(
+                        keys.span(),
+                        field("emission_keyframes"),
+                        "emission must be finite and non-negative",
+                    ));
+                }
+                emission_keys.push(EmissionKey { frame: k.frame, emission: Vec3::from(k.emission) });
+            }
+        }
+        surfaces.push(Surface { name, material, emission, primitives: prims, motion, emission_keys });
     }
     if surfaces.is_empty() {
         return Err(cx.err(0..0, "surface", "the scene has no surfaces"));
@@ -374,7 +441,22 @@ pub(super) fn parse(text: &str, file: &Path, base_dir: &Path, name: String) -> R
         }
         None => None,
     };
-    Ok(Scene { name, materials, surfaces, camera, build, animation })
+    let mut camera_keys = Vec::new();
+    if let Some(keys) = &raw.camera.get_ref().keyframes {
+        check_key_frames(&cx, keys.get_ref().iter().map(|k| k.frame), keys.span(), "camera.keyframes", &raw.animation)?;
+        for k in keys.get_ref() {
+            let (p, l) = (Vec3::from(k.position), Vec3::from(k.look_at));
+            if !(p.is_finite() && l.is_finite()) || (l - p).normalize_or_zero().cross(camera.up).length() < 1e-6 {
+                return Err(cx.err(
+                    keys.span(),
+                    "camera.keyframes",
+                    "position and look_at must be finite, distinct and not along `up`",
+                ));
+            }
+            camera_keys.push(CameraKey { frame: k.frame, position: p, look_at: l });
+        }
+    }
+    Ok(Scene { name, materials, surfaces, camera, build, animation, camera_keys })
 }
 
 /// Rejects non-finite, degenerate, non-planar and non-convex primitives.
