@@ -69,7 +69,7 @@ fn sequence_links_equal_from_scratch_links_at_every_frame() {
         Scene::from_toml(ADVERSARIAL, std::path::Path::new("adversarial.toml"), std::path::Path::new(".")).unwrap();
     let hints = BuildHints { patch_size: Some(0.2), frequency: Some(5), ray_spacing: Some(0.03), buckets: Some(1) };
     let settings = BuildSettings::resolve(&scene, hints);
-    let seq = build::build_sequence(&scene, &settings, &NoProgress).unwrap();
+    let seq = build::build_sequence_with_links(&scene, &settings, &NoProgress).unwrap();
     assert!(seq.cumulative.iter().any(|d| !d.is_empty()), "movers must change links");
     // `hold` makes the late starter one instance per held run: 3 instances.
     let late = scene.surfaces.iter().position(|s| s.name == "late_starter").unwrap() as u32;
@@ -77,9 +77,9 @@ fn sequence_links_equal_from_scratch_links_at_every_frame() {
     let mut total_links = 0;
     for k in 0..scene.frame_count() {
         let still_settings = BuildSettings { grid_bounds: Some(seq.bounds), ..settings };
-        let still = build::build_sequence(&scene.at_frame(k), &still_settings, &NoProgress).unwrap();
-        let want = still.active_links(0);
-        let got = seq.active_links(k);
+        let still = build::build_sequence_with_links(&scene.at_frame(k), &still_settings, &NoProgress).unwrap();
+        let want = still.active_links(0).unwrap();
+        let got = seq.active_links(k).unwrap();
         let missing = want.iter().filter(|(key, n)| got.get(key) != Some(n)).count();
         let extra = got.iter().filter(|(key, n)| want.get(key) != Some(n)).count();
         assert!(
@@ -142,7 +142,7 @@ fn frame_radiance_from_the_sequence_archive_equals_from_scratch() {
         Scene::from_toml(ADVERSARIAL, std::path::Path::new("adversarial.toml"), std::path::Path::new(".")).unwrap();
     let hints = BuildHints { patch_size: Some(0.25), frequency: Some(4), ray_spacing: Some(0.04), buckets: Some(1) };
     let settings = BuildSettings::resolve(&scene, hints);
-    let seq = build::build_sequence(&scene, &settings, &NoProgress).unwrap();
+    let seq = build::build_sequence_with_links(&scene, &settings, &NoProgress).unwrap();
     let bytes = archive::write_to_vec(&seq.contents).unwrap();
     let arch = Archive::from_bytes(&bytes).unwrap();
     assert_eq!(arch.header().version_read, 3, "sequence archives need a sequence-aware reader");
@@ -153,7 +153,7 @@ fn frame_radiance_from_the_sequence_archive_equals_from_scratch() {
         let sol = distribute::distribute_frame(&v, k, &opts, &NoProgress).unwrap();
         let present = v.present_primitives(k);
         let still_settings = BuildSettings { grid_bounds: Some(seq.bounds), ..settings };
-        let still = build::build_sequence(&scene.at_frame(k), &still_settings, &NoProgress).unwrap();
+        let still = build::build_sequence_with_links(&scene.at_frame(k), &still_settings, &NoProgress).unwrap();
         let still_arch = Archive::from_bytes(&archive::write_to_vec(&still.contents).unwrap()).unwrap();
         let want = distribute::distribute(&still_arch.view(), &opts, &NoProgress);
         let want_by_id: std::collections::BTreeMap<_, _> = still.patch_identity.iter().zip(&want.radiance).collect();
@@ -246,11 +246,11 @@ fn fan_room_links_are_exact_at_every_frame() {
     assert_eq!((scene.frame_count(), scene.animation.unwrap().fps), (60, 15.0));
     let hints = BuildHints { patch_size: Some(0.4), frequency: Some(4), ray_spacing: Some(0.12), buckets: Some(1) };
     let settings = BuildSettings::resolve(&scene, hints);
-    let seq = build::build_sequence(&scene, &settings, &NoProgress).unwrap();
+    let seq = build::build_sequence_with_links(&scene, &settings, &NoProgress).unwrap();
     for k in 0..scene.frame_count() {
         let still_settings = BuildSettings { grid_bounds: Some(seq.bounds), ..settings };
-        let still = build::build_sequence(&scene.at_frame(k), &still_settings, &NoProgress).unwrap();
-        let (want, got) = (still.active_links(0), seq.active_links(k));
+        let still = build::build_sequence_with_links(&scene.at_frame(k), &still_settings, &NoProgress).unwrap();
+        let (want, got) = (still.active_links(0).unwrap(), seq.active_links(k).unwrap());
         assert!(want == got, "frame {k}: {} links vs {} from scratch", got.len(), want.len());
     }
 }

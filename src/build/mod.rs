@@ -111,8 +111,9 @@ pub struct Sequence {
     pub frames: u32,
     /// The instances, in primitive order.
     pub instances: Vec<Instance>,
-    /// Frame 0's links, by pair.
-    pub base: Vec<LinkRecord>,
+    /// Frame 0's links, by pair, when kept for verification
+    /// ([`build_sequence_with_links`]; about 20 bytes per link).
+    pub base: Option<Vec<LinkRecord>>,
     /// Per frame, the link changes relative to frame 0 (frame 0: none).
     pub cumulative: Vec<Vec<trace::DeltaEntry>>,
     /// Per patch: (surface, primitive index within its surface, cell), the
@@ -128,17 +129,18 @@ pub type LinkIdentity = (u32, (u32, u32, u32), (u32, u32, u32), u8, u8);
 impl Sequence {
     /// The multiset of links active at `frame`: frame 0's links plus every
     /// delta up to `frame`, keyed by patch identity, with ray counts.
-    pub fn active_links(&self, frame: u32) -> std::collections::BTreeMap<LinkIdentity, i64> {
+    /// `None` when the links were not kept.
+    pub fn active_links(&self, frame: u32) -> Option<std::collections::BTreeMap<LinkIdentity, i64>> {
         let id = |p: u32| self.patch_identity[p as usize];
         let mut m = std::collections::BTreeMap::new();
-        for l in &self.base {
+        for l in self.base.as_ref()? {
             *m.entry((l.pair, id(l.a), id(l.b), l.bucket_a, l.bucket_b)).or_insert(0) += l.weight as i64;
         }
         for d in self.cumulative.get(frame as usize).into_iter().flatten() {
             *m.entry((d.pair, id(d.a), id(d.b), d.bucket_a, d.bucket_b)).or_insert(0) += d.count as i64;
         }
         m.retain(|_, n| *n != 0);
-        m
+        Some(m)
     }
 }
 
@@ -247,6 +249,25 @@ fn camera_record(c: &crate::scene::Camera) -> CameraRecord {
 
 /// Builds `scene` (still or animated) in one trace; see [`Sequence`].
 pub fn build_sequence(scene: &Scene, settings: &BuildSettings, progress: &dyn Progress) -> Result<Sequence, String> {
+    build_impl(scene, settings, false, progress)
+}
+
+/// [`build_sequence`], also keeping frame 0's link list in
+/// [`Sequence::base`] so that [`Sequence::active_links`] can verify frames.
+pub fn build_sequence_with_links(
+    scene: &Scene,
+    settings: &BuildSettings,
+    progress: &dyn Progress,
+) -> Result<Sequence, String> {
+    build_impl(scene, settings, true, progress)
+}
+
+fn build_impl(
+    scene: &Scene,
+    settings: &BuildSettings,
+    keep_links: bool,
+    progress: &dyn Progress,
+) -> Result<Sequence, String> {
     settings.validate()?;
     let t0 = Instant::now();
     let dirs = match settings.direction_set {
@@ -285,6 +306,24 @@ pub fn build_sequence(scene: &Scene, settings: &BuildSettings, progress: &dyn Pr
 
     let t2 = Instant::now();
     let table = links::assemble(&traced.bundles, patches.len(), settings.max_bucket);
+    let base = keep_links.then(|| {
+        traced
+            .bundles
+            .iter()
+            .flat_map(|b| {
+                (0..b.a.len()).map(move |i| LinkRecord {
+                    pair: b.pair,
+                    a: b.a[i],
+                    b: b.b[i],
+                    bucket_a: b.bucket_a[i],
+                    bucket_b: b.bucket_b[i],
+                    weight: b.w[i],
+                })
+            })
+            .collect()
+    });
+    let trace::Traced { bundles, hits: traced_hits, cumulative: traced_cumulative, stats: traced_stats } = traced;
+    drop(bundles); // the link table now holds them
     let assemble_s = t2.elapsed().as_secs_f64();
 
     // Expected hits from geometry: a patch of area A and normal n is crossed
@@ -357,9 +396,9 @@ pub fn build_sequence(scene: &Scene, settings: &BuildSettings, progress: &dyn Pr
     let stats = BuildStats {
         directions: dirs.len() as u32,
         patches: patches.len() as u32,
-        rays: traced.stats.rays,
-        hits: traced.stats.hits,
-        links: traced.stats.links,
+        rays: traced_stats.rays,
+        hits: traced_stats.hits,
+        links: traced_stats.links,
         link_ends: table.other.len() as u64,
         setup_s,
         trace_s,
@@ -379,10 +418,10 @@ pub fn build_sequence(scene: &Scene, settings: &BuildSettings, progress: &dyn Pr
             max_bucket: settings.max_bucket,
             ray_spacing_m: settings.ray_spacing,
             patch_size_m: settings.patch_size,
-            ray_count: traced.stats.rays,
-            link_count: traced.stats.links,
+            ray_count: traced_stats.rays,
+            link_count: traced_stats.links,
             link_end_count: table.other.len() as u64,
-            hit_count: traced.stats.hits,
+            hit_count: traced_stats.hits,
             reserved1: [0; 6],
         },
         camera: camera_record(c),
@@ -395,7 +434,7 @@ pub fn build_sequence(scene: &Scene, settings: &BuildSettings, progress: &dyn Pr
         patch_area: patches.area,
         patch_primitive: patches.primitive,
         patch_corners: patches.corners,
-        patch_hits: traced.hits,
+        patch_hits: traced_hits,
         patch_expected_hits: expected,
         vertex_position: patches.vertex_position,
         adjacency_offsets: patches.adjacency_offsets,
@@ -411,7 +450,7 @@ pub fn build_sequence(scene: &Scene, settings: &BuildSettings, progress: &dyn Pr
             surface_names: scene.surfaces.iter().map(|s| s.name.clone()).collect(),
             material_names: scene.materials.iter().map(|m| m.name.clone()).collect(),
         },
-        sequence: sequence_sections(scene, &instances, &traced.cumulative),
+        sequence: sequence_sections(scene, &instances, &traced_cumulative),
     };
     let mut patch_identity = Vec::with_capacity(prims.len());
     for (pi, pp) in seq_primitives.iter().enumerate() {
@@ -419,27 +458,13 @@ pub fn build_sequence(scene: &Scene, settings: &BuildSettings, progress: &dyn Pr
             patch_identity.push((prim_surface[pi], (sort_key[pi] & 0xffff_ffff) as u32, cell));
         }
     }
-    let base = traced
-        .bundles
-        .iter()
-        .flat_map(|b| {
-            (0..b.a.len()).map(move |i| LinkRecord {
-                pair: b.pair,
-                a: b.a[i],
-                b: b.b[i],
-                bucket_a: b.bucket_a[i],
-                bucket_b: b.bucket_b[i],
-                weight: b.w[i],
-            })
-        })
-        .collect();
     Ok(Sequence {
         contents,
         stats,
         frames: scene.frame_count(),
         instances,
         base,
-        cumulative: traced.cumulative,
+        cumulative: traced_cumulative,
         patch_identity,
         bounds,
     })
