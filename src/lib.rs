@@ -24,6 +24,18 @@
 //! * [`render`] turns patch radiance into images (§3.5).
 //!
 //! `ARCHITECTURE.md` at the repository root states what may depend on what.
+//!
+//! ```
+//! use illumnet::{archive, build, distribute, progress::NoProgress, scene};
+//! // A coarse Cornell box: build, store, open, distribute.
+//! let scene = scene::Scene::cornell_box();
+//! let hints = scene::BuildHints { frequency: Some(4), patch_size: Some(0.1), ..Default::default() };
+//! let settings = build::BuildSettings::resolve(&scene, hints);
+//! let (contents, _) = build::build(&scene, &settings, &NoProgress).unwrap();
+//! let archive = archive::Archive::from_bytes(&archive::write_to_vec(&contents).unwrap()).unwrap();
+//! let light = distribute::distribute(&archive.view(), &Default::default(), &NoProgress);
+//! assert!(light.balance.converged && light.balance.imbalance().abs() < 1e-6);
+//! ```
 #![deny(missing_docs)]
 #![deny(unsafe_op_in_unsafe_fn)]
 // Per-band loops `for c in 0..3` over RGB arrays read better than zipped iterators.

@@ -112,6 +112,13 @@ fn make_key(mut parts: Vec<(u8, u32)>) -> Key {
 
 impl DirectionSet {
     /// Builds the set for frequency `f` (1 ≤ f ≤ [`MAX_FREQUENCY`]).
+    ///
+    /// ```
+    /// use illumnet::geodesic::DirectionSet;
+    /// let set = DirectionSet::new(16).unwrap();
+    /// assert_eq!(set.len(), 2562); // 10f² + 2
+    /// assert_eq!(set.directions[1], set.directions[0].map(|x| -x)); // antipodal pairs
+    /// ```
     pub fn new(frequency: u32) -> Result<Self, String> {
         if frequency == 0 || frequency > MAX_FREQUENCY {
             return Err(format!("direction frequency must be in 1..={MAX_FREQUENCY}, got {frequency}"));
