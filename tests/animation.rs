@@ -183,6 +183,7 @@ fn frame_radiance_from_the_sequence_archive_equals_from_scratch() {
     assert!(worst < 1e-3, "worst relative difference {worst}");
     // Frames outside the sequence are errors, not panics.
     assert!(v.sequence.unwrap().frame_delta(scene.frame_count()).is_err());
+    assert!(distribute::distribute_frame(&v, scene.frame_count(), &opts, &NoProgress).is_err());
 }
 
 #[test]

@@ -370,6 +370,12 @@ impl<'a> Distributor<'a> {
         let mut emit = self.emit.clone();
         let overlay = match &v.sequence {
             Some(s) => {
+                if frame >= s.frames() {
+                    return Err(crate::archive::ArchiveError::Corrupt(format!(
+                        "frame {frame} is outside the sequence 0..{}",
+                        s.frames()
+                    )));
+                }
                 let present = v.present_primitives(frame);
                 let keyed = s.emissions.map(|e| &e[frame as usize * v.surfaces.len()..][..v.surfaces.len()]);
                 for p in 0..n {
