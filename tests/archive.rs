@@ -122,3 +122,14 @@ fn versions_follow_the_compatibility_rule() {
     // f = 4 gives 162 geodesic directions; m = round(√(162/6)) = 5 gives 150.
     assert_eq!(a.view().directions.len(), 6 * 5 * 5);
 }
+
+#[test]
+fn absurd_resolutions_are_errors_not_overflows() {
+    // See: review of issue #2 (bad input never panics).
+    let scene = Scene::cornell_box();
+    let build_with = |hints: BuildHints| build::build(&scene, &BuildSettings::resolve(&scene, hints), &NoProgress);
+    let err = build_with(BuildHints { patch_size: Some(1e-6), ..Default::default() }).unwrap_err();
+    assert!(err.contains("cells"), "{err}");
+    let err = build_with(BuildHints { ray_spacing: Some(1e-9), ..Default::default() }).unwrap_err();
+    assert!(err.contains("rays"), "{err}");
+}

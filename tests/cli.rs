@@ -141,6 +141,11 @@ fn sequence_archives_render_frame_ranges() {
     fail(&["render", a, "--frames", "2..9", "-o", pattern.to_str().unwrap()], "outside the archive's sequence 0..4");
     fail(&["render", a, "--frames", "0..2", "-o", dir.path().join("x.png").to_str().unwrap()], "frame number pattern");
     fail(&["build", s, "--frame", "4", "-o", a], "outside the sequence 0..4");
+    fail(&["render", a, "--frames", "4294967295", "-o", pattern.to_str().unwrap()], "out of range");
+    fail(
+        &["render", a, "--frames", "0..2", "-o", dir.path().join("f_%0999999d.png").to_str().unwrap()],
+        "frame number pattern",
+    );
 }
 
 #[test]

@@ -1,4 +1,4 @@
-//! On-disk records of archive format version 1.
+//! On-disk records of the archive format (version 3).
 //!
 //! Every type here is `#[repr(C)]`, made of little-endian `u32`/`u64`/`f32`
 //! fields with no implicit padding, and is read zero-copy with `bytemuck`
@@ -33,6 +33,9 @@ pub const PAGE_ALIGN: u64 = 4096;
 /// Size from which a section is page-aligned (§2).
 pub const LARGE_SECTION: u64 = 64 * 1024;
 
+/// Widest bucket a valid archive may record (§5.1, `max_bucket`).
+pub const MAX_BUCKET: u32 = 4;
+
 /// Section compression codes (§4).
 pub mod compression {
     /// Stored as is; readable zero-copy.
@@ -59,7 +62,7 @@ pub mod merge {
 /// A section tag: four ASCII bytes, stored as is (§4).
 pub type Tag = [u8; 4];
 
-/// Section tags of version 1 (§5).
+/// Section tags (§5).
 pub mod tag {
     use super::Tag;
     /// Build parameters and counts (§5.1).

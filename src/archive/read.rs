@@ -126,6 +126,13 @@ impl SequenceView<'_> {
         }
         let stored = &self.payload[ix.offset as usize..(ix.offset + ix.stored_length) as usize];
         let len = ix.count as usize * size_of::<DeltaRecord>();
+        // Check the frame's declared size before allocating for it.
+        match zstd::zstd_safe::get_frame_content_size(stored) {
+            Ok(Some(n)) if n == len as u64 => {}
+            _ => {
+                return Err(bad(format!("DELT frame {frame}: zstd frame size does not match DIDX count {}", ix.count)));
+            }
+        }
         let raw = zstd::bulk::decompress(stored, len)
             .map_err(|e| bad(format!("DELT frame {frame}: does not decompress: {e}")))?;
         if raw.len() != len || xxh3_64(&raw) != ix.checksum {
@@ -204,6 +211,17 @@ const REQUIRED: [(Tag, u32, u32); 21] = [
     (tag::LINK_WEIGHT, 4, compression::NONE),
     (tag::LINK_DIRECTION, 4, compression::NONE),
     (tag::META, 0, compression::ZSTD),
+];
+
+/// Optional sections, when present: tag, record size, compression.
+const OPTIONAL: [(Tag, u32, u32); 7] = [
+    (tag::LINK_BUCKET, 1, compression::NONE),
+    (tag::ANIMATION, size_of::<AnimationRecord>() as u32, compression::NONE),
+    (tag::INSTANCES, size_of::<InstanceRecord>() as u32, compression::NONE),
+    (tag::DELTA_INDEX, size_of::<DeltaIndexRecord>() as u32, compression::NONE),
+    (tag::DELTAS, 0, compression::NONE),
+    (tag::FRAME_CAMERAS, size_of::<CameraRecord>() as u32, compression::NONE),
+    (tag::FRAME_EMISSION, 12, compression::NONE),
 ];
 
 impl Archive {
@@ -460,6 +478,23 @@ fn validate_structure(bytes: &[u8]) -> Result<(HeaderRecord, Vec<SectionEntry>),
             return Err(bad(format!("sections {} and {} overlap", tag_name(w[0].2), tag_name(w[1].2))));
         }
     }
+    for (t, size, comp) in OPTIONAL {
+        if let Some(e) = entries.iter().find(|e| e.tag == t)
+            && (e.record_size != size || e.compression != comp)
+        {
+            return Err(bad(format!(
+                "section {}: record size {} / compression {} (expected {size} / {comp})",
+                tag_name(t),
+                e.record_size,
+                e.compression
+            )));
+        }
+    }
+    let has = |t: Tag| entries.iter().any(|e| e.tag == t);
+    let animated = [tag::ANIMATION, tag::INSTANCES, tag::DELTA_INDEX, tag::DELTAS].map(has);
+    if animated.iter().any(|&x| x) && !animated.iter().all(|&x| x) {
+        return Err(bad("sequence sections ANIM, INST, DIDX and DELT must appear together"));
+    }
     for (t, size, comp) in REQUIRED {
         let e =
             entries.iter().find(|e| e.tag == t).ok_or_else(|| bad(format!("section {} is missing", tag_name(t))))?;
@@ -504,7 +539,7 @@ fn validate_contents(v: &InetView<'_>, meta: &ArchiveMeta) -> Result<(), Archive
     check(nd as u64 == expected_dirs, || {
         format!("BILD: direction set {} with frequency {f} does not give {nd} directions", b.direction_set)
     })?;
-    check(b.max_bucket <= 15, || format!("BILD: max bucket {} out of range", b.max_bucket))?;
+    check(b.max_bucket <= layout::MAX_BUCKET, || format!("BILD: max bucket {} out of range", b.max_bucket))?;
     for (name, n) in [
         ("PCEN", v.patch_centre.len()),
         ("PNRM", v.patch_normal.len()),
@@ -606,6 +641,7 @@ fn validate_contents(v: &InetView<'_>, meta: &ArchiveMeta) -> Result<(), Archive
     if let Some(s) = &v.sequence {
         let frames = s.record.frames;
         check(frames >= 1, || "ANIM: no frames".into())?;
+        check(s.record.fps.is_finite() && s.record.fps > 0.0, || "ANIM: fps must be positive".into())?;
         count("INST", s.instances.len(), s.record.instance_count as usize)?;
         count("DIDX", s.index.len(), frames as usize)?;
         let mut next = 0u64;
@@ -635,7 +671,9 @@ fn validate_contents(v: &InetView<'_>, meta: &ArchiveMeta) -> Result<(), Archive
         for (f, ix) in s.index.iter().enumerate() {
             let end = ix.offset.checked_add(ix.stored_length);
             check(end.is_some_and(|e| e <= s.payload.len() as u64), || format!("DIDX[{f}]: outside DELT"))?;
-            check(ix.count <= (1 << 40) && (f > 0 || ix.count == 0), || format!("DIDX[{f}]: bad count"))?;
+            check(ix.count <= u32::MAX as u64 && (f > 0 || (ix.count == 0 && ix.stored_length == 0)), || {
+                format!("DIDX[{f}]: bad count")
+            })?;
         }
     }
     Ok(())

@@ -275,6 +275,17 @@ fn build_impl(
         DirectionSetKind::RaySpace => crate::geodesic::ray_space(ray_space_divisions(settings.frequency))?,
     };
     let instances = instances(scene);
+    // Motion is applied after parsing checked the base geometry: check again.
+    for inst in &instances {
+        for p in &inst.primitives {
+            if !(p.p.iter().all(|v| v.is_finite()) && p.area() > 0.0) {
+                return Err(format!(
+                    "surface `{}` at frames {}..={}: keyframed motion makes a primitive degenerate or infinite (a scale through 0?)",
+                    scene.surfaces[inst.surface as usize].name, inst.frames.0, inst.frames.1
+                ));
+            }
+        }
+    }
     let mut prims: Vec<Primitive> = Vec::new();
     let mut prim_surface = Vec::new();
     let mut active = Vec::new();

@@ -23,8 +23,8 @@ pub struct BuildSettings {
     pub grid_bounds: Option<(glam::Vec3, glam::Vec3)>,
 }
 
-/// Widest bucket supported.
-pub const MAX_BUCKET: u32 = 4;
+/// Widest bucket supported (the archive's limit).
+pub const MAX_BUCKET: u32 = crate::archive::layout::MAX_BUCKET;
 /// Default widest bucket: rings of up to 5 patches (chosen in docs/ACCURACY.md).
 pub const DEFAULT_MAX_BUCKET: u32 = 1;
 

@@ -413,6 +413,22 @@ pub fn trace_all(
     let pairs = (dirs.len() / 2) as u32;
     let dir_of = |k: u32| Vec3::from(dirs.directions[2 * k as usize]);
     let layouts: Vec<BundleLayout> = (0..pairs).map(|k| layout(dirs, delta, k)).collect();
+    if !(lo.is_finite() && hi.is_finite()) {
+        return Err("the scene's bounds are not finite (a transform or keyframe moved geometry to infinity)".into());
+    }
+    // Counted in f64 first: tiny spacings would overflow integer grid sizes.
+    let total_rays_f: f64 = (0..pairs)
+        .map(|k| {
+            let lay = &layouts[k as usize];
+            let extent = (hi - lo).length() as f64 * if lay.intercept_axis.is_some() { 3.0 } else { 1.0 };
+            (extent / lay.step as f64 + 3.0).powi(2)
+        })
+        .sum();
+    if total_rays_f.is_nan() || total_rays_f > MAX_RAYS as f64 {
+        return Err(format!(
+            "ray spacing {delta} m would trace about {total_rays_f:.3e} rays (limit {MAX_RAYS}); use a larger spacing"
+        ));
+    }
     let total_rays: u64 = (0..pairs)
         .map(|k| {
             let g = grid_for(dir_of(k), k, lo, hi, &layouts[k as usize]);

@@ -70,7 +70,7 @@ fn frame_path(pattern: &Path, frame: u32) -> Option<std::path::PathBuf> {
     if !rest[digits.len()..].starts_with('d') {
         return None;
     }
-    let width: usize = digits.parse().unwrap_or(0);
+    let width: usize = digits.parse().ok().filter(|&w| w <= 16)?;
     let number = format!("{frame:0width$}");
     Some(format!("{}{}{}", &text[..start], number, &rest[digits.len() + 1..]).into())
 }
@@ -88,7 +88,7 @@ pub fn parse_frames(text: &str) -> Result<std::ops::Range<u32>> {
         }
         None => {
             let a = parse(text)?;
-            Ok(a..a + 1)
+            Ok(a..a.checked_add(1).with_context(|| format!("frame {a} is out of range"))?)
         }
     }
 }

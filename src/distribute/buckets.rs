@@ -17,10 +17,13 @@
 
 use rayon::prelude::*;
 
+/// Largest mean ring size accepted (a 4-ring of a grid has 41 patches).
+pub const MAX_RING_MEAN: u64 = 256;
+
 /// The `k`-rings of every patch for `k = 1..=max`, as CSR tables.
 pub struct Rings {
     /// `offsets[k-1][p]..offsets[k-1][p+1]` index `members[k-1]`.
-    offsets: Vec<Vec<u32>>,
+    offsets: Vec<Vec<u64>>,
     members: Vec<Vec<u32>>,
     /// Weight `w_pq` of each member (aligned with `members`).
     weights: Vec<Vec<f32>>,
@@ -28,9 +31,13 @@ pub struct Rings {
 
 impl Rings {
     /// Breadth-first rings over the adjacency CSR `(adj_offsets, adj)`.
-    pub fn new(adj_offsets: &[u32], adj: &[u32], max: usize) -> Self {
+    /// Fails when the rings would hold more than [`MAX_RING_MEAN`] patches
+    /// per patch on average (only a malformed adjacency gets there: grid
+    /// rings hold at most 2k²+2k+1).
+    pub fn new(adj_offsets: &[u32], adj: &[u32], max: usize) -> Result<Self, String> {
         let n = adj_offsets.len() - 1;
-        let mut offsets = vec![vec![0u32]; max];
+        let mut offsets = vec![vec![0u64]; max];
+        let cap = (MAX_RING_MEAN * n as u64).max(1024);
         let mut members = vec![Vec::new(); max];
         let mut seen = vec![u32::MAX; n];
         let mut frontier = Vec::new();
@@ -57,7 +64,10 @@ impl Rings {
                 let mut sorted = ring.clone();
                 sorted.sort_unstable();
                 members[k].extend_from_slice(&sorted);
-                offsets[k].push(members[k].len() as u32);
+                offsets[k].push(members[k].len() as u64);
+                if members[k].len() as u64 > cap {
+                    return Err(format!("bucket rings exceed {MAX_RING_MEAN} patches per patch: malformed adjacency"));
+                }
             }
         }
         let mut weights = Vec::with_capacity(max);
@@ -81,7 +91,7 @@ impl Rings {
             }
             weights.push(w);
         }
-        Self { offsets, members, weights }
+        Ok(Self { offsets, members, weights })
     }
 
     /// The `k`-ring of patch `p` (`k ≥ 1`), ascending, `p` included.
@@ -145,7 +155,7 @@ mod tests {
     #[test]
     fn rings_have_manhattan_sizes_and_spreading_conserves_energy() {
         let (o, a) = grid(9, 7);
-        let rings = Rings::new(&o, &a, 3);
+        let rings = Rings::new(&o, &a, 3).unwrap();
         let centre = 3 * 9 + 4;
         assert_eq!(rings.ring(1, centre).len(), 5);
         assert_eq!(rings.ring(2, centre).len(), 13);

@@ -335,7 +335,13 @@ impl<'a> Distributor<'a> {
         // Buckets (§3.4): rings of neighbours to spread light over.
         let bucket_column = v.link_bucket.filter(|_| opts.buckets && v.build.max_bucket > 0);
         let nb = bucket_column.map_or(1, |_| v.build.max_bucket as usize + 1);
-        let rings = bucket_column.map(|_| buckets::Rings::new(v.adjacency_offsets, v.adjacency, nb - 1));
+        let rings = match bucket_column {
+            Some(_) => Some(
+                buckets::Rings::new(v.adjacency_offsets, v.adjacency, nb - 1)
+                    .map_err(crate::archive::ArchiveError::Corrupt)?,
+            ),
+            None => None,
+        };
         let patch_surface = v.patch_primitive.iter().map(|&p| v.primitives[p as usize].surface).collect();
         let emission_fixed = lighting.emission_fixed.clone();
         Ok(Self {
@@ -425,7 +431,7 @@ impl<'a> Distributor<'a> {
         let mut recv = vec![[0.0f32; 4]; n * nb];
         let mut spread = vec![[0.0f32; 4]; n];
         // Warm start: send O₀ first; `guess` keeps it to form the residual.
-        let guess: Option<Vec<[f32; 4]>> = start.filter(|s| s.received.len() == n).map(|s| {
+        let guess: Option<Vec<[f32; 4]>> = start.filter(|s| s.received.len() == n && emitted_total > 0.0).map(|s| {
             (0..n)
                 .map(|p| {
                     let e = unshot[p];

@@ -19,6 +19,8 @@ use crate::geometry::{Primitive, PrimitiveKind};
 
 /// Most patches a build may make (ids are `u32`; the rest is headroom).
 pub const MAX_PATCHES: u64 = 1 << 30;
+/// Most cells along one edge of a primitive (the archive's limit, §5.5).
+pub const MAX_GRID: u32 = 1 << 16;
 
 /// Where one primitive's patches and vertices start.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -150,6 +152,13 @@ impl Patches {
     /// `group_of` value (the same surface, or the same temporal instance).
     pub fn new(primitives: &[Primitive], group_of: &[u32], size: f32) -> Result<Self, String> {
         let grids: Vec<PatchGrid> = primitives.iter().map(|p| grid_for(p, size)).collect();
+        // Per-axis cell counts saturate at u32::MAX; bound them before any u32 product.
+        if let Some(g) = grids.iter().find(|g| g.n_u > MAX_GRID || g.n_v > MAX_GRID) {
+            return Err(format!(
+                "patch size {size} m cuts a primitive into {}×{} cells, more than {MAX_GRID} along an edge",
+                g.n_u, g.n_v
+            ));
+        }
         let total: u64 = grids.iter().map(|g| g.cell_count() as u64).sum();
         if total > MAX_PATCHES {
             return Err(format!("patch size {size} m gives {total} patches, more than the {MAX_PATCHES} supported"));
