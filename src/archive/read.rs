@@ -139,6 +139,10 @@ impl SequenceView<'_> {
             return Err(bad(format!("DELT frame {frame}: wrong length or checksum after decompression")));
         }
         let records: Vec<DeltaRecord> = raw.chunks_exact(size_of::<DeltaRecord>()).map(pod_read_unaligned).collect();
+        let key = |d: &DeltaRecord| (d.pair, d.a, d.b, d.bucket_a, d.bucket_b);
+        if records.windows(2).any(|w| key(&w[0]) >= key(&w[1])) {
+            return Err(bad(format!("DELT frame {frame}: records not sorted and unique")));
+        }
         for (i, d) in records.iter().enumerate() {
             if d.a >= self.patch_count
                 || d.b >= self.patch_count

@@ -6,7 +6,7 @@
 //! the grids of neighbouring directions do not alias with each other or with
 //! axis-aligned patch edges.
 
-use std::sync::atomic::{AtomicU32, Ordering};
+use std::sync::atomic::{AtomicU64, Ordering};
 
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
@@ -259,7 +259,7 @@ struct Walk<'a> {
     input: &'a TraceInput<'a>,
     patches: &'a Patches,
     normals: &'a [Vec3],
-    hit_counts: &'a [AtomicU32],
+    hit_counts: &'a [AtomicU64],
     layout: &'a BundleLayout,
     dir: Vec3,
     eps_t: f32,
@@ -443,7 +443,8 @@ pub fn trace_all(
     let prims = input.prims;
     let bvh = PrimitiveBvh::new(prims);
     let normals: Vec<Vec3> = prims.iter().map(|p| p.normal()).collect();
-    let hit_counts: Vec<AtomicU32> = (0..patches.len()).map(|_| AtomicU32::new(0)).collect();
+    // u64 while counting: a single patch could exceed u32 near MAX_RAYS.
+    let hit_counts: Vec<AtomicU64> = (0..patches.len()).map(|_| AtomicU64::new(0)).collect();
     let eps_t = (hi - lo).length() * 1e-6;
     progress.start("tracing direction bundles", pairs as u64);
     let results: Vec<(Bundle, Vec<Vec<DeltaEntry>>, BundleStats)> = (0..pairs)
@@ -514,7 +515,11 @@ pub fn trace_all(
             cumulative[f].extend(list);
         }
     }
-    Ok(Traced { bundles, hits: hit_counts.into_iter().map(AtomicU32::into_inner).collect(), cumulative, stats })
+    let hits: Vec<u32> =
+        hit_counts.into_iter().map(|h| u32::try_from(h.into_inner())).collect::<Result<_, _>>().map_err(|_| {
+            "a patch is hit by more than 2³² rays: use smaller patches or a larger ray spacing".to_string()
+        })?;
+    Ok(Traced { bundles, hits, cumulative, stats })
 }
 
 /// One bundle's per-frame changes relative to frame 0, from its per-ray
