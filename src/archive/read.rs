@@ -629,6 +629,15 @@ fn validate_contents(v: &InetView<'_>, meta: &ArchiveMeta) -> Result<(), Archive
     check(v.vertex_position.iter().all(|x| finite(x)), || "VPOS: non-finite vertex".into())?;
     csr("ADJO", v.adjacency_offsets.iter().map(|&x| x as u64), v.adjacency.len())?;
     check(v.adjacency.iter().all(|&a| (a as usize) < p), || "ADJI: patch id out of range".into())?;
+    // Ascending, no self-loops, symmetric (§5.9): bucket rings rely on it.
+    let row = |q: usize| &v.adjacency[v.adjacency_offsets[q] as usize..v.adjacency_offsets[q + 1] as usize];
+    for q in 0..p {
+        let r = row(q);
+        check(r.windows(2).all(|w| w[0] < w[1]) && !r.contains(&(q as u32)), || format!("ADJI[{q}]: not ascending"))?;
+        check(r.iter().all(|&o| row(o as usize).binary_search(&(q as u32)).is_ok()), || {
+            format!("ADJI[{q}]: adjacency not symmetric")
+        })?;
+    }
     let ends = v.link_other.len();
     count("LWGT", v.link_weight.len(), ends)?;
     count("LDIR", v.link_direction.len(), ends)?;
