@@ -23,7 +23,7 @@ fn cornell_box_is_within_ten_percent_of_the_path_traced_reference() {
     let sol = distribute::distribute(&view, &DistributeOptions::default(), &NoProgress);
     let image = render::render(&view, &sol.radiance, &RenderOptions::default());
     let err = image_io::relative_l2(&image, &reference).unwrap();
-    // Measured 0.0335 at default settings (docs/ACCURACY.md); the bar is 10%.
+    // Measured 0.0324 at default settings (docs/ACCURACY.md); the bar is 10%.
     eprintln!("Cornell box relative L2 error against the reference: {:.4}", err);
     if err >= 0.10 {
         let out = Path::new(env!("CARGO_TARGET_TMPDIR")).join("cornell_box_got.exr");
