@@ -37,6 +37,7 @@
 //! assert!(light.balance.converged && light.balance.imbalance().abs() < 1e-6);
 //! ```
 #![deny(missing_docs)]
+#![deny(rustdoc::broken_intra_doc_links)]
 #![deny(unsafe_op_in_unsafe_fn)]
 // Per-band loops `for c in 0..3` over RGB arrays read better than zipped iterators.
 #![allow(clippy::needless_range_loop)]

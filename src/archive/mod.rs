@@ -7,7 +7,7 @@
 //! links) are raw little-endian struct-of-arrays read zero-copy; the cold
 //! `META` section is rkyv, zstd-compressed.
 //!
-//! [`write`] writes to a temporary file in the destination directory and
+//! [`write()`] writes to a temporary file in the destination directory and
 //! renames it into place, so a crash never leaves a half-written archive
 //! under the final name. [`Archive::open`] maps the file and validates every
 //! byte that later code trusts (checksums, bounds, alignment, index ranges)
@@ -44,7 +44,7 @@ pub struct ArchiveMeta {
 }
 
 /// Everything an archive holds, as owned columns: what a build produces and
-/// [`write`] stores. Field docs give the section each becomes.
+/// [`write()`] stores. Field docs give the section each becomes.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct ArchiveContents {
     /// `BILD`.

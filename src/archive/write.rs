@@ -199,7 +199,7 @@ pub fn write(path: &Path, contents: &ArchiveContents) -> Result<u64, ArchiveErro
     Ok(len)
 }
 
-/// Serialises `contents` to bytes (the same bytes [`write`] stores).
+/// Serialises `contents` to bytes (the same bytes [`write()`] stores).
 pub fn write_to_vec(contents: &ArchiveContents) -> Result<Vec<u8>, ArchiveError> {
     Ok(write_all(std::io::Cursor::new(Vec::new()), contents)?.into_inner())
 }

@@ -1,11 +1,10 @@
 //! Patches: every primitive cut into cells of about the target size.
 //!
 //! Patches are plain columns indexed by a global patch id (struct of arrays).
-//! Each primitive's patches are contiguous, numbered by its
-//! [`PatchGrid`](crate::geometry::grid::PatchGrid); its grid vertices are
-//! contiguous too and shared by neighbouring patches, so radiance can be
-//! interpolated smoothly (§3.5). Adjacency (patches sharing an edge within a
-//! primitive) is a CSR table, for the buckets of §3.4.
+//! Each primitive's patches are contiguous, numbered by the cells of its
+//! [`PatchGrid`]; its grid vertices are contiguous too and shared by
+//! neighbouring patches, so radiance can be interpolated smoothly (§3.5).
+//! Adjacency (patches sharing an edge) is a CSR table, for the buckets of §3.4.
 //!
 //! Adjacency also crosses the edges between coplanar primitives of one
 //! surface (the four quads of the Cornell ceiling), where a cell's boundary

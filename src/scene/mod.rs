@@ -3,7 +3,7 @@
 //! A scene is materials, surfaces (each a list of [`Primitive`]s with one
 //! material and an optional emission), a pinhole camera and optional build
 //! settings. The text format is TOML, specified field by field in
-//! `format-spec/scene.md`; [`parse`] turns text into a [`Scene`] or a
+//! `format-spec/scene.md`; `parse` turns text into a [`Scene`] or a
 //! [`SceneError`] naming the file, line, column and field.
 
 pub mod motion;
