@@ -114,7 +114,9 @@ pub struct Sequence {
     /// Frame 0's links, by pair, when kept for verification
     /// ([`build_sequence_with_links`]; about 20 bytes per link).
     pub base: Option<Vec<LinkRecord>>,
-    /// Per frame, the link changes relative to frame 0 (frame 0: none).
+    /// Per frame, the link changes relative to frame 0 (frame 0: none),
+    /// kept with the links by [`build_sequence_with_links`]; empty otherwise
+    /// (the archive contents hold them).
     pub cumulative: Vec<Vec<trace::DeltaEntry>>,
     /// Per patch: (surface, primitive index within its surface, cell), the
     /// same in every build of the same surfaces and resolution.
@@ -176,7 +178,7 @@ pub fn instances(scene: &Scene) -> Vec<Instance> {
 fn sequence_sections(
     scene: &Scene,
     instances: &[Instance],
-    cumulative: &[Vec<trace::DeltaEntry>],
+    cumulative: Vec<Vec<trace::DeltaEntry>>,
 ) -> Option<SequenceContents> {
     let anim = scene.animation?;
     if !scene.is_animated() {
@@ -198,10 +200,11 @@ fn sequence_sections(
             r
         })
         .collect();
+    // Consumed frame by frame, so each list is freed once converted.
     let deltas = cumulative
-        .iter()
+        .into_iter()
         .map(|list| {
-            list.iter()
+            list.into_iter()
                 .map(|d| DeltaRecord {
                     pair: d.pair,
                     a: d.a,
@@ -333,7 +336,7 @@ fn build_impl(
             })
             .collect()
     });
-    let trace::Traced { bundles, hits: traced_hits, cumulative: traced_cumulative, stats: traced_stats } = traced;
+    let trace::Traced { bundles, hits: traced_hits, cumulative: mut traced_cumulative, stats: traced_stats } = traced;
     drop(bundles); // the link table now holds them
     let assemble_s = t2.elapsed().as_secs_f64();
 
@@ -461,7 +464,12 @@ fn build_impl(
             surface_names: scene.surfaces.iter().map(|s| s.name.clone()).collect(),
             material_names: scene.materials.iter().map(|m| m.name.clone()).collect(),
         },
-        sequence: sequence_sections(scene, &instances, &traced_cumulative),
+        // Lean builds hand the deltas over; verification builds keep a copy.
+        sequence: sequence_sections(
+            scene,
+            &instances,
+            if keep_links { traced_cumulative.clone() } else { std::mem::take(&mut traced_cumulative) },
+        ),
     };
     let mut patch_identity = Vec::with_capacity(prims.len());
     for (pi, pp) in seq_primitives.iter().enumerate() {
