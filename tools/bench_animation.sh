@@ -35,10 +35,11 @@ t0, t1, t2, t3, t4 = map(float, sys.argv[1:6]); frames = int(sys.argv[6]); out =
 seq = t2 - t0; scratch = t4 - t3
 r = open(os.path.join(out, "render.txt")).read().splitlines()[-1]
 dist = float(re.search(r"distribution ([\d.]+) s", r)[1]); rend = float(re.search(r"render ([\d.]+) s", r)[1])
+delta = float(re.search(r"delta apply ([\d.]+) s", r)[1])
 size_seq = os.path.getsize(os.path.join(out, "seq.inet")); size_still = os.path.getsize(os.path.join(out, "still.inet"))
 print(f"sequence: build {t1 - t0:.1f} s + {frames} frames {t2 - t1:.1f} s = {seq:.1f} s ({seq / frames:.2f} s/frame)")
-print(f"  per frame: delta apply + distribution {dist / frames:.3f} s, shading {rend / frames:.3f} s, "
-      f"image writing and rest {(t2 - t1 - dist - rend) / frames:.3f} s")
+print(f"  per frame: delta apply {delta / frames:.3f} s, distribution {dist / frames:.3f} s, shading {rend / frames:.3f} s, "
+      f"image writing and rest {(t2 - t1 - delta - dist - rend) / frames:.3f} s")
 print(f"from scratch: {frames} x (build + render) = {scratch:.1f} s ({scratch / frames:.2f} s/frame)")
 print(f"speedup: {scratch / seq:.1f}x")
 print(f"archive: sequence {size_seq / 1e6:.1f} MB vs one still frame {size_still / 1e6:.1f} MB "

@@ -202,7 +202,7 @@ pub fn render(
         patch_size_correction: !args.no_patch_size_correction,
         ..Default::default()
     };
-    let (mut t_dist, mut t_render, mut ends) = (0.0, 0.0, 0.0);
+    let (mut t_dist, mut t_render, mut ends, mut t_delta) = (0.0, 0.0, 0.0, 0.0);
     let sum = |a: &[f64; 3]| a.iter().sum::<f64>();
     let mut lighting = distribute::Lighting::from_view(&view);
     relight(&mut lighting, &archive, sets)?;
@@ -216,6 +216,7 @@ pub fn render(
         let start = if args.cold { None } else { previous.as_ref() };
         let solution = distributor.frame(f, start, progress)?;
         iterations += solution.balance.iterations;
+        t_delta += solution.delta_s;
         t_dist += t1.elapsed().as_secs_f64();
         let b = &solution.balance;
         ends += view.link_other.len() as f64 * b.iterations as f64;
@@ -254,7 +255,7 @@ pub fn render(
     }
     let c = view.camera;
     println!(
-        "rendered {} frame{} to {}{}: {}×{}, open {:.3} s, distribution {:.3} s ({} iterations, {:.0} M link ends/s), render {:.3} s",
+        "rendered {} frame{} to {}{}: {}×{}, open {:.3} s, delta apply {:.3} s, distribution {:.3} s ({} iterations, {:.0} M link ends/s), render {:.3} s",
         range.len(),
         if range.len() == 1 { "" } else { "s" },
         png.display(),
@@ -262,9 +263,10 @@ pub fn render(
         c.width,
         c.height,
         t_open,
-        t_dist,
+        t_delta,
+        t_dist - t_delta,
         iterations,
-        ends / t_dist.max(1e-9) / 1e6,
+        ends / (t_dist - t_delta).max(1e-9) / 1e6,
         t_render
     );
     Ok(())

@@ -87,6 +87,8 @@ pub struct Solution {
     pub received: Vec<[f32; 3]>,
     /// Energy bookkeeping.
     pub balance: EnergyBalance,
+    /// Seconds spent decoding and applying the frame's delta (0 for stills).
+    pub delta_s: f64,
 }
 
 /// Emission and reflectance per surface: the archive's, or changed without
@@ -374,6 +376,7 @@ impl<'a> Distributor<'a> {
         let (rho, share, area_eff, nb, bucket_column, rings) =
             (&self.rho, &self.share, &self.area_eff, self.nb, self.bucket_column, &self.rings);
         let mut emit = self.emit.clone();
+        let t_delta = std::time::Instant::now();
         let overlay = match &v.sequence {
             Some(s) => {
                 if frame >= s.frames() {
@@ -410,6 +413,7 @@ impl<'a> Distributor<'a> {
                     o.weight[o.offsets[p] as usize..o.offsets[p + 1] as usize].iter().map(|&x| x as f64).sum::<f64>();
             }
         }
+        let delta_s = if overlay.is_some() { t_delta.elapsed().as_secs_f64() } else { 0.0 };
         let mut unshot: Vec<[f32; 4]> = (0..n)
             .map(|p| {
                 let k = std::f32::consts::PI * v.patch_area[p];
@@ -512,6 +516,6 @@ impl<'a> Distributor<'a> {
             })
             .collect();
         let received = (0..n).map(|p| [0, 1, 2].map(|c| total_direct[p][c] + total_spread[p][c])).collect();
-        Ok(Solution { radiance, received, balance: bal })
+        Ok(Solution { radiance, received, balance: bal, delta_s })
     }
 }
