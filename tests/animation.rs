@@ -63,21 +63,34 @@ interpolation = "hold"
 keyframes = [{ frame = 0 }, { frame = 3, translate = [0.3, 0, -0.2], rotate_deg = [0, 30, 0] }, { frame = 5, translate = [0.9, -0.4, -0.6] }]
 "#;
 
+fn adversarial() -> Scene {
+    Scene::from_toml(ADVERSARIAL, std::path::Path::new("adversarial.toml"), std::path::Path::new(".")).unwrap()
+}
+
+/// The sequence build of `scene` at `hints`, keeping its links, and its settings.
+fn sequence(scene: &Scene, hints: BuildHints) -> (build::Sequence, BuildSettings) {
+    let settings = BuildSettings::resolve(scene, hints);
+    (build::build_sequence_with_links(scene, &settings, &NoProgress).unwrap(), settings)
+}
+
+/// A from-scratch build of frame `k` alone, with the sequence's ray grids.
+fn from_scratch(scene: &Scene, seq: &build::Sequence, settings: &BuildSettings, k: u32) -> build::Sequence {
+    let still_settings = BuildSettings { grid_bounds: Some(seq.bounds), ..*settings };
+    build::build_sequence_with_links(&scene.at_frame(k), &still_settings, &NoProgress).unwrap()
+}
+
 #[test]
 fn sequence_links_equal_from_scratch_links_at_every_frame() {
-    let scene =
-        Scene::from_toml(ADVERSARIAL, std::path::Path::new("adversarial.toml"), std::path::Path::new(".")).unwrap();
+    let scene = adversarial();
     let hints = BuildHints { patch_size: Some(0.2), frequency: Some(5), ray_spacing: Some(0.03), buckets: Some(1) };
-    let settings = BuildSettings::resolve(&scene, hints);
-    let seq = build::build_sequence_with_links(&scene, &settings, &NoProgress).unwrap();
+    let (seq, settings) = sequence(&scene, hints);
     assert!(seq.cumulative.iter().any(|d| !d.is_empty()), "movers must change links");
     // `hold` makes the late starter one instance per held run: 3 instances.
     let late = scene.surfaces.iter().position(|s| s.name == "late_starter").unwrap() as u32;
     assert_eq!(seq.instances.iter().filter(|i| i.surface == late).count(), 3);
     let mut total_links = 0;
     for k in 0..scene.frame_count() {
-        let still_settings = BuildSettings { grid_bounds: Some(seq.bounds), ..settings };
-        let still = build::build_sequence_with_links(&scene.at_frame(k), &still_settings, &NoProgress).unwrap();
+        let still = from_scratch(&scene, &seq, &settings, k);
         let want = still.active_links(0).unwrap();
         let got = seq.active_links(k).unwrap();
         let missing = want.iter().filter(|(key, n)| got.get(key) != Some(n)).count();
@@ -129,7 +142,7 @@ fn bad_animation_input_is_a_clear_error() {
     let e = Scene::from_toml(&bad, std::path::Path::new("a.toml"), std::path::Path::new(".")).unwrap_err();
     assert!(e.message.contains("outside the sequence 0..7"), "{e}");
     // A still build of an animated scene says what to do instead.
-    let scene = Scene::from_toml(ADVERSARIAL, std::path::Path::new("a.toml"), std::path::Path::new(".")).unwrap();
+    let scene = adversarial();
     let err = build::build(&scene, &BuildSettings::resolve(&scene, BuildHints::default()), &NoProgress).unwrap_err();
     assert!(err.contains("animated"), "{err}");
 }
@@ -138,11 +151,9 @@ fn bad_animation_input_is_a_clear_error() {
 fn frame_radiance_from_the_sequence_archive_equals_from_scratch() {
     use illumnet::archive::{self, Archive};
     use illumnet::distribute::{self, DistributeOptions};
-    let scene =
-        Scene::from_toml(ADVERSARIAL, std::path::Path::new("adversarial.toml"), std::path::Path::new(".")).unwrap();
+    let scene = adversarial();
     let hints = BuildHints { patch_size: Some(0.25), frequency: Some(4), ray_spacing: Some(0.04), buckets: Some(1) };
-    let settings = BuildSettings::resolve(&scene, hints);
-    let seq = build::build_sequence_with_links(&scene, &settings, &NoProgress).unwrap();
+    let (seq, settings) = sequence(&scene, hints);
     let bytes = archive::write_to_vec(&seq.contents).unwrap();
     let arch = Archive::from_bytes(&bytes).unwrap();
     assert_eq!(arch.header().version_read, 3, "sequence archives need a sequence-aware reader");
@@ -152,8 +163,7 @@ fn frame_radiance_from_the_sequence_archive_equals_from_scratch() {
     for k in 0..scene.frame_count() {
         let sol = distribute::distribute_frame(&v, k, &opts, &NoProgress).unwrap();
         let present = v.present_primitives(k);
-        let still_settings = BuildSettings { grid_bounds: Some(seq.bounds), ..settings };
-        let still = build::build_sequence_with_links(&scene.at_frame(k), &still_settings, &NoProgress).unwrap();
+        let still = from_scratch(&scene, &seq, &settings, k);
         let still_arch = Archive::from_bytes(&archive::write_to_vec(&still.contents).unwrap()).unwrap();
         let want = distribute::distribute(&still_arch.view(), &opts, &NoProgress);
         let want_by_id: std::collections::BTreeMap<_, _> = still.patch_identity.iter().zip(&want.radiance).collect();
@@ -189,7 +199,7 @@ fn frame_radiance_from_the_sequence_archive_equals_from_scratch() {
 #[test]
 fn corrupt_sequence_sections_are_errors() {
     use illumnet::archive::{self, Archive, tag_name};
-    let scene = Scene::from_toml(ADVERSARIAL, std::path::Path::new("a.toml"), std::path::Path::new(".")).unwrap();
+    let scene = adversarial();
     let hints = BuildHints { patch_size: Some(0.4), frequency: Some(3), ray_spacing: Some(0.08), buckets: Some(1) };
     let seq = build::build_sequence(&scene, &BuildSettings::resolve(&scene, hints), &NoProgress).unwrap();
     let bytes = archive::write_to_vec(&seq.contents).unwrap();
@@ -210,7 +220,7 @@ fn corrupt_sequence_sections_are_errors() {
 fn warm_start_converges_to_the_same_light_in_fewer_iterations() {
     use illumnet::archive::{self, Archive};
     use illumnet::distribute::{self, DistributeOptions};
-    let scene = Scene::from_toml(ADVERSARIAL, std::path::Path::new("a.toml"), std::path::Path::new(".")).unwrap();
+    let scene = adversarial();
     let hints = BuildHints { patch_size: Some(0.25), frequency: Some(4), ray_spacing: Some(0.04), buckets: Some(1) };
     let seq = build::build_sequence(&scene, &BuildSettings::resolve(&scene, hints), &NoProgress).unwrap();
     let arch = Archive::from_bytes(&archive::write_to_vec(&seq.contents).unwrap()).unwrap();
@@ -246,11 +256,9 @@ fn fan_room_links_are_exact_at_every_frame() {
     let scene = Scene::from_file(&path).unwrap();
     assert_eq!((scene.frame_count(), scene.animation.unwrap().fps), (60, 15.0));
     let hints = BuildHints { patch_size: Some(0.4), frequency: Some(4), ray_spacing: Some(0.12), buckets: Some(1) };
-    let settings = BuildSettings::resolve(&scene, hints);
-    let seq = build::build_sequence_with_links(&scene, &settings, &NoProgress).unwrap();
+    let (seq, settings) = sequence(&scene, hints);
     for k in 0..scene.frame_count() {
-        let still_settings = BuildSettings { grid_bounds: Some(seq.bounds), ..settings };
-        let still = build::build_sequence_with_links(&scene.at_frame(k), &still_settings, &NoProgress).unwrap();
+        let still = from_scratch(&scene, &seq, &settings, k);
         let (want, got) = (still.active_links(0).unwrap(), seq.active_links(k).unwrap());
         assert!(want == got, "frame {k}: {} links vs {} from scratch", got.len(), want.len());
     }

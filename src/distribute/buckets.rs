@@ -61,9 +61,9 @@ impl Rings {
                 }
                 ring.extend_from_slice(&next);
                 std::mem::swap(&mut frontier, &mut next);
-                let mut sorted = ring.clone();
-                sorted.sort_unstable();
-                members[k].extend_from_slice(&sorted);
+                let start = members[k].len();
+                members[k].extend_from_slice(&ring);
+                members[k][start..].sort_unstable();
                 offsets[k].push(members[k].len() as u64);
                 if members[k].len() as u64 > cap {
                     return Err(format!("bucket rings exceed {MAX_RING_MEAN} patches per patch: malformed adjacency"));
