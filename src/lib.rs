@@ -53,6 +53,7 @@ pub mod geodesic;
 pub mod geometry;
 pub mod patch;
 pub mod progress;
+pub mod reflectance;
 pub mod render;
 pub mod scene;
 
