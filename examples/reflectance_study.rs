@@ -11,9 +11,12 @@ use illumnet::geodesic::DirectionSet;
 use illumnet::reflectance::{Frame, Lobe, MapMethod, OrientationMap, TableModel, prototype};
 
 fn main() {
-    let threshold: f64 = std::env::var("THRESHOLD").ok().and_then(|t| t.parse().ok()).unwrap_or(prototype::DEFAULT_THRESHOLD);
+    let threshold: f64 =
+        std::env::var("THRESHOLD").ok().and_then(|t| t.parse().ok()).unwrap_or(prototype::DEFAULT_THRESHOLD);
     println!("## Prototype tables (threshold {threshold:e})\n");
-    println!("| model | f | N | build s | entries | entries/row | MB | dropped (max) | albedo err before (max / mean) | after (max) |");
+    println!(
+        "| model | f | N | build s | entries | entries/row | MB | dropped (max) | albedo err before (max / mean) | after (max) |"
+    );
     println!("|---|---|---|---|---|---|---|---|---|---|");
     let models = [
         ("Lambertian", TableModel::Lambertian),

@@ -75,7 +75,7 @@ fn sequence(scene: &Scene, hints: BuildHints) -> (build::Sequence, BuildSettings
 
 /// A from-scratch build of frame `k` alone, with the sequence's ray grids.
 fn from_scratch(scene: &Scene, seq: &build::Sequence, settings: &BuildSettings, k: u32) -> build::Sequence {
-    let still_settings = BuildSettings { grid_bounds: Some(seq.bounds), ..*settings };
+    let still_settings = BuildSettings { grid_bounds: Some(seq.bounds), ..settings.clone() };
     build::build_sequence_with_links(&scene.at_frame(k), &still_settings, &NoProgress).unwrap()
 }
 

@@ -58,7 +58,7 @@ fn build_inspect_render_with_json() {
     illumnet(&["build", "-q", scene.to_str().unwrap(), "-o", a, "--frequency", "6", "--patch-size", "0.05"]);
     let out = illumnet(&["inspect", a, "--json"]);
     let json: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
-    assert_eq!(json["format_version"], 3);
+    assert_eq!(json["format_version"], 4);
     assert_eq!(json["version_read"], 1);
     assert_eq!(json["directions"], 362);
     assert!(json["patches"].as_u64().unwrap() > 500);

@@ -1,4 +1,4 @@
-//! On-disk records of the archive format (version 3).
+//! On-disk records of the archive format (version 4).
 //!
 //! Every type here is `#[repr(C)]`, made of little-endian `u32`/`u64`/`f32`
 //! fields with no implicit padding, and is read zero-copy with `bytemuck`
@@ -10,7 +10,7 @@ use bytemuck::{Pod, Zeroable};
 /// File magic, bytes 0..8 (§3).
 pub const MAGIC: [u8; 8] = *b"ILLUMNET";
 /// The format version this code writes (§3, `version_write`).
-pub const VERSION_WRITE: u32 = 3;
+pub const VERSION_WRITE: u32 = 4;
 /// The oldest reader version able to read a geodesic archive this code
 /// writes (§3, `version_read`): version 2 only added optional content.
 pub const VERSION_READ: u32 = 1;
@@ -20,8 +20,11 @@ pub const VERSION_READ_RAY_SPACE: u32 = 2;
 /// `version_read` of sequence archives (animation sections, §5.13), which
 /// older readers would render with every temporal instance at once.
 pub const VERSION_READ_SEQUENCE: u32 = 3;
+/// `version_read` of archives with non-diffuse materials (reflectance
+/// sections, §5.14), which older readers would render as black.
+pub const VERSION_READ_REFLECTANCE: u32 = 4;
 /// The highest `version_read` this code can read (§6).
-pub const READER_VERSION: u32 = 3;
+pub const READER_VERSION: u32 = 4;
 /// Header size in bytes (§3).
 pub const HEADER_SIZE: usize = 128;
 /// Section table entry size in bytes (§4).
@@ -48,6 +51,19 @@ pub mod compression {
 pub mod model {
     /// Lambertian; `params[0..3]` is the RGB reflectance.
     pub const DIFFUSE: u32 = 0;
+    /// Rough conductor: `params[3..6]` `k_s`, `[6]` `α_u`, `[7]` `α_v`,
+    /// `[8..11]` index of refraction per band (0: Fresnel = 1).
+    pub const ROUGH_CONDUCTOR: u32 = 1;
+    /// Broad specular: `params[0..3]` `k_d`, the rest as [`ROUGH_CONDUCTOR`].
+    pub const BROAD_SPECULAR: u32 = 2;
+}
+
+/// Prototype table model codes (§5.14).
+pub mod table_model {
+    /// `f = 1/π`.
+    pub const LAMBERTIAN: u32 = 0;
+    /// The GGX rough-conductor lobe without `k_s`.
+    pub const GGX: u32 = 1;
 }
 
 /// Link-merging policies recorded in [`BuildRecord::link_merge`] (§5.1).
@@ -121,6 +137,22 @@ pub mod tag {
     pub const FRAME_CAMERAS: Tag = *b"CAMF";
     /// Per-frame, per-surface emission (§5.13, optional).
     pub const FRAME_EMISSION: Tag = *b"EMIF";
+    /// Prototype table directory (§5.14).
+    pub const PROTOTYPES: Tag = *b"PTAB";
+    /// Prototype row offsets (§5.14).
+    pub const PROTOTYPE_ROWS: Tag = *b"PROW";
+    /// Prototype entries' outgoing directions (§5.14).
+    pub const PROTOTYPE_DIRECTIONS: Tag = *b"PODR";
+    /// Prototype entries' factors (§5.14).
+    pub const PROTOTYPE_FACTORS: Tag = *b"PFAC";
+    /// Surface orientations (§5.14).
+    pub const ORIENTATIONS: Tag = *b"ORNT";
+    /// Actual-to-prototype maps (§5.14).
+    pub const ORIENTATION_MAPS: Tag = *b"OMAP";
+    /// Non-diffuse patches (§5.14).
+    pub const NONDIFFUSE_PATCHES: Tag = *b"NDPA";
+    /// Rays crossing each non-diffuse patch per direction pair (§5.14).
+    pub const NONDIFFUSE_HITS: Tag = *b"NDHC";
 }
 
 /// The file header at offset 0 (§3).
@@ -368,7 +400,64 @@ pub struct DeltaRecord {
     pub reserved: u16,
 }
 
+/// A prototype reflectance table (§5.14).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Default, Pod, Zeroable)]
+pub struct PrototypeRecord {
+    /// [`table_model`] code.
+    pub model: u32,
+    /// Factors per entry: 1 (generic) or 3 (per band).
+    pub bands: u32,
+    /// GGX roughness along the grain (0 for Lambertian).
+    pub alpha_u: f32,
+    /// GGX roughness across the grain.
+    pub alpha_v: f32,
+    /// Index of refraction per band; 0 = Fresnel 1.
+    pub ior: [f32; 3],
+    /// Relative threshold the table was built with.
+    pub threshold: f32,
+    /// First of the table's N + 1 row offsets in `PROW`.
+    pub first_row: u64,
+    /// First entry in `PODR`.
+    pub first_entry: u64,
+    /// Number of entries.
+    pub entry_count: u64,
+    /// First factor in `PFAC` (the table holds `entry_count × bands`).
+    pub first_factor: u64,
+}
+
+/// A surface orientation with an actual-to-prototype map (§5.14).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Default, Pod, Zeroable)]
+pub struct OrientationRecord {
+    /// Unit normal.
+    pub normal: [f32; 3],
+    /// Unit grain direction, perpendicular to the normal.
+    pub grain: [f32; 3],
+    /// Mean angular error of the map over the directions above the surface (rad).
+    pub error_mean_rad: f32,
+    /// Largest angular error of the map (rad).
+    pub error_max_rad: f32,
+}
+
+/// A patch with a non-diffuse material (§5.14).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Default, Pod, Zeroable)]
+pub struct NonDiffusePatchRecord {
+    /// Patch id.
+    pub patch: u32,
+    /// Prototype table index.
+    pub prototype: u32,
+    /// Orientation index.
+    pub orientation: u32,
+    /// Reserved, zero.
+    pub reserved: u32,
+}
+
 const _: () = {
+    assert!(size_of::<PrototypeRecord>() == 64);
+    assert!(size_of::<OrientationRecord>() == 32);
+    assert!(size_of::<NonDiffusePatchRecord>() == 16);
     assert!(size_of::<AnimationRecord>() == 32);
     assert!(size_of::<InstanceRecord>() == 32);
     assert!(size_of::<DeltaIndexRecord>() == 32);

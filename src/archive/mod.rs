@@ -24,7 +24,7 @@ mod write;
 use std::fmt;
 use std::path::PathBuf;
 
-pub use read::{Archive, InetView, SequenceView};
+pub use read::{Archive, InetView, ReflectanceView, SequenceView};
 pub use write::{write, write_to_vec};
 
 use layout::{BuildRecord, CameraRecord, DirectionRecord, MaterialRecord, PrimitiveRecord, SurfaceRecord, Tag};
@@ -93,6 +93,30 @@ pub struct ArchiveContents {
     pub meta: ArchiveMeta,
     /// `ANIM`, `INST`, `DIDX`, `DELT`: present for sequence archives.
     pub sequence: Option<SequenceContents>,
+    /// `PTAB` … `NDHC`: present when some material is not diffuse.
+    pub reflectance: Option<ReflectanceContents>,
+}
+
+/// The reflectance sections (§5.14): prototype tables, orientations with
+/// their actual-to-prototype maps, and the non-diffuse patches.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct ReflectanceContents {
+    /// `PTAB`.
+    pub prototypes: Vec<layout::PrototypeRecord>,
+    /// `PROW`: per table, N + 1 row offsets relative to its first entry.
+    pub rows: Vec<u32>,
+    /// `PODR`.
+    pub outgoing: Vec<u32>,
+    /// `PFAC`.
+    pub factors: Vec<f32>,
+    /// `ORNT`.
+    pub orientations: Vec<layout::OrientationRecord>,
+    /// `OMAP`: per orientation, N prototype direction ids.
+    pub maps: Vec<u32>,
+    /// `NDPA`, ascending by patch.
+    pub patches: Vec<layout::NonDiffusePatchRecord>,
+    /// `NDHC`: per non-diffuse patch, N/2 ray counts (one per direction pair).
+    pub hits: Vec<u32>,
 }
 
 /// The animation sections of a sequence archive (§5.13).

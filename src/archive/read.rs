@@ -7,7 +7,8 @@ use xxhash_rust::xxh3::xxh3_64;
 
 use super::layout::{
     self, AnimationRecord, BuildRecord, CameraRecord, DeltaIndexRecord, DeltaRecord, DirectionRecord, HeaderRecord,
-    InstanceRecord, MaterialRecord, PrimitiveRecord, SectionEntry, SurfaceRecord, Tag, compression, tag,
+    InstanceRecord, MaterialRecord, NonDiffusePatchRecord, OrientationRecord, PrimitiveRecord, PrototypeRecord,
+    SectionEntry, SurfaceRecord, Tag, compression, tag,
 };
 use super::{ArchiveError, ArchiveMeta, tag_name};
 
@@ -82,6 +83,56 @@ pub struct InetView<'a> {
     pub link_bucket: Option<&'a [u8]>,
     /// The animation sections of a sequence archive.
     pub sequence: Option<SequenceView<'a>>,
+    /// The reflectance sections, when some material is not diffuse.
+    pub reflectance: Option<ReflectanceView<'a>>,
+}
+
+/// Zero-copy views of the reflectance sections (§5.14).
+#[derive(Clone, Copy)]
+pub struct ReflectanceView<'a> {
+    /// `PTAB`.
+    pub prototypes: &'a [PrototypeRecord],
+    /// `PROW`.
+    pub rows: &'a [u32],
+    /// `PODR`.
+    pub outgoing: &'a [u32],
+    /// `PFAC`.
+    pub factors: &'a [f32],
+    /// `ORNT`.
+    pub orientations: &'a [OrientationRecord],
+    /// `OMAP`.
+    pub maps: &'a [u32],
+    /// `NDPA`.
+    pub patches: &'a [NonDiffusePatchRecord],
+    /// `NDHC`.
+    pub hits: &'a [u32],
+    direction_count: usize,
+}
+
+impl<'a> ReflectanceView<'a> {
+    /// Table `t`'s row `i`: outgoing directions and `bands` factors per entry.
+    pub fn row(&self, t: usize, i: usize) -> (&'a [u32], &'a [f32]) {
+        let r = &self.prototypes[t];
+        let n = self.direction_count;
+        let base = r.first_row as usize;
+        let (a, b) = (self.rows[base + i] as usize, self.rows[base + i + 1] as usize);
+        debug_assert!(i < n);
+        let e0 = r.first_entry as usize;
+        let f0 = r.first_factor as usize;
+        let k = r.bands as usize;
+        (&self.outgoing[e0 + a..e0 + b], &self.factors[f0 + a * k..f0 + b * k])
+    }
+
+    /// Orientation `o`'s map: actual direction → prototype direction.
+    pub fn map(&self, o: usize) -> &'a [u32] {
+        &self.maps[o * self.direction_count..(o + 1) * self.direction_count]
+    }
+
+    /// Non-diffuse patch `k`'s ray counts per direction pair.
+    pub fn pair_hits(&self, k: usize) -> &'a [u32] {
+        let pairs = self.direction_count / 2;
+        &self.hits[k * pairs..(k + 1) * pairs]
+    }
 }
 
 /// Zero-copy views of a sequence archive's animation sections (§5.13).
@@ -218,7 +269,15 @@ const REQUIRED: [(Tag, u32, u32); 21] = [
 ];
 
 /// Optional sections, when present: tag, record size, compression.
-const OPTIONAL: [(Tag, u32, u32); 7] = [
+const OPTIONAL: [(Tag, u32, u32); 15] = [
+    (tag::PROTOTYPES, size_of::<PrototypeRecord>() as u32, compression::NONE),
+    (tag::PROTOTYPE_ROWS, 4, compression::NONE),
+    (tag::PROTOTYPE_DIRECTIONS, 4, compression::NONE),
+    (tag::PROTOTYPE_FACTORS, 4, compression::NONE),
+    (tag::ORIENTATIONS, size_of::<OrientationRecord>() as u32, compression::NONE),
+    (tag::ORIENTATION_MAPS, 4, compression::NONE),
+    (tag::NONDIFFUSE_PATCHES, size_of::<NonDiffusePatchRecord>() as u32, compression::NONE),
+    (tag::NONDIFFUSE_HITS, 4, compression::NONE),
     (tag::LINK_BUCKET, 1, compression::NONE),
     (tag::ANIMATION, size_of::<AnimationRecord>() as u32, compression::NONE),
     (tag::INSTANCES, size_of::<InstanceRecord>() as u32, compression::NONE),
@@ -370,6 +429,20 @@ impl Archive {
                     })
                 }
             },
+            reflectance: match self.entries.iter().any(|e| e.tag == tag::PROTOTYPES) {
+                false => None,
+                true => Some(ReflectanceView {
+                    prototypes: self.column(tag::PROTOTYPES)?,
+                    rows: self.column(tag::PROTOTYPE_ROWS)?,
+                    outgoing: self.column(tag::PROTOTYPE_DIRECTIONS)?,
+                    factors: self.column(tag::PROTOTYPE_FACTORS)?,
+                    orientations: self.column(tag::ORIENTATIONS)?,
+                    maps: self.column(tag::ORIENTATION_MAPS)?,
+                    patches: self.column(tag::NONDIFFUSE_PATCHES)?,
+                    hits: self.column(tag::NONDIFFUSE_HITS)?,
+                    direction_count: self.one::<BuildRecord>(tag::BUILD)?.direction_count as usize,
+                }),
+            },
         })
     }
 
@@ -499,6 +572,20 @@ fn validate_structure(bytes: &[u8]) -> Result<(HeaderRecord, Vec<SectionEntry>),
     if animated.iter().any(|&x| x) && !animated.iter().all(|&x| x) {
         return Err(bad("sequence sections ANIM, INST, DIDX and DELT must appear together"));
     }
+    let reflectance = [
+        tag::PROTOTYPES,
+        tag::PROTOTYPE_ROWS,
+        tag::PROTOTYPE_DIRECTIONS,
+        tag::PROTOTYPE_FACTORS,
+        tag::ORIENTATIONS,
+        tag::ORIENTATION_MAPS,
+        tag::NONDIFFUSE_PATCHES,
+        tag::NONDIFFUSE_HITS,
+    ]
+    .map(has);
+    if reflectance.iter().any(|&x| x) && !reflectance.iter().all(|&x| x) {
+        return Err(bad("reflectance sections PTAB, PROW, PODR, PFAC, ORNT, OMAP, NDPA and NDHC must appear together"));
+    }
     for (t, size, comp) in REQUIRED {
         let e =
             entries.iter().find(|e| e.tag == t).ok_or_else(|| bad(format!("section {} is missing", tag_name(t))))?;
@@ -570,9 +657,18 @@ fn validate_contents(v: &InetView<'_>, meta: &ArchiveMeta) -> Result<(), Archive
     })?;
 
     for (i, m) in v.materials.iter().enumerate() {
-        check(m.model == layout::model::DIFFUSE, || format!("MATL[{i}]: unknown model {}", m.model))?;
-        check(m.params[..3].iter().all(|r| (0.0..=1.0).contains(r)), || {
+        use layout::model::{BROAD_SPECULAR, DIFFUSE, ROUGH_CONDUCTOR};
+        check([DIFFUSE, ROUGH_CONDUCTOR, BROAD_SPECULAR].contains(&m.model), || {
+            format!("MATL[{i}]: unknown model {}", m.model)
+        })?;
+        check(m.params[..6].iter().all(|r| (0.0..=1.0).contains(r)), || {
             format!("MATL[{i}]: reflectance outside [0, 1]")
+        })?;
+        check((0..3).all(|c| m.params[c] + m.params[3 + c] <= 1.0 + 1e-6), || {
+            format!("MATL[{i}]: reflectance + specular above 1")
+        })?;
+        check(m.model == DIFFUSE || v.reflectance.is_some(), || {
+            format!("MATL[{i}]: a non-diffuse material needs the reflectance sections")
         })?;
     }
     for (i, s) in v.surfaces.iter().enumerate() {
@@ -651,6 +747,9 @@ fn validate_contents(v: &InetView<'_>, meta: &ArchiveMeta) -> Result<(), Archive
         let max = b.max_bucket as u8;
         check(buckets.iter().all(|&k| k <= max), || format!("LBKT: bucket above BILD.max_bucket {max}"))?;
     }
+    if let Some(r) = &v.reflectance {
+        validate_reflectance(v, r)?;
+    }
     if let Some(s) = &v.sequence {
         let frames = s.record.frames;
         check(frames >= 1, || "ANIM: no frames".into())?;
@@ -689,6 +788,84 @@ fn validate_contents(v: &InetView<'_>, meta: &ArchiveMeta) -> Result<(), Archive
             })?;
         }
     }
+    Ok(())
+}
+
+/// §5.14: tables well formed and energy-conserving, maps bijections,
+/// exactly the non-diffuse patches listed.
+fn validate_reflectance(v: &InetView<'_>, r: &ReflectanceView<'_>) -> Result<(), ArchiveError> {
+    let n = v.directions.len();
+    let (mut row, mut entry, mut factor) = (0u64, 0u64, 0u64);
+    for (t, p) in r.prototypes.iter().enumerate() {
+        check(p.model <= layout::table_model::GGX && (p.bands == 1 || p.bands == 3), || {
+            format!("PTAB[{t}]: unknown model {} or bands {}", p.model, p.bands)
+        })?;
+        check(p.first_row == row && p.first_entry == entry && p.first_factor == factor, || {
+            format!("PTAB[{t}]: tables not contiguous")
+        })?;
+        row += n as u64 + 1;
+        entry = entry.checked_add(p.entry_count).ok_or_else(|| bad(format!("PTAB[{t}]: entry count overflows")))?;
+        factor = p
+            .entry_count
+            .checked_mul(p.bands as u64)
+            .and_then(|x| x.checked_add(factor))
+            .ok_or_else(|| bad(format!("PTAB[{t}]: factor count overflows")))?;
+        check(
+            row <= r.rows.len() as u64 && entry <= r.outgoing.len() as u64 && factor <= r.factors.len() as u64,
+            || format!("PTAB[{t}]: rows or entries outside PROW/PODR/PFAC"),
+        )?;
+        let rows = &r.rows[p.first_row as usize..row as usize];
+        csr(&format!("PROW (table {t})"), rows.iter().map(|&x| x as u64), p.entry_count as usize)?;
+    }
+    check(row == r.rows.len() as u64 && entry == r.outgoing.len() as u64 && factor == r.factors.len() as u64, || {
+        "PROW/PODR/PFAC hold more than the tables".into()
+    })?;
+    check(r.outgoing.iter().all(|&o| (o as usize) < n), || "PODR: direction out of range".into())?;
+    check(r.factors.iter().all(|f| f.is_finite() && *f >= 0.0), || "PFAC: factor negative or non-finite".into())?;
+    // No table returns more than it receives.
+    for t in 0..r.prototypes.len() {
+        let k = r.prototypes[t].bands as usize;
+        for i in 0..n {
+            let (_, f) = r.row(t, i);
+            let mut sum = [0.0f64; 3];
+            for e in f.chunks_exact(k) {
+                for c in 0..k {
+                    sum[c] += e[c] as f64;
+                }
+            }
+            check(sum.iter().all(|&x| x <= 1.0 + 1e-4), || {
+                format!("PTAB[{t}]: row {i} reflects more than it receives")
+            })?;
+        }
+    }
+    check(r.maps.len() == r.orientations.len() * n, || "OMAP: not one map of N entries per orientation".into())?;
+    let mut seen = vec![0u32; n];
+    for o in 0..r.orientations.len() {
+        for &d in r.map(o) {
+            check((d as usize) < n && seen[d as usize] != o as u32 + 1, || format!("OMAP[{o}]: not a bijection"))?;
+            seen[d as usize] = o as u32 + 1;
+        }
+    }
+    check(r.patches.windows(2).all(|w| w[0].patch < w[1].patch), || "NDPA: patches not ascending".into())?;
+    let nd_patch = |q: usize| {
+        let m =
+            &v.materials[v.surfaces[v.primitives[v.patch_primitive[q] as usize].surface as usize].material as usize];
+        m.model != layout::model::DIFFUSE
+    };
+    for (k, e) in r.patches.iter().enumerate() {
+        check((e.patch as usize) < v.patch_centre.len() && nd_patch(e.patch as usize), || {
+            format!("NDPA[{k}]: patch {} out of range or diffuse", e.patch)
+        })?;
+        check((e.prototype as usize) < r.prototypes.len() && (e.orientation as usize) < r.orientations.len(), || {
+            format!("NDPA[{k}]: prototype or orientation out of range")
+        })?;
+        check(r.prototypes[e.prototype as usize].model == layout::table_model::GGX, || {
+            format!("NDPA[{k}]: prototype is not a GGX lobe")
+        })?;
+    }
+    let listed = (0..v.patch_centre.len()).filter(|&q| nd_patch(q)).count();
+    check(listed == r.patches.len(), || format!("NDPA: {} patches listed, {listed} are non-diffuse", r.patches.len()))?;
+    check(r.hits.len() == r.patches.len() * (n / 2), || "NDHC: not N/2 counts per non-diffuse patch".into())?;
     Ok(())
 }
 

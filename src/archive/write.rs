@@ -111,6 +111,9 @@ fn write_all<W: Write + Seek>(out: W, c: &ArchiveContents) -> Result<W, ArchiveE
     if c.sequence.is_some() {
         w.version_read = layout::VERSION_READ_SEQUENCE;
     }
+    if c.reflectance.is_some() {
+        w.version_read = layout::VERSION_READ_REFLECTANCE;
+    }
     let mut sections = || -> std::io::Result<()> {
         w.column(tag::BUILD, std::slice::from_ref(&c.build))?;
         w.column(tag::CAMERA, std::slice::from_ref(&c.camera))?;
@@ -134,6 +137,16 @@ fn write_all<W: Write + Seek>(out: W, c: &ArchiveContents) -> Result<W, ArchiveE
         w.column(tag::LINK_DIRECTION, &c.link_direction)?;
         w.column(tag::LINK_BUCKET, &c.link_bucket)?;
         w.raw(tag::META, compression::ZSTD, &meta_z, meta.len() as u64, 1, 0)?;
+        if let Some(r) = &c.reflectance {
+            w.column(tag::PROTOTYPES, &r.prototypes)?;
+            w.column(tag::PROTOTYPE_ROWS, &r.rows)?;
+            w.column(tag::PROTOTYPE_DIRECTIONS, &r.outgoing)?;
+            w.column(tag::PROTOTYPE_FACTORS, &r.factors)?;
+            w.column(tag::ORIENTATIONS, &r.orientations)?;
+            w.column(tag::ORIENTATION_MAPS, &r.maps)?;
+            w.column(tag::NONDIFFUSE_PATCHES, &r.patches)?;
+            w.column(tag::NONDIFFUSE_HITS, &r.hits)?;
+        }
         if let Some(seq) = &c.sequence {
             w.column(tag::ANIMATION, std::slice::from_ref(&seq.record))?;
             w.column(tag::INSTANCES, &seq.instances)?;

@@ -13,6 +13,7 @@
 //! within each bundle, so the archive bytes do not depend on thread count.
 
 mod links;
+mod reflectance;
 mod settings;
 mod trace;
 
@@ -53,6 +54,17 @@ pub struct BuildStats {
     pub trace_s: f64,
     /// Seconds spent assembling the link tables.
     pub assemble_s: f64,
+    /// Prototype tables used (non-diffuse materials), and how many of them
+    /// the prototype library already held.
+    pub tables: u32,
+    /// Tables read from the prototype library.
+    pub tables_cached: u32,
+    /// Distinct orientations of non-diffuse surfaces (one map each).
+    pub orientations: u32,
+    /// Non-diffuse patches.
+    pub nondiffuse_patches: u32,
+    /// Seconds spent on prototype tables and maps.
+    pub reflectance_s: f64,
 }
 
 /// Builds the I-net of a still `scene` with `settings`. Animated scenes go
@@ -79,6 +91,8 @@ pub struct Instance {
     pub frames: (u32, u32),
     /// The surface's primitives placed for those frames.
     pub primitives: Vec<Primitive>,
+    /// The surface's grain placed for those frames.
+    pub grain: Option<glam::Vec3>,
 }
 
 /// One merged link of frame 0.
@@ -123,6 +137,9 @@ pub struct Sequence {
     pub patch_identity: Vec<(u32, u32, u32)>,
     /// Bounds the ray grids covered.
     pub bounds: (glam::Vec3, glam::Vec3),
+    /// Problems that did not stop the build (for example, the prototype
+    /// library could not be written).
+    pub warnings: Vec<String>,
 }
 
 /// A link keyed by build-independent patch identities.
@@ -153,7 +170,12 @@ pub fn instances(scene: &Scene) -> Vec<Instance> {
     let mut out = Vec::new();
     for (s, surf) in scene.surfaces.iter().enumerate() {
         match &surf.motion {
-            None => out.push(Instance { surface: s as u32, frames: (0, last), primitives: surf.primitives.clone() }),
+            None => out.push(Instance {
+                surface: s as u32,
+                frames: (0, last),
+                primitives: surf.primitives.clone(),
+                grain: surf.grain,
+            }),
             Some(m) => {
                 let mut f0 = 0;
                 for f in 1..=last + 1 {
@@ -162,6 +184,7 @@ pub fn instances(scene: &Scene) -> Vec<Instance> {
                             surface: s as u32,
                             frames: (f0, f - 1),
                             primitives: m.apply(f0, &surf.primitives),
+                            grain: surf.grain.map(|g| m.apply_direction(f0, g)),
                         });
                         f0 = f;
                     }
@@ -290,12 +313,14 @@ fn build_impl(
         }
     }
     let mut prims: Vec<Primitive> = Vec::new();
+    let mut prim_grain = Vec::new();
     let mut prim_surface = Vec::new();
     let mut active = Vec::new();
     let mut sort_key = Vec::new();
     for inst in &instances {
         for (i, p) in inst.primitives.iter().enumerate() {
             prims.push(*p);
+            prim_grain.push(inst.grain);
             prim_surface.push(inst.surface);
             active.push(inst.frames);
             sort_key.push(((inst.surface as u64) << 32) | i as u64);
@@ -314,8 +339,11 @@ fn build_impl(
     let input =
         trace::TraceInput { prims: &prims, active: &active, sort_key: &sort_key, frames: scene.frame_count(), bounds };
 
+    let lobes = reflectance::primitive_lobes(scene, &prim_surface);
+    let nd_index = reflectance::nondiffuse_index(&patches, &lobes);
     let t1 = Instant::now();
-    let traced = trace::trace_all(&input, &patches, &dirs, settings.ray_spacing, settings.max_bucket, progress)?;
+    let traced =
+        trace::trace_all(&input, &patches, &dirs, settings.ray_spacing, settings.max_bucket, &nd_index, progress)?;
     let trace_s = t1.elapsed().as_secs_f64();
 
     let t2 = Instant::now();
@@ -336,9 +364,28 @@ fn build_impl(
             })
             .collect()
     });
-    let trace::Traced { bundles, hits: traced_hits, cumulative: mut traced_cumulative, stats: traced_stats } = traced;
+    let trace::Traced { bundles, hits: traced_hits, nd_hits, cumulative: mut traced_cumulative, stats: traced_stats } =
+        traced;
     drop(bundles); // the link table now holds them
     let assemble_s = t2.elapsed().as_secs_f64();
+
+    let t3 = Instant::now();
+    let library = settings.prototype_library.as_ref().map(crate::reflectance::library::Library::new);
+    let (reflectance_contents, rstats) = reflectance::assemble(
+        reflectance::Input {
+            dirs: &dirs,
+            prims: &prims,
+            grain: &prim_grain,
+            lobes: &lobes,
+            patches: &patches,
+            nd_hits,
+            library: library.as_ref(),
+            map_method: settings.map_method,
+            threshold: settings.table_threshold,
+        },
+        progress,
+    )?;
+    let reflectance_s = t3.elapsed().as_secs_f64();
 
     // Expected hits from geometry: a patch of area A and normal n is crossed
     // by A·|n·d_k|·density_k rays of pair k (both directions of the pair).
@@ -375,12 +422,21 @@ fn build_impl(
     let materials = scene
         .materials
         .iter()
-        .map(|m| match m.model {
-            ReflectanceModel::Diffuse { reflectance } => {
-                let mut params = [0.0; 14];
-                params[..3].copy_from_slice(&reflectance);
-                MaterialRecord { model: layout::model::DIFFUSE, reserved: 0, params }
+        .map(|m| {
+            let mut params = [0.0; 14];
+            params[..3].copy_from_slice(&m.model.diffuse());
+            if let Some((ks, lobe)) = m.model.lobe() {
+                params[3..6].copy_from_slice(&ks);
+                params[6] = lobe.alpha_u;
+                params[7] = lobe.alpha_v;
+                params[8..11].copy_from_slice(&lobe.ior.unwrap_or([0.0; 3]));
             }
+            let model = match m.model {
+                ReflectanceModel::Diffuse { .. } => layout::model::DIFFUSE,
+                ReflectanceModel::RoughConductor { .. } => layout::model::ROUGH_CONDUCTOR,
+                ReflectanceModel::BroadSpecular { .. } => layout::model::BROAD_SPECULAR,
+            };
+            MaterialRecord { model, reserved: 0, params }
         })
         .collect();
     let seq_primitives = patches.primitives.clone();
@@ -417,6 +473,11 @@ fn build_impl(
         setup_s,
         trace_s,
         assemble_s,
+        tables: rstats.tables as u32,
+        tables_cached: rstats.tables_cached as u32,
+        orientations: rstats.orientations as u32,
+        nondiffuse_patches: reflectance_contents.as_ref().map_or(0, |r| r.patches.len() as u32),
+        reflectance_s,
     };
     let contents = ArchiveContents {
         build: BuildRecord {
@@ -470,6 +531,7 @@ fn build_impl(
             &instances,
             if keep_links { traced_cumulative.clone() } else { std::mem::take(&mut traced_cumulative) },
         ),
+        reflectance: reflectance_contents,
     };
     let mut patch_identity = Vec::with_capacity(prims.len());
     for (pi, pp) in seq_primitives.iter().enumerate() {
@@ -486,5 +548,6 @@ fn build_impl(
         cumulative: traced_cumulative,
         patch_identity,
         bounds,
+        warnings: rstats.warnings,
     })
 }

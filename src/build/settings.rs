@@ -4,7 +4,7 @@ use crate::geodesic::DirectionSetKind;
 use crate::scene::{BuildHints, Scene};
 
 /// Resolution of an I-net build.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct BuildSettings {
     /// Target patch edge length (m).
     pub patch_size: f32,
@@ -21,6 +21,13 @@ pub struct BuildSettings {
     /// Bounds the ray grids cover; `None`: the scene's (all frames'). Set it to
     /// a sequence's bounds to build one frame with the sequence's ray grid.
     pub grid_bounds: Option<(glam::Vec3, glam::Vec3)>,
+    /// Where prototype tables are cached (§3.6.2); `None`: tables are built
+    /// every time. Default: [`Library::default_location`](crate::reflectance::library::Library::default_location).
+    pub prototype_library: Option<std::path::PathBuf>,
+    /// How actual-to-prototype maps are made.
+    pub map_method: crate::reflectance::MapMethod,
+    /// Relative threshold below which prototype factors are dropped.
+    pub table_threshold: f64,
 }
 
 /// Widest bucket supported (the archive's limit).
@@ -57,6 +64,9 @@ impl BuildSettings {
             direction_set: DirectionSetKind::Geodesic,
             max_bucket: overrides.buckets.or(scene.build.buckets).unwrap_or(DEFAULT_MAX_BUCKET),
             grid_bounds: None,
+            prototype_library: crate::reflectance::library::Library::default_location(),
+            map_method: crate::reflectance::MapMethod::default(),
+            table_threshold: crate::reflectance::prototype::DEFAULT_THRESHOLD,
         }
     }
 
@@ -70,6 +80,9 @@ impl BuildSettings {
         }
         if !(1..=crate::geodesic::MAX_FREQUENCY).contains(&self.frequency) {
             return Err(format!("frequency must be in 1..={}, got {}", crate::geodesic::MAX_FREQUENCY, self.frequency));
+        }
+        if !(self.table_threshold.is_finite() && (0.0..1.0).contains(&self.table_threshold)) {
+            return Err(format!("table threshold must be in [0, 1), got {}", self.table_threshold));
         }
         if self.max_bucket > MAX_BUCKET {
             return Err(format!("buckets must be in 0..={MAX_BUCKET}, got {}", self.max_bucket));

@@ -6,7 +6,7 @@
 //! the grids of neighbouring directions do not alias with each other or with
 //! axis-aligned patch edges.
 
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
 
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
@@ -264,6 +264,13 @@ struct Walk<'a> {
     dir: Vec3,
     eps_t: f32,
     max_bucket: u32,
+    /// The bundle's direction pair, and the number of pairs.
+    pair: u32,
+    pairs: u32,
+    /// Per patch, its index among non-diffuse patches (`u32::MAX`: diffuse).
+    nd_index: &'a [u32],
+    /// Per non-diffuse patch and pair, rays crossing it.
+    nd_hits: &'a [AtomicU32],
 }
 
 impl Walk<'_> {
@@ -299,6 +306,11 @@ impl Walk<'_> {
             if frame == lo {
                 self.hit_counts[patch as usize].fetch_add(1, Ordering::Relaxed);
                 counted += 1;
+                let nd = self.nd_index[patch as usize];
+                if nd != u32::MAX {
+                    self.nd_hits[nd as usize * self.pairs as usize + self.pair as usize]
+                        .fetch_add(1, Ordering::Relaxed);
+                }
             }
             // A link: the previous hit faces down the ray, this one faces back.
             if let (Some((prev_patch, pt, _, true, pcos)), false) = (prev, forward) {
@@ -392,6 +404,8 @@ pub struct Traced {
     pub bundles: Vec<Bundle>,
     /// `H_p`: hits per patch.
     pub hits: Vec<u32>,
+    /// Per non-diffuse patch and direction pair, rays crossing it.
+    pub nd_hits: Vec<u32>,
     /// Per frame, the changes of the link multiset relative to frame 0,
     /// sorted by `(pair, a, b, buckets)`; frame 0's list is empty, and stills
     /// have just that one.
@@ -407,6 +421,7 @@ pub fn trace_all(
     dirs: &DirectionSet,
     delta: f32,
     max_bucket: u32,
+    nd_index: &[u32],
     progress: &dyn Progress,
 ) -> Result<Traced, String> {
     let (lo, hi) = input.bounds;
@@ -445,6 +460,8 @@ pub fn trace_all(
     let normals: Vec<Vec3> = prims.iter().map(|p| p.normal()).collect();
     // u64 while counting: a single patch could exceed u32 near MAX_RAYS.
     let hit_counts: Vec<AtomicU64> = (0..patches.len()).map(|_| AtomicU64::new(0)).collect();
+    let nd_count = nd_index.iter().filter(|&&i| i != u32::MAX).count();
+    let nd_hits: Vec<AtomicU32> = (0..nd_count * pairs as usize).map(|_| AtomicU32::new(0)).collect();
     let eps_t = (hi - lo).length() * 1e-6;
     progress.start("tracing direction bundles", pairs as u64);
     let results: Vec<(Bundle, Vec<Vec<DeltaEntry>>, BundleStats)> = (0..pairs)
@@ -462,6 +479,10 @@ pub fn trace_all(
                 dir: d,
                 eps_t,
                 max_bucket,
+                pair: k,
+                pairs,
+                nd_index,
+                nd_hits: &nd_hits,
             };
             let mut stats = BundleStats { rays: g.nu * g.nv, ..Default::default() };
             s.keys.clear();
@@ -519,7 +540,8 @@ pub fn trace_all(
         hit_counts.into_iter().map(|h| u32::try_from(h.into_inner())).collect::<Result<_, _>>().map_err(|_| {
             "a patch is hit by more than 2³² rays: use smaller patches or a larger ray spacing".to_string()
         })?;
-    Ok(Traced { bundles, hits, cumulative, stats })
+    let nd_hits = nd_hits.into_iter().map(AtomicU32::into_inner).collect();
+    Ok(Traced { bundles, hits, nd_hits, cumulative, stats })
 }
 
 /// One bundle's per-frame changes relative to frame 0, from its per-ray

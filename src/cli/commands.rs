@@ -14,17 +14,28 @@ use illumnet::scene::{BuildHints, Scene};
 
 use super::{BuildArgs, RenderArgs};
 
-fn hints(a: BuildArgs) -> BuildHints {
+fn hints(a: &BuildArgs) -> BuildHints {
     BuildHints { patch_size: a.patch_size, frequency: a.frequency, ray_spacing: a.ray_spacing, buckets: a.buckets }
 }
 
-fn build_scene(scene: &Scene, output: &Path, args: BuildArgs, progress: &dyn Progress) -> Result<()> {
+fn build_scene(scene: &Scene, output: &Path, args: &BuildArgs, progress: &dyn Progress) -> Result<()> {
     let mut settings = BuildSettings::resolve(scene, hints(args));
     if args.ray_space {
         settings.direction_set = DirectionSetKind::RaySpace;
     }
+    if args.no_prototype_library {
+        settings.prototype_library = None;
+    } else if let Some(dir) = &args.prototype_library {
+        settings.prototype_library = Some(dir.clone());
+    }
+    if args.map_method.as_deref() == Some("rings") {
+        settings.map_method = illumnet::reflectance::MapMethod::Rings;
+    }
     let t = Instant::now();
     let seq = build::build_sequence(scene, &settings, progress).map_err(anyhow::Error::msg)?;
+    for w in &seq.warnings {
+        eprintln!("warning: {w}");
+    }
     let (contents, stats) = (seq.contents, seq.stats);
     let t_w = Instant::now();
     let bytes = archive::write(output, &contents)?;
@@ -47,18 +58,40 @@ fn build_scene(scene: &Scene, output: &Path, args: BuildArgs, progress: &dyn Pro
         stats.assemble_s,
         t_write,
     );
+    if stats.tables > 0 {
+        println!(
+            "reflectance: {} non-diffuse patches, {} prototype table{} ({} from the library), {} orientation{}, {:.2} s",
+            stats.nondiffuse_patches,
+            stats.tables,
+            if stats.tables == 1 { "" } else { "s" },
+            stats.tables_cached,
+            stats.orientations,
+            if stats.orientations == 1 { "" } else { "s" },
+            stats.reflectance_s
+        );
+    }
     Ok(())
 }
 
 pub fn build(scene: &Path, output: &Path, frame: Option<u32>, args: BuildArgs, progress: &dyn Progress) -> Result<()> {
     let mut scene = Scene::from_file(scene)?;
+    for t in &args.turn {
+        let (name, deg) = t.split_once('=').with_context(|| format!("--turn `{t}`: expected SURFACE=DEGREES"))?;
+        let deg: f32 = deg
+            .trim()
+            .parse()
+            .ok()
+            .filter(|d: &f32| d.is_finite())
+            .with_context(|| format!("--turn `{t}`: `{deg}` is not a number of degrees"))?;
+        scene.turn_surface(name, deg).map_err(|e| anyhow::anyhow!("--turn `{t}`: {e}"))?;
+    }
     let frames = scene.frame_count();
     match frame {
         Some(f) if f >= frames => bail!("--frame {f} is outside the sequence 0..{frames}"),
         Some(f) => scene = scene.at_frame(f),
         None => {}
     }
-    build_scene(&scene, output, args, progress)
+    build_scene(&scene, output, &args, progress)
 }
 
 /// Replaces a printf-style `%d` / `%0Nd` in `pattern` with `frame`.
@@ -123,16 +156,25 @@ fn relight(lighting: &mut distribute::Lighting, archive: &Archive, sets: &[Strin
                 lighting.emission[s] = rgb;
                 lighting.emission_fixed[s] = true;
             }
-            "reflectance" => {
+            "reflectance" | "specular" => {
                 if rgb.iter().any(|&x| !(0.0..=1.0).contains(&x)) {
-                    bail!("--set `{set}`: reflectance components must be in [0, 1]");
+                    bail!("--set `{set}`: {field} components must be in [0, 1]");
+                }
+                let column = if field == "reflectance" { &mut lighting.reflectance } else { &mut lighting.specular };
+                let glossy = |m: usize| archive.view().materials[m].model != archive::layout::model::DIFFUSE;
+                if field == "specular"
+                    && !surface.map_or_else(|| material.is_some_and(glossy), |s| glossy(materials[s]))
+                {
+                    bail!(
+                        "--set `{set}`: `{name}` is diffuse: only rough_conductor and broad_specular materials have a specular colour"
+                    );
                 }
                 match (surface, material) {
-                    (Some(s), _) => lighting.reflectance[s] = rgb,
+                    (Some(s), _) => column[s] = rgb,
                     (None, Some(m)) => {
                         for (s, &sm) in materials.iter().enumerate() {
                             if sm == m {
-                                lighting.reflectance[s] = rgb;
+                                column[s] = rgb;
                             }
                         }
                     }
@@ -143,7 +185,12 @@ fn relight(lighting: &mut distribute::Lighting, archive: &Archive, sets: &[Strin
                     ),
                 }
             }
-            other => bail!("--set `{set}`: unknown field `{other}` (known: emission, reflectance)"),
+            other => bail!("--set `{set}`: unknown field `{other}` (known: emission, reflectance, specular)"),
+        }
+    }
+    for (s, name) in meta.surface_names.iter().enumerate() {
+        if (0..3).any(|c| lighting.reflectance[s][c] + lighting.specular[s][c] > 1.0) {
+            bail!("surface `{name}`: reflectance + specular exceeds 1 in some band (the surface would create energy)");
         }
     }
     Ok(())
@@ -232,8 +279,12 @@ pub fn render(
             if b.converged { "" } else { " (NOT converged: raise the iteration limit or the tolerance)" }
         );
         let t2 = Instant::now();
-        let image =
-            render::render_frame(&view, f, &solution.radiance, &RenderOptions { samples_per_axis: args.samples });
+        let image = render::render_frame(
+            &view,
+            f,
+            &render::frame_radiance(&view, f, &solution),
+            &RenderOptions { samples_per_axis: args.samples },
+        );
         t_render += t2.elapsed().as_secs_f64();
         image_io::write_png(&image, &out_path(png, f)?, args.exposure).map_err(anyhow::Error::msg)?;
         if let Some(exr) = exr {
@@ -399,7 +450,7 @@ pub fn demo(dir: &Path, build_args: BuildArgs, render_args: RenderArgs, progress
     std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     let scene = Scene::cornell_box();
     let archive = dir.join("cornell_box.inet");
-    build_scene(&scene, &archive, build_args, progress)?;
+    build_scene(&scene, &archive, &build_args, progress)?;
     render(
         &archive,
         &dir.join("cornell_box.png"),

@@ -27,7 +27,7 @@ struct Cli {
 /// Build resolution overrides (default: the scene's `[build]` table, then
 /// sizes scaled to the scene: patch = diagonal/64, spacing = diagonal/128,
 /// frequency 16).
-#[derive(Args, Clone, Copy, Default)]
+#[derive(Args, Clone, Default)]
 struct BuildArgs {
     /// Target patch edge length in metres.
     #[arg(long, value_name = "M")]
@@ -48,6 +48,20 @@ struct BuildArgs {
     /// geodesic set, with about as many directions as --frequency gives.
     #[arg(long)]
     ray_space: bool,
+    /// Turn a planar surface about its normal by DEG degrees before building
+    /// (repeatable), e.g. `--turn plate=45` for the brushed plate.
+    #[arg(long, value_name = "SURFACE=DEG")]
+    turn: Vec<String>,
+    /// Directory of cached prototype reflectance tables (default:
+    /// $ILLUMNET_PROTOTYPES, else ~/.cache/illumnet/prototypes).
+    #[arg(long, value_name = "DIR")]
+    prototype_library: Option<PathBuf>,
+    /// Build prototype tables without reading or writing the library.
+    #[arg(long, conflicts_with = "prototype_library")]
+    no_prototype_library: bool,
+    /// Actual-to-prototype maps: `nearest` (default) or the paper's `rings`.
+    #[arg(long, value_name = "METHOD", value_parser = ["nearest", "rings"])]
+    map_method: Option<String>,
 }
 
 #[derive(Args, Clone, Copy)]

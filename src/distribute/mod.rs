@@ -22,6 +22,7 @@
 //! up to ~10⁵ patches.
 
 mod buckets;
+mod nondiffuse;
 
 use rayon::prelude::*;
 
@@ -89,6 +90,28 @@ pub struct Solution {
     pub balance: EnergyBalance,
     /// Seconds spent decoding and applying the frame's delta (0 for stills).
     pub delta_s: f64,
+    /// Outgoing radiance of non-diffuse patches per direction (the
+    /// view-dependent term of §3.5), when the archive has any.
+    pub directional: Option<DirectionalRadiance>,
+}
+
+/// Radiance leaving non-diffuse patches along each direction of the set,
+/// beyond their diffuse radiance.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DirectionalRadiance {
+    /// The non-diffuse patches, ascending.
+    pub patches: Vec<u32>,
+    /// Directions in the set.
+    pub directions: usize,
+    /// `patches × directions` radiances (W·sr⁻¹·m⁻², RGB).
+    pub radiance: Vec<[f32; 3]>,
+}
+
+impl DirectionalRadiance {
+    /// Patch `k`'s (index into [`Self::patches`]) radiance per direction.
+    pub fn of(&self, k: usize) -> &[[f32; 3]] {
+        &self.radiance[k * self.directions..(k + 1) * self.directions]
+    }
 }
 
 /// Emission and reflectance per surface: the archive's, or changed without
@@ -97,8 +120,11 @@ pub struct Solution {
 pub struct Lighting {
     /// Emitted radiance per surface.
     pub emission: Vec<[f32; 3]>,
-    /// Diffuse reflectance per surface, each component in [0, 1].
+    /// Diffuse reflectance `k_d` per surface, each component in [0, 1].
     pub reflectance: Vec<[f32; 3]>,
+    /// Specular colour `k_s` per surface (zero for diffuse surfaces): the
+    /// prototype table's generic factors are multiplied by it.
+    pub specular: Vec<[f32; 3]>,
     /// Surfaces whose emission was set here: it then replaces the archive's
     /// keyframed emission in every frame.
     pub emission_fixed: Vec<bool>,
@@ -108,16 +134,17 @@ impl Lighting {
     /// The lighting stored in the archive.
     pub fn from_view(v: &InetView<'_>) -> Self {
         let emission = v.surfaces.iter().map(|s| s.emission).collect();
-        let reflectance = v
+        let material = |s: &crate::archive::layout::SurfaceRecord| &v.materials[s.material as usize];
+        let reflectance = v.surfaces.iter().map(|s| [0, 1, 2].map(|c| material(s).params[c])).collect();
+        let specular = v
             .surfaces
             .iter()
-            .map(|s| {
-                let m = &v.materials[s.material as usize];
-                debug_assert_eq!(m.model, model::DIFFUSE);
-                [m.params[0], m.params[1], m.params[2]]
+            .map(|s| match material(s).model {
+                model::DIFFUSE => [0.0; 3],
+                _ => [3, 4, 5].map(|c| material(s).params[c]),
             })
             .collect();
-        Self { emission, reflectance, emission_fixed: vec![false; v.surfaces.len()] }
+        Self { emission, reflectance, specular, emission_fixed: vec![false; v.surfaces.len()] }
     }
 }
 
@@ -204,6 +231,7 @@ struct Overlay {
     other: Vec<u32>,
     weight: Vec<f32>,
     bucket: Vec<u8>,
+    direction: Vec<u32>,
 }
 
 impl Overlay {
@@ -219,25 +247,42 @@ impl Overlay {
         let offsets = count.clone();
         let mut cursor = count;
         let m = offsets[n] as usize;
-        let (mut other, mut weight, mut bucket) = (vec![0; m], vec![0.0; m], vec![0; m]);
+        let (mut other, mut weight, mut bucket, mut direction) = (vec![0; m], vec![0.0; m], vec![0; m], vec![0; m]);
         for d in records {
-            for (me, them, k) in [(d.a, d.b, d.bucket_a), (d.b, d.a, d.bucket_b)] {
+            for (me, them, k, dir) in [(d.a, d.b, d.bucket_a, 2 * d.pair), (d.b, d.a, d.bucket_b, 2 * d.pair + 1)] {
                 let e = cursor[me as usize] as usize;
                 other[e] = them;
                 weight[e] = d.count as f32;
                 bucket[e] = k;
+                direction[e] = dir;
                 cursor[me as usize] += 1;
             }
         }
-        Self { offsets, other, weight, bucket }
+        Self { offsets, other, weight, bucket, direction }
     }
 
-    /// Adds the overlay's contribution to `recv` (bucketed as in [`gather_buckets`]).
-    fn gather(&self, buckets: usize, shoot: &[[f32; 4]], recv: &mut [[f32; 4]]) {
+    /// Adds the overlay's contribution to `recv` (bucketed as in
+    /// [`gather_buckets`]), including what non-diffuse senders send.
+    fn gather(
+        &self,
+        buckets: usize,
+        shoot: &[[f32; 4]],
+        nd: Option<(&nondiffuse::NonDiffuse<'_>, &[[f32; 4]])>,
+        recv: &mut [[f32; 4]],
+    ) {
         for q in 0..self.offsets.len() - 1 {
             for e in self.offsets[q] as usize..self.offsets[q + 1] as usize {
                 let k = if buckets > 1 { self.bucket[e] as usize } else { 0 };
-                let s = shoot[self.other[e] as usize];
+                let mut s = shoot[self.other[e] as usize];
+                if let Some((nd, phi)) = nd {
+                    let j = nd.nd_of[self.other[e] as usize];
+                    if j != u32::MAX {
+                        let p = phi[nd.slot(j, self.direction[e] ^ 1)];
+                        for c in 0..4 {
+                            s[c] += p[c];
+                        }
+                    }
+                }
                 for c in 0..4 {
                     recv[q * buckets + k][c] += self.weight[e] * s[c];
                 }
@@ -304,6 +349,7 @@ pub struct Distributor<'a> {
     rings: Option<buckets::Rings>,
     patch_surface: Vec<u32>,
     emission_fixed: Vec<bool>,
+    nd: Option<nondiffuse::NonDiffuse<'a>>,
 }
 
 impl<'a> Distributor<'a> {
@@ -314,7 +360,10 @@ impl<'a> Distributor<'a> {
         lighting: &Lighting,
     ) -> Result<Self, crate::archive::ArchiveError> {
         let n = v.patch_count();
-        if lighting.emission.len() != v.surfaces.len() || lighting.reflectance.len() != v.surfaces.len() {
+        if lighting.emission.len() != v.surfaces.len()
+            || lighting.reflectance.len() != v.surfaces.len()
+            || lighting.specular.len() != v.surfaces.len()
+        {
             return Err(crate::archive::ArchiveError::Corrupt("lighting does not have one entry per surface".into()));
         }
         let (rho, emit) = patch_materials(v, lighting);
@@ -346,6 +395,7 @@ impl<'a> Distributor<'a> {
         };
         let patch_surface = v.patch_primitive.iter().map(|&p| v.primitives[p as usize].surface).collect();
         let emission_fixed = lighting.emission_fixed.clone();
+        let nd = nondiffuse::NonDiffuse::new(v, &lighting.specular);
         Ok(Self {
             v: *v,
             opts: *opts,
@@ -359,6 +409,7 @@ impl<'a> Distributor<'a> {
             rings,
             patch_surface,
             emission_fixed,
+            nd,
         })
     }
 
@@ -453,6 +504,35 @@ impl<'a> Distributor<'a> {
         if let Some(g) = &guess {
             unshot.copy_from_slice(g);
         }
+        // Non-diffuse patches (nondiffuse.rs): per-ray directional power to
+        // shoot, its running total, the power it carries, and per frame the
+        // rays of each direction that reach a facing patch.
+        let nd = self.nd.as_ref();
+        let nn = nd.map_or(0, |x| x.patches.len() * x.n);
+        let mut phi = vec![[0.0f32; 4]; nn];
+        let mut phi_next = vec![[0.0f32; 4]; nn];
+        let mut dir_total = vec![[0.0f32; 4]; nn];
+        let mut pending = vec![[0.0f64; 3]; nd.map_or(0, |x| x.patches.len())];
+        let linked_dir: Vec<f32> = match (nd, &overlay) {
+            (Some(x), Some(o)) => {
+                let mut l = x.linked.clone();
+                for (k, &q) in x.patches.iter().enumerate() {
+                    for e in o.offsets[q as usize] as usize..o.offsets[q as usize + 1] as usize {
+                        l[k * x.n + o.direction[e] as usize] += o.weight[e];
+                    }
+                }
+                l
+            }
+            (Some(x), None) => x.linked.clone(),
+            _ => Vec::new(),
+        };
+        let overlay_ends = |q: usize, add: &mut dyn FnMut(u32, f32, u32)| {
+            if let Some(o) = &overlay {
+                for e in o.offsets[q] as usize..o.offsets[q + 1] as usize {
+                    add(o.other[e], o.weight[e], o.direction[e]);
+                }
+            }
+        };
         progress.start("distributing light", 0);
         let mut residual_total = emitted_total;
         while residual_total > opts.tolerance * emitted_total && bal.iterations < opts.max_iterations {
@@ -464,23 +544,65 @@ impl<'a> Distributor<'a> {
                     bal.escaped[c] += unshot[p][c] as f64 * escape;
                 }
             }
+            if let Some(x) = nd {
+                // Directional power leaves along every ray of its direction;
+                // rays that reach no facing patch lose it.
+                for (k, g) in pending.iter_mut().enumerate() {
+                    let mut sent = [0.0f64; 3];
+                    for o in 0..x.n {
+                        let l = linked_dir[k * x.n + o];
+                        if l != 0.0 {
+                            for c in 0..3 {
+                                sent[c] += (l * phi[k * x.n + o][c]) as f64;
+                            }
+                        }
+                    }
+                    for c in 0..3 {
+                        bal.escaped[c] += g[c] - sent[c];
+                    }
+                    *g = [0.0; 3];
+                }
+            }
+            let nd_phi = nd.map(|x| (x, &phi[..]));
             match (bucket_column, &rings) {
                 (Some(bk), Some(rings)) => {
                     gather_buckets(v.link_offsets, v.link_other, v.link_weight, bk, nb, &shoot, &mut recv);
                     if let Some(o) = &overlay {
-                        o.gather(nb, &shoot, &mut recv);
+                        o.gather(nb, &shoot, nd_phi, &mut recv);
+                    }
+                    if let Some(x) = nd {
+                        x.gather_corrections(nb, true, &phi, &mut recv);
                     }
                     rings.spread(&recv, nb, &mut spread);
                 }
                 _ => {
                     gather(v.link_offsets, v.link_other, v.link_weight, &shoot, &mut recv);
                     if let Some(o) = &overlay {
-                        o.gather(1, &shoot, &mut recv);
+                        o.gather(1, &shoot, nd_phi, &mut recv);
+                    }
+                    if let Some(x) = nd {
+                        x.gather_corrections(1, false, &phi, &mut recv);
                     }
                     spread.fill([0.0; 4]);
                 }
             }
             residual_total = 0.0;
+            if let Some(x) = nd {
+                let totals = x.step(v, &shoot, &phi, &overlay_ends, &mut phi_next);
+                std::mem::swap(&mut phi, &mut phi_next);
+                for (t, p) in dir_total.iter_mut().zip(&phi) {
+                    for c in 0..4 {
+                        t[c] += p[c];
+                    }
+                }
+                for (k, t) in totals.iter().enumerate() {
+                    pending[k] = t.reflected;
+                    for c in 0..3 {
+                        bal.absorbed[c] -= t.reflected[c];
+                        residual_total += t.reflected[c].abs();
+                    }
+                }
+            }
             let first_warm = bal.iterations == 0 && guess.is_some();
             for p in 0..n {
                 for c in 0..3 {
@@ -506,6 +628,11 @@ impl<'a> Distributor<'a> {
                 bal.residual[c] += u[c] as f64;
             }
         }
+        for g in &pending {
+            for c in 0..3 {
+                bal.residual[c] += g[c];
+            }
+        }
         bal.converged = residual_total <= opts.tolerance * emitted_total;
         let inv_pi = 1.0 / std::f32::consts::PI;
         let radiance = (0..n)
@@ -516,6 +643,22 @@ impl<'a> Distributor<'a> {
             })
             .collect();
         let received = (0..n).map(|p| [0, 1, 2].map(|c| total_direct[p][c] + total_spread[p][c])).collect();
-        Ok(Solution { radiance, received, balance: bal, delta_s })
+        // Per-ray power → radiance: one ray stands for the étendue
+        // π·A_p/E[H_p] of its patch (as for the diffuse radiance above).
+        let directional = nd.map(|x| {
+            let radiance = x
+                .patches
+                .iter()
+                .enumerate()
+                .flat_map(|(k, &q)| {
+                    let q = q as usize;
+                    let a = v.patch_area[q];
+                    let to_l = if a > 0.0 { v.patch_expected_hits[q] / (std::f32::consts::PI * a) } else { 0.0 };
+                    dir_total[k * x.n..(k + 1) * x.n].iter().map(move |t| [t[0] * to_l, t[1] * to_l, t[2] * to_l])
+                })
+                .collect();
+            DirectionalRadiance { patches: x.patches.clone(), directions: x.n, radiance }
+        });
+        Ok(Solution { radiance, received, balance: bal, delta_s, directional })
     }
 }

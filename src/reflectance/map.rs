@@ -209,10 +209,8 @@ fn rings_around(directions: &[[f32; 3]], neighbours: &[[u32; 6]], frame: &Frame)
             .expect("ring is not empty");
         let a0 = angle(start);
         let tau = std::f64::consts::TAU;
-        let mut labelled: Vec<(u32, f64)> = next
-            .iter()
-            .map(|&d| (d, if d == start { 0.0 } else { (angle(d) - a0).rem_euclid(tau) / tau }))
-            .collect();
+        let mut labelled: Vec<(u32, f64)> =
+            next.iter().map(|&d| (d, if d == start { 0.0 } else { (angle(d) - a0).rem_euclid(tau) / tau })).collect();
         labelled.sort_by(|x, y| x.1.total_cmp(&y.1).then(x.0.cmp(&y.0)));
         out.push(labelled.clone());
         ring = next;
@@ -233,7 +231,8 @@ fn rings(directions: &[[f32; 3]], neighbours: &[[u32; 6]], frame: &Frame) -> Ori
     // size, the k-th of the smaller ring takes the element at the same
     // fraction of the larger, and the larger ring's unmatched directions
     // carry over into the next ring (keeping their positions).
-    let (mut carry_a, mut carry_p): (Vec<(u32, f64)>, Vec<(u32, f64)>) = (Vec::new(), Vec::new());
+    let mut carry_a: Vec<(u32, f64)> = Vec::new();
+    let mut carry_p: Vec<(u32, f64)> = Vec::new();
     let rings = actual.len().max(proto.len());
     for r in 0..rings {
         let mut a = std::mem::take(&mut carry_a);
@@ -354,7 +353,7 @@ mod tests {
             Frame::new([0.0, 0.0, 1.0], [1.0, 0.0, 0.0]),
             Frame::new([1.0, 0.0, 0.0], [0.0, 1.0, 0.0]),
             Frame::new([0.3, 0.8, -0.5], [1.0, 0.2, 0.1]),
-            Frame::new([0.0, 1.0, 0.0], [0.7071, 0.0, 0.7071]),
+            Frame::new([0.0, 1.0, 0.0], [1.0, 0.0, 1.0]),
         ];
         for f in &frames {
             for method in [MapMethod::Rings, MapMethod::Nearest] {

@@ -116,8 +116,10 @@ pub fn build(
     let c: Vec<f64> = up.iter().zip(&w).map(|(&i, w)| w[2] * solid_angle[i]).collect();
     let eval = |a: usize, b: usize, band: usize| model.eval(band, w[a], w[b]);
     // Continuous and discrete albedo per row and band.
-    let target: Vec<[f64; 3]> =
-        (0..m).into_par_iter().map(|a| [0, 1, 2].map(|k| if k < bands { model.albedo(k, w[a]) } else { 0.0 })).collect();
+    let target: Vec<[f64; 3]> = (0..m)
+        .into_par_iter()
+        .map(|a| [0, 1, 2].map(|k| if k < bands { model.albedo(k, w[a]) } else { 0.0 }))
+        .collect();
     // Discrete albedo per band, and the largest factor of band 0, per row.
     let discrete: Vec<([f64; 3], f64)> = (0..m)
         .into_par_iter()
@@ -165,8 +167,10 @@ pub fn build(
     let mut iterations = 0;
     for it in 0..200 {
         iterations = it + 1;
-        let sums: Vec<[f64; 3]> =
-            (0..m).into_par_iter().map(|a| [0, 1, 2].map(|k| if k < bands { row_sum(&s, a, k) } else { 0.0 })).collect();
+        let sums: Vec<[f64; 3]> = (0..m)
+            .into_par_iter()
+            .map(|a| [0, 1, 2].map(|k| if k < bands { row_sum(&s, a, k) } else { 0.0 }))
+            .collect();
         let mut worst = 0.0f64;
         for a in 0..m {
             for k in 0..bands {
@@ -212,7 +216,8 @@ pub fn build(
                 if target[a][k] > 1e-3 {
                     let before = (discrete[a].0[k] - target[a][k]).abs() / target[a][k];
                     stats.albedo_error_before = stats.albedo_error_before.max(before);
-                    stats.albedo_error_after = stats.albedo_error_after.max((got[k] - target[a][k]).abs() / target[a][k]);
+                    stats.albedo_error_after =
+                        stats.albedo_error_after.max((got[k] - target[a][k]).abs() / target[a][k]);
                     err_sum += before;
                     err_rows += 1;
                 }

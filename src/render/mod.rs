@@ -10,11 +10,13 @@
 
 mod camera;
 pub mod image_io;
+pub mod view;
 
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
 
 pub use camera::PinholeCamera;
+pub use view::{frame_radiance, radiance_seen_from};
 
 use crate::archive::InetView;
 use crate::archive::layout::PrimitiveRecord;

@@ -17,8 +17,8 @@ pub use parse::SceneError;
 
 use crate::geometry::Primitive;
 
-/// How a material reflects light. Only diffuse exists so far; the enum (and
-/// the scene format's `type` key) leaves room for other reflectance functions.
+/// How a material reflects light (`format-spec/scene.md`; the formulas are
+/// in [`crate::reflectance::model`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum ReflectanceModel {
     /// Lambertian: `f = ρ/π`, with `ρ` the linear-RGB reflectance in `[0, 1]`.
@@ -26,6 +26,43 @@ pub enum ReflectanceModel {
         /// Linear RGB reflectance.
         reflectance: [f32; 3],
     },
+    /// Rough conductor (brushed metal): `k_s` times the GGX lobe.
+    RoughConductor {
+        /// `k_s`, linear RGB in `[0, 1]`.
+        specular: [f32; 3],
+        /// The lobe's roughness and Fresnel term.
+        lobe: crate::reflectance::Lobe,
+    },
+    /// Broad specular: `k_d/π` plus `k_s` times the GGX lobe.
+    BroadSpecular {
+        /// `k_d`, linear RGB.
+        reflectance: [f32; 3],
+        /// `k_s`, linear RGB; `k_d + k_s ≤ 1` per band.
+        specular: [f32; 3],
+        /// The lobe's roughness and Fresnel term.
+        lobe: crate::reflectance::Lobe,
+    },
+}
+
+impl ReflectanceModel {
+    /// The diffuse reflectance `k_d` (zero for a rough conductor).
+    pub fn diffuse(&self) -> [f32; 3] {
+        match self {
+            ReflectanceModel::Diffuse { reflectance } | ReflectanceModel::BroadSpecular { reflectance, .. } => {
+                *reflectance
+            }
+            ReflectanceModel::RoughConductor { .. } => [0.0; 3],
+        }
+    }
+
+    /// The specular colour `k_s` and lobe, for models that have one.
+    pub fn lobe(&self) -> Option<([f32; 3], crate::reflectance::Lobe)> {
+        match self {
+            ReflectanceModel::Diffuse { .. } => None,
+            ReflectanceModel::RoughConductor { specular, lobe }
+            | ReflectanceModel::BroadSpecular { specular, lobe, .. } => Some((*specular, *lobe)),
+        }
+    }
 }
 
 /// A named material.
@@ -53,6 +90,9 @@ pub struct Surface {
     pub motion: Option<motion::Motion>,
     /// Keyframed emission (linear between keys); empty: `emission` always.
     pub emission_keys: Vec<motion::EmissionKey>,
+    /// The grain (tangent) direction in world space, for anisotropic
+    /// reflectance; `None`: each primitive's first edge.
+    pub grain: Option<Vec3>,
 }
 
 impl Surface {
@@ -175,6 +215,7 @@ impl Scene {
         for surf in &mut s.surfaces {
             if let Some(m) = surf.motion.take() {
                 surf.primitives = m.apply(frame, &surf.primitives);
+                surf.grain = surf.grain.map(|g| m.apply_direction(frame, g));
             }
             surf.emission = surf.emission_at(frame);
             surf.emission_keys.clear();
@@ -183,6 +224,39 @@ impl Scene {
         s.camera_keys.clear();
         s.animation = None;
         s
+    }
+
+    /// Turns the surface named `name` about its normal, through the centre
+    /// of its vertices, by `degrees` (counter-clockwise seen from the front):
+    /// the brushed plate's orientations (§4, Images 3–4) without editing the
+    /// scene. The surface must be planar and static.
+    pub fn turn_surface(&mut self, name: &str, degrees: f32) -> Result<(), String> {
+        let known = || self.surfaces.iter().map(|s| s.name.as_str()).collect::<Vec<_>>().join(", ");
+        let i = self
+            .surfaces
+            .iter()
+            .position(|s| s.name == name)
+            .ok_or_else(|| format!("no surface named `{name}` (known: {})", known()))?;
+        let s = &mut self.surfaces[i];
+        if s.motion.is_some() {
+            return Err(format!("surface `{name}` moves; only a static surface can be turned"));
+        }
+        let n = s.primitives[0].normal();
+        if s.primitives.iter().any(|p| p.normal().dot(n) < 1.0 - 1e-5) {
+            return Err(format!("surface `{name}` is not planar"));
+        }
+        let verts: Vec<Vec3> = s.primitives.iter().flat_map(|p| p.p[..p.corner_count()].iter().copied()).collect();
+        let centre = verts.iter().copied().sum::<Vec3>() / verts.len() as f32;
+        let r = glam::Quat::from_axis_angle(n, degrees.to_radians());
+        for p in &mut s.primitives {
+            let q = p.p.map(|v| centre + r * (v - centre));
+            *p = match p.kind {
+                crate::geometry::PrimitiveKind::Quad => Primitive::quad(q),
+                crate::geometry::PrimitiveKind::Triangle => Primitive::triangle(q[0], q[1], q[2]),
+            };
+        }
+        s.grain = s.grain.map(|g| r * g);
+        Ok(())
     }
 
     /// Every primitive with its surface index, in surface order.

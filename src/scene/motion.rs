@@ -97,6 +97,12 @@ impl Motion {
             .collect()
     }
 
+    /// A direction (the grain) moved to `frame`: rotated and scaled, renormalised.
+    pub fn apply_direction(&self, frame: u32, d: Vec3) -> Vec3 {
+        let (r, s, _) = self.at(frame);
+        (r * (s * d)).normalize_or(d)
+    }
+
     /// Whether frames `a` and `b` give bitwise the same transform (so one
     /// temporal instance can serve both).
     pub fn same_transform(&self, a: u32, b: u32) -> bool {

@@ -159,6 +159,19 @@ struct RawMaterial {
     #[serde(rename = "type")]
     kind: Spanned<String>,
     reflectance: Option<Spanned<[f32; 3]>>,
+    specular: Option<Spanned<[f32; 3]>>,
+    alpha: Option<Spanned<f32>>,
+    alpha_u: Option<Spanned<f32>>,
+    alpha_v: Option<Spanned<f32>>,
+    ior: Option<Spanned<Ior>>,
+}
+
+/// An index of refraction: one for all bands or one per band.
+#[derive(Deserialize)]
+#[serde(untagged)]
+enum Ior {
+    One(f32),
+    Bands([f32; 3]),
 }
 
 #[derive(Deserialize)]
@@ -177,6 +190,7 @@ struct RawSurface {
     emission_keyframes: Option<Spanned<Vec<RawEmissionKey>>>,
     interpolation: Option<Spanned<String>>,
     pivot: Option<Spanned<[f32; 3]>>,
+    grain: Option<Spanned<[f32; 3]>>,
 }
 
 #[derive(Deserialize)]
@@ -303,21 +317,91 @@ pub(super) fn parse(text: &str, file: &Path, base_dir: &Path, name: String) -> R
                 format!("duplicate material name `{}`", m.name.get_ref()),
             ));
         }
+        let unit_rgb = |v: &Option<Spanned<[f32; 3]>>, key: &str, what: &str| -> Result<[f32; 3], SceneError> {
+            let r = v.as_ref().ok_or_else(|| {
+                cx.err(m.kind.span(), field(key), format!("a {} material needs `{key} = [r, g, b]`", m.kind.get_ref()))
+            })?;
+            if !r.get_ref().iter().all(|x| (0.0..=1.0).contains(x)) {
+                return Err(cx.err(r.span(), field(key), format!("each component of {what} must be in [0, 1]")));
+            }
+            Ok(*r.get_ref())
+        };
+        let lobe = || -> Result<crate::reflectance::Lobe, SceneError> {
+            let check = |a: &Spanned<f32>, key: &str| {
+                let x = *a.get_ref();
+                if (0.01..=1.0).contains(&x) {
+                    Ok(x)
+                } else {
+                    Err(cx.err(a.span(), field(key), "roughness must be in [0.01, 1]"))
+                }
+            };
+            let (au, av) = match (&m.alpha, &m.alpha_u, &m.alpha_v) {
+                (Some(a), None, None) => (check(a, "alpha")?, check(a, "alpha")?),
+                (None, Some(u), Some(v)) => (check(u, "alpha_u")?, check(v, "alpha_v")?),
+                (Some(a), _, _) => {
+                    return Err(cx.err(a.span(), field("alpha"), "give `alpha` or `alpha_u` and `alpha_v`, not both"));
+                }
+                _ => {
+                    return Err(cx.err(
+                        m.kind.span(),
+                        field("alpha"),
+                        "a glossy material needs `alpha = a` (isotropic) or `alpha_u` and `alpha_v`",
+                    ));
+                }
+            };
+            let ior = match &m.ior {
+                None => None,
+                Some(i) => {
+                    let v = match i.get_ref() {
+                        Ior::One(x) => [*x; 3],
+                        Ior::Bands(b) => *b,
+                    };
+                    if !v.iter().all(|x| x.is_finite() && *x > 0.0) {
+                        return Err(cx.err(i.span(), field("ior"), "an index of refraction must be positive"));
+                    }
+                    Some(v)
+                }
+            };
+            Ok(crate::reflectance::Lobe { alpha_u: au, alpha_v: av, ior })
+        };
+        let unused = |present: bool, key: &str| -> Result<(), SceneError> {
+            if present {
+                Err(cx.err(m.kind.span(), field(key), format!("a {} material has no `{key}`", m.kind.get_ref())))
+            } else {
+                Ok(())
+            }
+        };
         let model = match m.kind.get_ref().as_str() {
             "diffuse" => {
-                let r = m.reflectance.as_ref().ok_or_else(|| {
-                    cx.err(m.kind.span(), field("reflectance"), "a diffuse material needs `reflectance = [r, g, b]`")
-                })?;
-                if !r.get_ref().iter().all(|x| (0.0..=1.0).contains(x)) {
-                    return Err(cx.err(r.span(), field("reflectance"), "each component must be in [0, 1]"));
+                unused(m.specular.is_some(), "specular")?;
+                unused(m.alpha.is_some() || m.alpha_u.is_some() || m.alpha_v.is_some(), "alpha")?;
+                unused(m.ior.is_some(), "ior")?;
+                ReflectanceModel::Diffuse { reflectance: unit_rgb(&m.reflectance, "reflectance", "a reflectance")? }
+            }
+            "rough_conductor" => {
+                unused(m.reflectance.is_some(), "reflectance")?;
+                ReflectanceModel::RoughConductor {
+                    specular: unit_rgb(&m.specular, "specular", "a specular colour")?,
+                    lobe: lobe()?,
                 }
-                ReflectanceModel::Diffuse { reflectance: *r.get_ref() }
+            }
+            "broad_specular" => {
+                let kd = unit_rgb(&m.reflectance, "reflectance", "a reflectance")?;
+                let ks = unit_rgb(&m.specular, "specular", "a specular colour")?;
+                if (0..3).any(|c| kd[c] + ks[c] > 1.0) {
+                    return Err(cx.err(
+                        m.specular.as_ref().map_or(m.kind.span(), |s| s.span()),
+                        field("specular"),
+                        "reflectance + specular must not exceed 1 in any band (the surface would create energy)",
+                    ));
+                }
+                ReflectanceModel::BroadSpecular { reflectance: kd, specular: ks, lobe: lobe()? }
             }
             other => {
                 return Err(cx.err(
                     m.kind.span(),
                     field("type"),
-                    format!("unknown material type `{other}` (known: diffuse)"),
+                    format!("unknown material type `{other}` (known: diffuse, rough_conductor, broad_specular)"),
                 ));
             }
         };
@@ -423,7 +507,22 @@ pub(super) fn parse(text: &str, file: &Path, base_dir: &Path, name: String) -> R
                 emission_keys.push(EmissionKey { frame: k.frame, emission: Vec3::from(k.emission) });
             }
         }
-        surfaces.push(Surface { name, material, emission, primitives: prims, motion, emission_keys });
+        let grain = match &s.grain {
+            None => None,
+            Some(g) => {
+                let v = Vec3::from(*g.get_ref());
+                if !v.is_finite() || v.length() < 1e-6 {
+                    return Err(cx.err(g.span(), field("grain"), "the grain must be a non-zero direction"));
+                }
+                // Local coordinates: the surface's transform applies.
+                let v = match &s.transform {
+                    Some(t) => transform_matrix(t.get_ref()).map(|m| m.0 * v).unwrap_or(v),
+                    None => v,
+                };
+                Some(v.normalize())
+            }
+        };
+        surfaces.push(Surface { name, material, emission, primitives: prims, motion, emission_keys, grain });
     }
     if surfaces.is_empty() {
         return Err(cx.err(0..0, "surface", "the scene has no surfaces"));

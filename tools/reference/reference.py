@@ -80,14 +80,29 @@ def load_scene(path):
         if name in materials:
             raise SceneError(f"material '{name}' is defined twice")
         mtype = m.get("type")
-        if mtype != "diffuse":
+        if mtype not in ("diffuse", "rough_conductor", "broad_specular"):
             raise SceneError(
                 f"material '{name}': unsupported type {mtype!r} "
-                "(the reference tool supports only 'diffuse')")
-        materials[name] = {
-            "type": "diffuse",
-            "reflectance": _vec3(m.get("reflectance"), f"material '{name}'.reflectance"),
-        }
+                "(the reference tool supports 'diffuse', 'rough_conductor' and 'broad_specular')")
+        mat = {"type": mtype}
+        if mtype in ("diffuse", "broad_specular"):
+            mat["reflectance"] = _vec3(m.get("reflectance"), f"material '{name}'.reflectance")
+        if mtype in ("rough_conductor", "broad_specular"):
+            mat["specular"] = _vec3(m.get("specular"), f"material '{name}'.specular")
+            if "ior" in m:
+                raise SceneError(
+                    f"material '{name}': 'ior' (Schlick Fresnel) has no exact Mitsuba equivalent; "
+                    "the reference tool supports Fresnel = 1 only")
+            if "alpha" in m:
+                au = av = float(m["alpha"])
+            else:
+                au, av = float(m.get("alpha_u", 0)), float(m.get("alpha_v", 0))
+            if au != av:
+                raise SceneError(
+                    f"material '{name}': anisotropic roughness needs the surface tangent frame, "
+                    "which the reference tool does not reproduce; isotropic only")
+            mat["alpha"] = au
+        materials[name] = mat
 
     surfaces = []
     known_geometry = ("quad", "quads")
@@ -99,7 +114,7 @@ def load_scene(path):
         if mat not in materials:
             raise SceneError(f"surface '{name}': unknown material '{mat}'")
         geo = [k for k in known_geometry if k in s]
-        others = [k for k in s if k not in ("name", "material", "emission") + known_geometry]
+        others = [k for k in s if k not in ("name", "material", "emission", "grain") + known_geometry]
         if others:
             raise SceneError(
                 f"surface '{name}': unsupported key(s) {others} "
@@ -154,6 +169,31 @@ def _make_mesh(mi, dr, surf, bsdf):
     return mesh
 
 
+def _bsdf(m, scale=1.0):
+    """Mitsuba BSDF dict for an illumnet material (format-spec/scene.md)."""
+    if m["type"] == "diffuse":
+        return {"type": "diffuse",
+                "reflectance": {"type": "rgb", "value": [scale * x for x in m["reflectance"]]}}
+    conductor = {
+        "type": "roughconductor",
+        "material": "none",          # Fresnel = 1
+        "distribution": "ggx",
+        "alpha": m["alpha"],
+        "sample_visible": True,
+        "specular_reflectance": {"type": "rgb", "value": [scale * x for x in m["specular"]]},
+    }
+    if m["type"] == "rough_conductor":
+        return conductor
+    # broad_specular = k_d/pi + k_s * lobe = 0.5 * (2 k_d/pi) + 0.5 * (2 k_s * lobe).
+    return {
+        "type": "blendbsdf",
+        "weight": 0.5,
+        "bsdf_0": _bsdf({"type": "diffuse", "reflectance": m["reflectance"]}, 2.0),
+        "bsdf_1": dict(conductor, specular_reflectance={
+            "type": "rgb", "value": [2.0 * x for x in m["specular"]]}),
+    }
+
+
 def build_mitsuba_scene(mi, dr, scene, max_depth):
     cam = scene["camera"]
     # Mitsuba's look_at (camera space +Z = forward, +Y = up, +X = up x forward,
@@ -187,10 +227,7 @@ def build_mitsuba_scene(mi, dr, scene, max_depth):
     }
     bsdfs = {}
     for name, m in scene["materials"].items():
-        bsdfs[name] = mi.load_dict({
-            "type": "diffuse",
-            "reflectance": {"type": "rgb", "value": m["reflectance"]},
-        })
+        bsdfs[name] = mi.load_dict(_bsdf(m))
     for i, surf in enumerate(scene["surfaces"]):
         d[f"surface_{i}"] = _make_mesh(mi, dr, surf, bsdfs[surf["material"]])
     return mi.load_dict(d)

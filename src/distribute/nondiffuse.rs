@@ -1,0 +1,280 @@
+//! Non-diffuse patches in the distribution (§3.6.2, Figure 9).
+//!
+//! A diffuse patch sends the same share of its power along every link end.
+//! A non-diffuse patch `q` instead keeps an **in-buffer** per direction: the
+//! power that arrived over its link ends, sorted by the direction `i` it came
+//! from (the end's `LDIR`). Each iteration:
+//!
+//! 1. light from direction `i` goes through the orientation's
+//!    actual-to-prototype map to prototype row `map[i]`, whose factors
+//!    scatter it into a **scratch** area indexed by prototype direction;
+//! 2. scratch entry `p` divided by `cos θ_p Ω_p` (its prototype direction's
+//!    weight in the table) is proportional to the radiance leaving along
+//!    `p`; actual outgoing direction `o` takes that of `map[o]`. (Taking the
+//!    power `scratch[map[o]]` itself would carry the prototype direction's
+//!    `cos θ Ω` over to a direction a few degrees away: near the horizon
+//!    that is a 40% error.)
+//! 3. it leaves along the rays of direction `o` that cross `q` (`n_o` of
+//!    them, from `NDHC`), each carrying `φ_o = c · k_s · R_map[o]`: the
+//!    radiance times the étendue of one ray, the constant `c` making
+//!    `Σ_o n_o φ_o` exactly the reflected power `k_s · Σ_p scratch[p]`
+//!    (energy is conserved exactly whatever the ray counts, as `U_p/H_p`
+//!    does for diffuse patches). Rays of `o` that reach no facing patch
+//!    lose theirs.
+//!
+//! The diffuse part `k_d` of a broad-specular patch takes the ordinary
+//! diffuse path (with buckets). Light a non-diffuse patch sends reaches its
+//! receivers through a **correction list**: the link ends whose other patch
+//! is non-diffuse, found once per archive, each adding `w · φ` to the
+//! receiver; the main gather sees those senders' diffuse share only.
+//! A scene that is all diffuse never builds any of this.
+
+use rayon::prelude::*;
+
+use crate::archive::{InetView, ReflectanceView};
+
+/// Per-archive state of the non-diffuse patches.
+pub(super) struct NonDiffuse<'a> {
+    r: ReflectanceView<'a>,
+    /// Directions in the set.
+    pub n: usize,
+    /// Per patch, its non-diffuse index (`u32::MAX`: diffuse).
+    pub nd_of: Vec<u32>,
+    /// Non-diffuse index → patch.
+    pub patches: Vec<u32>,
+    /// `k_s` per non-diffuse patch.
+    ks: Vec<[f32; 3]>,
+    /// Prototype → actual direction, per orientation.
+    inverse: Vec<u32>,
+    /// Per non-diffuse patch and direction: `n_o`, the rays of `o` leaving
+    /// the patch (0 for directions behind it).
+    rays: Vec<f32>,
+    /// Per prototype direction, `1 / (cos θ_p Ω_p)` (0 below the prototype surface).
+    inv_weight: Vec<f32>,
+    /// Link ends whose other patch is non-diffuse, CSR by receiving patch.
+    corr_offsets: Vec<u32>,
+    corr_weight: Vec<f32>,
+    corr_slot: Vec<u32>,
+    corr_bucket: Vec<u8>,
+    /// Rays of each direction leaving each non-diffuse patch that reach a
+    /// facing patch (frame 0's links).
+    pub linked: Vec<f32>,
+}
+
+/// Visits a patch's extra link ends (a frame's overlay) as `(other, weight, direction)`.
+pub(super) type ExtraEnds<'f> = dyn Fn(usize, &mut dyn FnMut(u32, f32, u32)) + Sync + 'f;
+
+/// What one reflection step produced, per band.
+#[derive(Default, Clone, Copy)]
+pub(super) struct StepTotals {
+    /// Power reflected into directions (sent next iteration).
+    pub reflected: [f64; 3],
+}
+
+impl<'a> NonDiffuse<'a> {
+    /// Prepares the reflectance sections of `v`, with `ks` per surface.
+    pub fn new(v: &InetView<'a>, ks_of_surface: &[[f32; 3]]) -> Option<Self> {
+        let r = v.reflectance?;
+        let n = v.directions.len();
+        let np = v.patch_count();
+        let mut nd_of = vec![u32::MAX; np];
+        for (k, e) in r.patches.iter().enumerate() {
+            nd_of[e.patch as usize] = k as u32;
+        }
+        let patches: Vec<u32> = r.patches.iter().map(|e| e.patch).collect();
+        let surface = |q: u32| v.primitives[v.patch_primitive[q as usize] as usize].surface as usize;
+        let ks = patches.iter().map(|&q| ks_of_surface[surface(q)]).collect();
+        let mut inverse = vec![0u32; r.orientations.len() * n];
+        for o in 0..r.orientations.len() {
+            for (a, &p) in r.map(o).iter().enumerate() {
+                inverse[o * n + p as usize] = a as u32;
+            }
+        }
+        let mut rays = vec![0.0f32; patches.len() * n];
+        for (k, &q) in patches.iter().enumerate() {
+            let nq = v.patch_normal[q as usize];
+            let hits = r.pair_hits(k);
+            for (o, d) in v.directions.iter().enumerate() {
+                let cos = nq[0] * d.direction[0] + nq[1] * d.direction[1] + nq[2] * d.direction[2];
+                if cos > 0.0 {
+                    rays[k * n + o] = hits[o / 2] as f32;
+                }
+            }
+        }
+        // The prototype normal is +y.
+        let inv_weight = v
+            .directions
+            .iter()
+            .map(|d| {
+                let w = d.direction[1] * d.solid_angle_sr;
+                if d.direction[1] > 0.0 && w > 0.0 { 1.0 / w } else { 0.0 }
+            })
+            .collect();
+        // Correction list: one scan over the link ends.
+        let mut corr_offsets = Vec::with_capacity(np + 1);
+        let (mut corr_weight, mut corr_slot, mut corr_bucket) = (Vec::new(), Vec::new(), Vec::new());
+        corr_offsets.push(0u32);
+        for q in 0..np {
+            let (a, b) = (v.link_offsets[q] as usize, v.link_offsets[q + 1] as usize);
+            for e in a..b {
+                let k = nd_of[v.link_other[e] as usize];
+                if k != u32::MAX {
+                    corr_weight.push(v.link_weight[e]);
+                    // The sender sends along the antipode of the receiver's direction.
+                    corr_slot.push(k * n as u32 + (v.link_direction[e] ^ 1));
+                    corr_bucket.push(v.link_bucket.map_or(0, |bk| bk[e]));
+                }
+            }
+            corr_offsets.push(corr_weight.len() as u32);
+        }
+        let mut linked = vec![0.0f32; patches.len() * n];
+        for (k, &q) in patches.iter().enumerate() {
+            let (_, w, d) = v.link_ends(q as usize);
+            for (&w, &d) in w.iter().zip(d) {
+                linked[k * n + d as usize] += w;
+            }
+        }
+        Some(Self {
+            r,
+            n,
+            nd_of,
+            patches,
+            ks,
+            inverse,
+            rays,
+            inv_weight,
+            corr_offsets,
+            corr_weight,
+            corr_slot,
+            corr_bucket,
+            linked,
+        })
+    }
+
+    /// Power a sender at non-diffuse index `k` sends per ray along direction `d`.
+    #[inline]
+    pub fn slot(&self, k: u32, d: u32) -> usize {
+        k as usize * self.n + d as usize
+    }
+
+    /// Adds what non-diffuse senders send along their directions to `recv`
+    /// (bucketed as the main gather, `nb` buckets per patch).
+    pub fn gather_corrections(&self, nb: usize, use_buckets: bool, phi: &[[f32; 4]], recv: &mut [[f32; 4]]) {
+        recv.par_chunks_mut(512 * nb).enumerate().for_each(|(block, out)| {
+            let first = block * 512;
+            for (i, r) in out.chunks_exact_mut(nb).enumerate() {
+                let q = first + i;
+                for e in self.corr_offsets[q] as usize..self.corr_offsets[q + 1] as usize {
+                    let s = phi[self.corr_slot[e] as usize];
+                    let w = self.corr_weight[e];
+                    let slot = &mut r[if use_buckets { self.corr_bucket[e] as usize } else { 0 }];
+                    for c in 0..4 {
+                        slot[c] += w * s[c];
+                    }
+                }
+            }
+        });
+    }
+
+    /// One reflection step for every non-diffuse patch: in-buffers from what
+    /// arrives this iteration (`shoot`: diffuse share per patch, `phi`:
+    /// directional power per ray, `extra`: the frame's overlay ends of each
+    /// patch as `(other, weight, direction)`), through map and table, into
+    /// `phi_next`. Returns the power each patch reflected into directions.
+    pub fn step(
+        &self,
+        v: &InetView<'_>,
+        shoot: &[[f32; 4]],
+        phi: &[[f32; 4]],
+        extra: &ExtraEnds<'_>,
+        phi_next: &mut [[f32; 4]],
+    ) -> Vec<StepTotals> {
+        let n = self.n;
+        phi_next
+            .par_chunks_mut(n)
+            .enumerate()
+            .map_init(
+                || (vec![[0.0f32; 4]; n], vec![[0.0f32; 4]; n]),
+                |(inbuf, scratch), (k, out)| {
+                    let q = self.patches[k] as usize;
+                    inbuf.fill([0.0; 4]);
+                    let mut add = |other: u32, w: f32, d: u32| {
+                        let mut s = shoot[other as usize];
+                        let j = self.nd_of[other as usize];
+                        if j != u32::MAX {
+                            let p = phi[self.slot(j, d ^ 1)];
+                            for c in 0..4 {
+                                s[c] += p[c];
+                            }
+                        }
+                        let b = &mut inbuf[d as usize];
+                        for c in 0..4 {
+                            b[c] += w * s[c];
+                        }
+                    };
+                    let (o, w, d) = v.link_ends(q);
+                    for e in 0..o.len() {
+                        add(o[e], w[e], d[e]);
+                    }
+                    extra(q, &mut add);
+                    self.reflect(k, inbuf, scratch, out)
+                },
+            )
+            .collect()
+    }
+
+    /// In-buffer → map → table → scratch → map back → per-ray power.
+    fn reflect(&self, k: usize, inbuf: &[[f32; 4]], scratch: &mut [[f32; 4]], out: &mut [[f32; 4]]) -> StepTotals {
+        let n = self.n;
+        let rec = self.r.patches[k];
+        let (t, orient) = (rec.prototype as usize, rec.orientation as usize);
+        let bands = self.r.prototypes[t].bands as usize;
+        let map = self.r.map(orient);
+        scratch.fill([0.0; 4]);
+        for (i, light) in inbuf.iter().enumerate() {
+            if light[0] == 0.0 && light[1] == 0.0 && light[2] == 0.0 {
+                continue;
+            }
+            let (outs, f) = self.r.row(t, map[i] as usize);
+            if bands == 1 {
+                for (&o, &f) in outs.iter().zip(f) {
+                    let s = &mut scratch[o as usize];
+                    for c in 0..4 {
+                        s[c] += f * light[c];
+                    }
+                }
+            } else {
+                for (e, &o) in outs.iter().enumerate() {
+                    let s = &mut scratch[o as usize];
+                    for c in 0..3 {
+                        s[c] += f[e * 3 + c] * light[c];
+                    }
+                }
+            }
+        }
+        let ks = self.ks[k];
+        let inv = &self.inverse[orient * n..(orient + 1) * n];
+        let rays = &self.rays[k * n..(k + 1) * n];
+        let (mut total, mut weighted) = ([0.0f64; 3], [0.0f64; 3]);
+        // out[o] = radiance-like R_p of p = map[o] for now; scaled by c below.
+        out.fill([0.0; 4]);
+        for (p, s) in scratch.iter().enumerate() {
+            let o = inv[p] as usize;
+            let (n_o, iw) = (rays[o], self.inv_weight[p]);
+            for c in 0..3 {
+                let power = ks[c] * s[c];
+                total[c] += power as f64;
+                let radiance = power * iw;
+                weighted[c] += (n_o * radiance) as f64;
+                out[o][c] = if n_o > 0.0 { radiance } else { 0.0 };
+            }
+        }
+        let scale: [f32; 3] = [0, 1, 2].map(|c| if weighted[c] > 0.0 { (total[c] / weighted[c]) as f32 } else { 0.0 });
+        for x in out.iter_mut() {
+            for c in 0..3 {
+                x[c] *= scale[c];
+            }
+        }
+        StepTotals { reflected: total }
+    }
+}
