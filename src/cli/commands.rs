@@ -28,6 +28,9 @@ fn build_scene(scene: &Scene, output: &Path, args: &BuildArgs, progress: &dyn Pr
     } else if let Some(dir) = &args.prototype_library {
         settings.prototype_library = Some(dir.clone());
     }
+    if let Some(t) = args.table_threshold {
+        settings.table_threshold = t;
+    }
     if args.map_method.as_deref() == Some("rings") {
         settings.map_method = illumnet::reflectance::MapMethod::Rings;
     }

@@ -59,6 +59,10 @@ struct BuildArgs {
     /// Build prototype tables without reading or writing the library.
     #[arg(long, conflicts_with = "prototype_library")]
     no_prototype_library: bool,
+    /// Drop prototype-table factors below this fraction of their row's
+    /// largest (default 1e-2); the dropped energy is put back by scaling.
+    #[arg(long, value_name = "FRACTION")]
+    table_threshold: Option<f64>,
     /// Actual-to-prototype maps: `nearest` (default) or the paper's `rings`.
     #[arg(long, value_name = "METHOD", value_parser = ["nearest", "rings"])]
     map_method: Option<String>,

@@ -24,7 +24,7 @@ use rayon::prelude::*;
 use super::model::TableModel;
 
 /// Default relative threshold below which a factor is dropped.
-pub const DEFAULT_THRESHOLD: f64 = 1e-3;
+pub const DEFAULT_THRESHOLD: f64 = 1e-2;
 
 /// A prototype reflectance table over one direction set.
 #[derive(Debug, Clone, PartialEq)]

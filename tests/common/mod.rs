@@ -20,7 +20,8 @@ pub fn scene(toml: &str) -> Scene {
 /// Builds `scene` with default settings (plus `hints`) and opens the result
 /// from memory.
 pub fn build_archive(scene: &Scene, hints: BuildHints) -> Archive {
-    let settings = BuildSettings::resolve(scene, hints);
+    let mut settings = BuildSettings::resolve(scene, hints);
+    settings.prototype_library = None; // tests leave no files behind
     let (contents, _) = build::build(scene, &settings, &NoProgress).unwrap();
     Archive::from_bytes(&archive::write_to_vec(&contents).unwrap()).unwrap()
 }

@@ -1,0 +1,256 @@
+//! General reflectance (issue #4): the glossy Cornell box against a
+//! path-traced reference, the brushed plate's highlight turning with the
+//! grain, energy bookkeeping with glossy surfaces, the archive's reflectance
+//! sections (validation, determinism) and the prototype library.
+
+mod common;
+
+use std::path::Path;
+
+use illumnet::archive::{self, Archive, ArchiveContents};
+use illumnet::build::{self, BuildSettings};
+use illumnet::distribute::{self, DistributeOptions};
+use illumnet::progress::NoProgress;
+use illumnet::render::{self, Image, RenderOptions, image_io};
+use illumnet::scene::{BuildHints, Scene};
+
+fn scene_file(name: &str) -> Scene {
+    Scene::from_file(&Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes").join(name)).unwrap()
+}
+
+fn contents(scene: &Scene, hints: BuildHints) -> ArchiveContents {
+    let mut settings = BuildSettings::resolve(scene, hints);
+    settings.prototype_library = None;
+    build::build(scene, &settings, &NoProgress).unwrap().0
+}
+
+fn render_still(bytes: &[u8], samples: u32) -> Image {
+    let archive = Archive::from_bytes(bytes).unwrap();
+    let v = archive.view();
+    let sol = distribute::distribute(&v, &DistributeOptions::default(), &NoProgress);
+    assert!(sol.balance.converged && sol.balance.imbalance().abs() < 1e-5, "{:?}", sol.balance);
+    render::render(&v, &render::frame_radiance(&v, 0, &sol), &RenderOptions { samples_per_axis: samples })
+}
+
+#[test]
+fn glossy_floor_is_within_ten_percent_of_the_path_traced_reference() {
+    let reference =
+        image_io::read_exr(&Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/glossy_floor_ref.exr")).unwrap();
+    let bytes = archive::write_to_vec(&contents(&scene_file("glossy_floor.toml"), BuildHints::default())).unwrap();
+    let image = render_still(&bytes, 4);
+    let err = image_io::relative_l2(&image, &reference).unwrap();
+    // Measured 0.031 at default settings (docs/ACCURACY.md); the bar is 10%,
+    // the diffuse Cornell box's is 0.032.
+    eprintln!("glossy floor relative L2 error against the reference: {err:.4}");
+    assert!(err < 0.05, "relative L2 error {err:.4} ≥ 0.05");
+}
+
+/// Angle (degrees, in [0, 180)) of the principal axis of the bright part of
+/// `img`: pixels above `frac` of the brightest, weighted by brightness,
+/// ignoring anything brighter than `cap` (the lamp seen directly).
+fn highlight_axis(img: &Image, frac: f32, cap: f32) -> f64 {
+    let lum = |p: [f32; 3]| (p[0] + p[1] + p[2]) / 3.0;
+    let peak = img.pixels.iter().map(|&p| lum(p)).filter(|&l| l < cap).fold(0.0f32, f32::max);
+    let (mut m, mut mx, mut my) = (0.0f64, 0.0f64, 0.0f64);
+    let mut pts = Vec::new();
+    for y in 0..img.height {
+        for x in 0..img.width {
+            let l = lum(img.at(x, y));
+            if l >= frac * peak && l < cap {
+                let w = l as f64;
+                pts.push((x as f64, y as f64, w));
+                m += w;
+                mx += w * x as f64;
+                my += w * y as f64;
+            }
+        }
+    }
+    let (cx, cy) = (mx / m, my / m);
+    let (mut sxx, mut syy, mut sxy) = (0.0, 0.0, 0.0);
+    for (x, y, w) in pts {
+        sxx += w * (x - cx) * (x - cx);
+        syy += w * (y - cy) * (y - cy);
+        sxy += w * (x - cx) * (y - cy);
+    }
+    (0.5 * (2.0 * sxy).atan2(sxx - syy)).to_degrees().rem_euclid(180.0)
+}
+
+#[test]
+fn brushed_plate_highlight_turns_with_the_grain() {
+    let mut axes = Vec::new();
+    for degrees in [0.0f32, 90.0] {
+        let mut scene = scene_file("brushed_plate.toml");
+        scene.turn_surface("plate", degrees).unwrap();
+        let bytes = archive::write_to_vec(&contents(&scene, BuildHints::default())).unwrap();
+        let img = render_still(&bytes, 2);
+        let axis = highlight_axis(&img, 0.3, 5.0);
+        eprintln!("plate turned {degrees}°: highlight axis {axis:.1}° from the image's x axis");
+        axes.push(axis);
+    }
+    // Rougher across the grain: at 0° (grain along x) the highlight runs
+    // along z, towards the eye (vertical in the image); at 90°, across.
+    let diff = (axes[0] - axes[1]).rem_euclid(180.0);
+    let diff = diff.min(180.0 - diff);
+    assert!((diff - 90.0).abs() <= 15.0, "highlight axes {axes:?} differ by {diff:.1}°, want 90 ± 15");
+}
+
+#[test]
+fn energy_is_conserved_in_a_closed_glossy_room() {
+    // A closed box of broad-specular and rough-conductor walls around a lamp:
+    // nothing escapes and emitted = absorbed + residual.
+    let scene = common::scene(&format!(
+        "{}
+[[material]]
+name = 'gloss'
+type = 'broad_specular'
+reflectance = [0.3, 0.4, 0.5]
+specular = [0.5, 0.4, 0.3]
+alpha = 0.3
+[[material]]
+name = 'metal'
+type = 'rough_conductor'
+specular = [0.9, 0.8, 0.7]
+alpha_u = 0.2
+alpha_v = 0.5
+ior = [1.5, 2.0, 2.5]
+[[surface]]
+name = 'room'
+material = 'gloss'
+box = {{ min = [0, 0, 0], max = [1, 1, 1], inward = true, omit = ['-y'] }}
+[[surface]]
+name = 'floor'
+material = 'metal'
+quad = [[0, 0, 0], [0, 0, 1], [1, 0, 1], [1, 0, 0]]
+[[surface]]
+name = 'lamp'
+material = 'gloss'
+emission = [5, 5, 5]
+quad = [[0.4, 0.999, 0.4], [0.6, 0.999, 0.4], [0.6, 0.999, 0.6], [0.4, 0.999, 0.6]]
+[build]
+frequency = 6
+patch_size = 0.1
+ray_spacing = 0.02
+",
+        common::CAMERA
+    ));
+    let archive = common::build_archive(&scene, BuildHints::default());
+    let v = archive.view();
+    let r = v.reflectance.expect("glossy scenes have reflectance sections");
+    assert_eq!(r.prototypes.len(), 2);
+    assert_eq!(r.prototypes[1].bands, 3, "per-band ior makes a three-band table");
+    let sol = common::solve(&archive);
+    let b = sol.balance;
+    let sum = |a: &[f64; 3]| a.iter().sum::<f64>();
+    eprintln!("{b:?}");
+    assert!(b.converged);
+    assert!(b.imbalance().abs() < 1e-6, "imbalance {}", b.imbalance());
+    // Only rays that meet the lamp's back or graze an edge escape.
+    assert!(sum(&b.escaped) < 0.01 * sum(&b.emitted), "escaped {:?} of {:?}", b.escaped, b.emitted);
+    assert!(sol.directional.as_ref().unwrap().radiance.iter().flatten().all(|x| x.is_finite() && *x >= 0.0));
+}
+
+fn glossy_square() -> Scene {
+    common::scene(&format!(
+        "{}
+[[material]]
+name = 'gloss'
+type = 'broad_specular'
+reflectance = [0.3, 0.3, 0.3]
+specular = [0.5, 0.5, 0.5]
+alpha_u = 0.2
+alpha_v = 0.4
+[[material]]
+name = 'white'
+type = 'diffuse'
+reflectance = [0.8, 0.8, 0.8]
+[[surface]]
+name = 'plate'
+material = 'gloss'
+quad = [[0, 0, 0], [0, 0, 1], [1, 0, 1], [1, 0, 0]]
+[[surface]]
+name = 'wall'
+material = 'white'
+emission = [1, 1, 1]
+quad = [[0, 0, 1], [0, 1, 1], [1, 1, 1], [1, 0, 1]]
+[build]
+frequency = 5
+patch_size = 0.25
+ray_spacing = 0.05
+",
+        common::CAMERA
+    ))
+}
+
+#[test]
+fn reflectance_sections_are_validated() {
+    let good = contents(&glossy_square(), BuildHints::default());
+    assert_eq!(Archive::from_bytes(&archive::write_to_vec(&good).unwrap()).unwrap().header().version_read, 4);
+    let expect = |c: &ArchiveContents, what: &str| {
+        let err = Archive::from_bytes(&archive::write_to_vec(c).unwrap()).err().expect("must be rejected");
+        assert!(err.to_string().contains(what), "{err} (expected {what})");
+    };
+    // A map that is not a bijection.
+    let mut c = good.clone();
+    let r = c.reflectance.as_mut().unwrap();
+    r.maps[1] = r.maps[0];
+    expect(&c, "OMAP");
+    // A table row that reflects more than it receives.
+    let mut c = good.clone();
+    let r = c.reflectance.as_mut().unwrap();
+    r.factors.iter_mut().for_each(|f| *f *= 10.0);
+    expect(&c, "more than it receives");
+    // A non-diffuse patch left out.
+    let mut c = good.clone();
+    let r = c.reflectance.as_mut().unwrap();
+    r.patches.pop();
+    r.hits.truncate(r.patches.len() * c.directions.len() / 2);
+    expect(&c, "NDPA");
+    // A glossy material without the sections.
+    let mut c = good.clone();
+    c.reflectance = None;
+    expect(&c, "non-diffuse material needs the reflectance sections");
+}
+
+#[test]
+fn glossy_builds_are_deterministic_and_reuse_the_prototype_library() {
+    let scene = glossy_square();
+    let dir = tempfile::tempdir().unwrap();
+    let mut settings = BuildSettings::resolve(&scene, BuildHints::default());
+    settings.prototype_library = Some(dir.path().to_path_buf());
+    let run = |threads: usize| {
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+        pool.install(|| {
+            let seq = build::build_sequence(&scene, &settings, &NoProgress).unwrap();
+            (archive::write_to_vec(&seq.contents).unwrap(), seq.stats)
+        })
+    };
+    let (first, s1) = run(1);
+    let (second, s2) = run(2);
+    assert_eq!((s1.tables, s1.tables_cached), (1, 0), "the first build makes the table");
+    assert_eq!((s2.tables, s2.tables_cached), (1, 1), "the second reads it from the library");
+    assert!(first == second, "archives differ between a fresh table, a cached one and thread counts");
+    // Without the library, the same bytes again.
+    let no_lib = archive::write_to_vec(&contents(&scene, BuildHints::default())).unwrap();
+    assert!(no_lib == first);
+}
+
+#[test]
+fn specular_colour_relights_without_rebuild() {
+    let bytes = archive::write_to_vec(&contents(&glossy_square(), BuildHints::default())).unwrap();
+    let archive = Archive::from_bytes(&bytes).unwrap();
+    let v = archive.view();
+    let opts = DistributeOptions::default();
+    let base = distribute::Lighting::from_view(&v);
+    let mut off = base.clone();
+    off.specular[0] = [0.0; 3];
+    let glossy = distribute::distribute_lit(&v, 0, &opts, &base, None, &NoProgress).unwrap();
+    let matte = distribute::distribute_lit(&v, 0, &opts, &off, None, &NoProgress).unwrap();
+    let total = |s: &distribute::Solution| s.directional.as_ref().unwrap().radiance.iter().flatten().sum::<f32>();
+    assert!(total(&glossy) > 0.0);
+    assert_eq!(total(&matte), 0.0, "k_s = 0 leaves no directional radiance");
+    // The plate reflects less in all, so the lit wall receives less back.
+    let wall: f32 = (0..v.patch_count()).filter(|&p| v.patch_centre[p][2] > 0.99).map(|p| matte.received[p][0]).sum();
+    let wall_glossy: f32 =
+        (0..v.patch_count()).filter(|&p| v.patch_centre[p][2] > 0.99).map(|p| glossy.received[p][0]).sum();
+    assert!(wall_glossy > wall, "{wall_glossy} ≤ {wall}");
+}
