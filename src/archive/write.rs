@@ -197,7 +197,12 @@ pub fn write(path: &Path, contents: &ArchiveContents) -> Result<u64, ArchiveErro
         _ => Path::new("."),
     };
     let io = |e: std::io::Error| ArchiveError::Io { path: path.into(), source: e };
-    let tmp = tempfile::Builder::new().prefix(".illumnet-").suffix(".tmp").tempfile_in(dir).map_err(io)?;
+    let mut builder = tempfile::Builder::new();
+    builder.prefix(".illumnet-").suffix(".tmp");
+    // Created as a new file would be (0666 less the umask), not tempfile's 0600.
+    #[cfg(unix)]
+    builder.permissions(std::os::unix::fs::PermissionsExt::from_mode(0o666));
+    let tmp = builder.tempfile_in(dir).map_err(io)?;
     let (file, tmp_path) = tmp.into_parts();
     let buffered = std::io::BufWriter::with_capacity(1 << 20, file);
     let buffered = write_all(buffered, contents).map_err(|e| match e {

@@ -23,7 +23,12 @@ fn save_atomic(
         _ => Path::new("."),
     };
     let err = |e: &dyn std::fmt::Display| format!("{}: {e}", path.display());
-    let mut tmp = tempfile::Builder::new().prefix(".illumnet-").suffix(".tmp").tempfile_in(dir).map_err(|e| err(&e))?;
+    let mut builder = tempfile::Builder::new();
+    builder.prefix(".illumnet-").suffix(".tmp");
+    // Created as a new file would be (0666 less the umask), not tempfile's 0600.
+    #[cfg(unix)]
+    builder.permissions(std::os::unix::fs::PermissionsExt::from_mode(0o666));
+    let mut tmp = builder.tempfile_in(dir).map_err(|e| err(&e))?;
     {
         let mut w = BufWriter::new(tmp.as_file_mut());
         write(&mut w).map_err(|e| err(&e))?;
