@@ -256,7 +256,9 @@ pub fn render(
     let sum = |a: &[f64; 3]| a.iter().sum::<f64>();
     let mut lighting = distribute::Lighting::from_view(&view);
     relight(&mut lighting, &archive, sets)?;
+    let t_s = Instant::now();
     let distributor = distribute::Distributor::new(&view, &opts, &lighting)?;
+    let t_setup = t_s.elapsed().as_secs_f64();
     let mut previous: Option<distribute::Solution> = None;
     let keep_images = extras.gif.is_some() || extras.contact_sheet.is_some();
     let mut images = Vec::new();
@@ -309,7 +311,7 @@ pub fn render(
     }
     let c = view.camera;
     println!(
-        "rendered {} frame{} to {}{}: {}×{}, open {:.3} s, delta apply {:.3} s, distribution {:.3} s ({} iterations, {:.0} M link ends/s), render {:.3} s",
+        "rendered {} frame{} to {}{}: {}×{}, open {:.3} s, setup {:.3} s, delta apply {:.3} s, distribution {:.3} s ({} iterations, {:.0} M link ends/s), render {:.3} s",
         range.len(),
         if range.len() == 1 { "" } else { "s" },
         png.display(),
@@ -317,6 +319,7 @@ pub fn render(
         c.width,
         c.height,
         t_open,
+        t_setup,
         t_delta,
         t_dist - t_delta,
         iterations,

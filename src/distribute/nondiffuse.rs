@@ -15,12 +15,18 @@
 //!    `cos θ Ω` over to a direction a few degrees away: near the horizon
 //!    that is a 40% error.)
 //! 3. it leaves along the rays of direction `o` that cross `q` (`n_o` of
-//!    them, from `NDHC`), each carrying `φ_o = c · k_s · R_map[o]`: the
-//!    radiance times the étendue of one ray, the constant `c` making
-//!    `Σ_o n_o φ_o` exactly the reflected power `k_s · Σ_p scratch[p]`
-//!    (energy is conserved exactly whatever the ray counts, as `U_p/H_p`
-//!    does for diffuse patches). Rays of `o` that reach no facing patch
+//!    them, from `NDHC`), each carrying `φ_o = k_s · R_map[o]`: the radiance
+//!    times the étendue of one ray. Rays of `o` that reach no facing patch
 //!    lose theirs.
+//!
+//! Energy is conserved exactly per patch and per incoming direction, as
+//! `U_p/H_p` does for diffuse patches, whatever the ray counts: light from
+//! direction `i` is scaled on entry by `c_i = a_i / Σ_o n_o·T(i→map[o])/w`,
+//! the row's albedo over what its outgoing radiance would carry on this
+//! patch's actual rays. The scale depends on the patch and the direction
+//! only, never on the light, so the step is linear (warm starts, which send
+//! a guess and then signed corrections, rely on that; a per-step
+//! normalisation by the reflected light's own shape was not, and broke them).
 //!
 //! The diffuse part `k_d` of a broad-specular patch takes the ordinary
 //! diffuse path (with buckets). Light a non-diffuse patch sends reaches its
@@ -57,6 +63,11 @@ pub(super) struct NonDiffuse<'a> {
     rays: Vec<f32>,
     /// Per prototype direction, `1 / (cos θ_p Ω_p)` (0 below the prototype surface).
     inv_weight: Vec<f32>,
+    /// Per table and prototype row, its albedo (the row sum) per band.
+    albedo: Vec<Vec<[f32; 3]>>,
+    /// Per non-diffuse patch and actual incoming direction, `c_i` per band
+    /// (module docs).
+    in_scale: Vec<[f32; 3]>,
     /// Link ends whose other patch is non-diffuse, CSR by receiving patch.
     corr_offsets: Vec<u32>,
     corr_weight: Vec<f32>,
@@ -111,7 +122,7 @@ impl<'a> NonDiffuse<'a> {
             }
         }
         // The prototype normal is +y.
-        let inv_weight = v
+        let inv_weight: Vec<f32> = v
             .directions
             .iter()
             .map(|d| {
@@ -143,6 +154,23 @@ impl<'a> NonDiffuse<'a> {
                 linked[k * n + d as usize] += w;
             }
         }
+        let albedo: Vec<Vec<[f32; 3]>> = (0..r.prototypes.len())
+            .map(|t| {
+                let bands = r.prototypes[t].bands as usize;
+                (0..n)
+                    .map(|i| {
+                        let (_, f) = r.row(t, i);
+                        let mut a = [0.0f32; 3];
+                        for e in f.chunks_exact(bands) {
+                            for c in 0..3 {
+                                a[c] += e[c.min(bands - 1)];
+                            }
+                        }
+                        a
+                    })
+                    .collect()
+            })
+            .collect();
         let mut batches = Vec::new();
         let mut k = 0;
         while k < patches.len() {
@@ -154,6 +182,7 @@ impl<'a> NonDiffuse<'a> {
             batches.push((k, len));
             k += len;
         }
+        let in_scale = incoming_scales(&r, n, &batches, &inverse, &rays, &inv_weight, &albedo);
         Some(Self {
             r,
             n,
@@ -163,6 +192,8 @@ impl<'a> NonDiffuse<'a> {
             inverse,
             rays,
             inv_weight,
+            albedo,
+            in_scale,
             corr_offsets,
             corr_weight,
             corr_slot,
@@ -255,8 +286,14 @@ impl<'a> NonDiffuse<'a> {
                         }
                         extra(q, &mut add);
                     }
+                    let reflected = self.scale_incoming(first, len, inbuf);
                     self.scatter(first, inbuf, scratch);
-                    (0..len).map(|b| self.emit(first + b, b, scratch, &mut out[b * n..(b + 1) * n])).collect()
+                    (0..len)
+                        .map(|b| {
+                            self.emit(first + b, b, scratch, &mut out[b * n..(b + 1) * n]);
+                            StepTotals { reflected: reflected[b] }
+                        })
+                        .collect()
                 },
             )
             .collect();
@@ -287,6 +324,65 @@ impl<'a> NonDiffuse<'a> {
         }
         scatter_rows(bands, inbuf, scratch, &rows);
     }
+}
+
+/// `c_i` of every non-diffuse patch and incoming direction (module docs):
+/// the row's albedo over `Σ_o n_o·T(i→map[o])·/w`, a batch of patches at a
+/// time (one pass over the table per batch, 8 lanes).
+fn incoming_scales(
+    r: &ReflectanceView<'_>,
+    n: usize,
+    batches: &[(usize, usize)],
+    inverse: &[u32],
+    rays: &[f32],
+    inv_weight: &[f32],
+    albedo: &[Vec<[f32; 3]>],
+) -> Vec<[f32; 3]> {
+    let mut out = vec![[0.0f32; 3]; r.patches.len() * n];
+    let mut slices: Vec<(usize, usize, &mut [[f32; 3]])> = Vec::with_capacity(batches.len());
+    let mut rest = &mut out[..];
+    for &(first, len) in batches {
+        let (head, tail) = rest.split_at_mut(len * n);
+        slices.push((first, len, head));
+        rest = tail;
+    }
+    slices.into_par_iter().for_each(|(first, len, out)| {
+        let rec = r.patches[first];
+        let (t, orient) = (rec.prototype as usize, rec.orientation as usize);
+        let bands = r.prototypes[t].bands as usize;
+        let (map, inv) = (r.map(orient), &inverse[orient * n..(orient + 1) * n]);
+        // g[p][b] = n_o / w_p of patch b for the actual o = inv[p] (0 behind).
+        let g: Vec<[f32; BATCH]> = (0..n)
+            .map(|p| {
+                let o = inv[p] as usize;
+                std::array::from_fn(|b| if b < len { rays[(first + b) * n + o].max(0.0) * inv_weight[p] } else { 0.0 })
+            })
+            .collect();
+        for i in 0..n {
+            if (0..len).all(|b| rays[(first + b) * n + i] < 0.0) {
+                continue; // light never arrives from behind
+            }
+            let (outs, f) = r.row(t, map[i] as usize);
+            let a = albedo[t][map[i] as usize];
+            let mut sent = [[0.0f32; BATCH]; 3];
+            for (e, &p) in outs.iter().enumerate() {
+                let gp = &g[p as usize];
+                for c in 0..bands {
+                    let fe = f[e * bands + c];
+                    for b in 0..BATCH {
+                        sent[c][b] += fe * gp[b];
+                    }
+                }
+            }
+            for b in 0..len {
+                out[b * n + i] = std::array::from_fn(|c| {
+                    let s = sent[c.min(bands - 1)][b];
+                    if s > 0.0 { a[c] / s } else { 0.0 }
+                });
+            }
+        }
+    });
+    out
 }
 
 /// A table row: outgoing directions and factors.
@@ -328,38 +424,48 @@ fn scatter_rows_avx2<'r>(bands: usize, inbuf: &[Lanes], scratch: &mut [Lanes], r
 }
 
 impl NonDiffuse<'_> {
+    /// The power each patch of a batch reflects (`k_s`·albedo·light, per
+    /// band), then the in-buffers scaled by `c_i` (module docs).
+    fn scale_incoming(&self, first: usize, len: usize, inbuf: &mut [Lanes]) -> [[f64; 3]; BATCH] {
+        let n = self.n;
+        let rec = self.r.patches[first];
+        let (t, map) = (rec.prototype as usize, self.r.map(rec.orientation as usize));
+        let mut reflected = [[0.0f64; 3]; BATCH];
+        for (i, light) in inbuf.iter_mut().enumerate() {
+            if light.iter().all(|&l| l == 0.0) {
+                continue;
+            }
+            let a = self.albedo[t][map[i] as usize];
+            for b in 0..len {
+                let (ks, scale) = (self.ks[first + b], self.in_scale[(first + b) * n + i]);
+                for c in 0..3 {
+                    let l = &mut light[3 * b + c];
+                    reflected[b][c] += (ks[c] * a[c] * *l) as f64;
+                    *l *= scale[c];
+                }
+            }
+        }
+        reflected
+    }
+
     /// Scratch lane `b` → map back → per-ray power of non-diffuse patch `k`.
-    fn emit(&self, k: usize, b: usize, scratch: &[Lanes], out: &mut [[f32; 4]]) -> StepTotals {
+    fn emit(&self, k: usize, b: usize, scratch: &[Lanes], out: &mut [[f32; 4]]) {
         let n = self.n;
         let orient = self.r.patches[k].orientation as usize;
         let ks = self.ks[k];
         let inv = &self.inverse[orient * n..(orient + 1) * n];
         let rays = &self.rays[k * n..(k + 1) * n];
-        let (mut total, mut weighted) = ([0.0f64; 3], [0.0f64; 3]);
-        // out[o] = radiance-like R_p of p = map[o] for now; scaled by c below.
         out.fill([0.0; 4]);
         for (p, s) in scratch.iter().enumerate() {
-            let s = &s[3 * b..3 * b + 3];
             let o = inv[p] as usize;
-            let (n_o, iw) = (rays[o], self.inv_weight[p]);
-            for c in 0..3 {
-                let power = ks[c] * s[c];
-                total[c] += power as f64;
-                // Directions in front with no ray crossing this patch still
-                // carry radiance (seen by the eye); they just send nothing.
-                if n_o >= 0.0 {
-                    let radiance = power * iw;
-                    weighted[c] += (n_o * radiance) as f64;
-                    out[o][c] = radiance;
+            // Directions in front with no ray crossing this patch still
+            // carry radiance (seen by the eye); they just send nothing.
+            if rays[o] >= 0.0 {
+                let iw = self.inv_weight[p];
+                for c in 0..3 {
+                    out[o][c] = ks[c] * s[3 * b + c] * iw;
                 }
             }
         }
-        let scale: [f32; 3] = [0, 1, 2].map(|c| if weighted[c] > 0.0 { (total[c] / weighted[c]) as f32 } else { 0.0 });
-        for x in out.iter_mut() {
-            for c in 0..3 {
-                x[c] *= scale[c];
-            }
-        }
-        StepTotals { reflected: total }
     }
 }
