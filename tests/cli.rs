@@ -199,3 +199,41 @@ fn relighting_changes_light_without_a_rebuild() {
         );
     }
 }
+
+#[test]
+fn brushed_plate_turns_relights_and_reports_its_reflectance() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/brushed_plate.toml");
+    let lib = dir.path().join("protos");
+    let archive = dir.path().join("plate.inet");
+    let (s, a, l) = (scene.to_str().unwrap(), archive.to_str().unwrap(), lib.to_str().unwrap());
+    let out = illumnet(&["build", "-q", s, "-o", a, "--turn", "plate=45", "--prototype-library", l]);
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(text.contains("364 non-diffuse patches, 1 prototype table (0 from the library)"), "{text}");
+    let out = illumnet(&["build", "-q", s, "-o", a, "--turn", "plate=45", "--prototype-library", l]);
+    assert!(String::from_utf8_lossy(&out.stdout).contains("(1 from the library)"));
+    let json: serde_json::Value = serde_json::from_slice(&illumnet(&["inspect", a, "--json"]).stdout).unwrap();
+    assert_eq!((json["format_version"].as_u64(), json["version_read"].as_u64()), (Some(4), Some(4)));
+    assert_eq!((json["prototype_tables"].as_u64(), json["nondiffuse_patches"].as_u64()), (Some(1), Some(364)));
+    // Relighting the specular colour: a dimmer plate, same archive.
+    let (bright, dim) = (dir.path().join("bright.exr"), dir.path().join("dim.exr"));
+    let png = dir.path().join("p.png");
+    let p = png.to_str().unwrap();
+    illumnet(&["render", "-q", a, "-o", p, "--exr", bright.to_str().unwrap()]);
+    illumnet(&["render", "-q", a, "-o", p, "--exr", dim.to_str().unwrap(), "--set", "brushed.specular=0.3,0.3,0.3"]);
+    let total = |path: &Path| read_exr(path).unwrap().pixels.iter().map(|&c| luminance(c).min(1.0) as f64).sum::<f64>();
+    let (b, d) = (total(&bright), total(&dim));
+    assert!(d < 0.5 * b && d > 0.0, "relit plate {d} vs {b}");
+    // Clear errors.
+    let fail = |args: &[&str]| {
+        let out = Command::new(env!("CARGO_BIN_EXE_illumnet")).args(args).output().unwrap();
+        assert!(!out.status.success(), "{args:?} succeeded");
+        String::from_utf8_lossy(&out.stderr).into_owned()
+    };
+    let e = fail(&["build", "-q", s, "-o", a, "--turn", "plank=45"]);
+    assert!(e.contains("no surface named `plank`") && e.contains("plate"), "{e}");
+    let e = fail(&["render", "-q", a, "-o", p, "--set", "lamp.specular=1,1,1"]);
+    assert!(e.contains("diffuse"), "{e}");
+    let e = fail(&["render", "-q", a, "-o", p, "--set", "brushed.specular=2,1,1"]);
+    assert!(e.contains("[0, 1]"), "{e}");
+}

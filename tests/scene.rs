@@ -59,3 +59,64 @@ fn missing_file_is_an_error_naming_it() {
     let e = Scene::from_file(std::path::Path::new("/nonexistent/scene.toml")).unwrap_err();
     assert!(e.to_string().starts_with("/nonexistent/scene.toml: cannot read"), "{e}");
 }
+
+#[test]
+fn glossy_materials_parse_and_bad_keys_name_their_field() {
+    use illumnet::scene::ReflectanceModel;
+    let quad = "[[surface]]\nname = 's'\nmaterial = 'g'\nquad = [[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]]\ngrain = [0, 1, 0]\n";
+    let parse = |material: &str| {
+        Scene::from_toml(
+            &format!("{HEAD}[[material]]\nname = 'g'\n{material}\n{quad}"),
+            std::path::Path::new("g.toml"),
+            std::path::Path::new("."),
+        )
+    };
+    let ok = parse("type = 'broad_specular'\nreflectance = [0.4, 0.3, 0.2]\nspecular = [0.5, 0.5, 0.5]\nalpha = 0.2")
+        .unwrap();
+    match ok.materials[1].model {
+        ReflectanceModel::BroadSpecular { lobe, .. } => {
+            assert_eq!((lobe.alpha_u, lobe.alpha_v, lobe.ior), (0.2, 0.2, None))
+        }
+        m => panic!("{m:?}"),
+    }
+    assert_eq!(ok.surfaces[0].grain, Some(glam::Vec3::Y));
+    let metal =
+        parse("type = 'rough_conductor'\nspecular = [1, 1, 1]\nalpha_u = 0.1\nalpha_v = 0.3\nior = [1.5, 1.6, 1.7]")
+            .unwrap();
+    let (_, lobe) = metal.materials[1].model.lobe().unwrap();
+    assert_eq!((lobe.bands(), lobe.alpha_v), (3, 0.3));
+    for (material, field, says) in [
+        (
+            "type = 'broad_specular'\nreflectance = [0.6, 0.3, 0.2]\nspecular = [0.5, 0.5, 0.5]\nalpha = 0.2",
+            "specular",
+            "exceed 1",
+        ),
+        ("type = 'rough_conductor'\nspecular = [1, 1, 1]", "alpha", "alpha"),
+        ("type = 'rough_conductor'\nspecular = [1, 1, 1]\nalpha = 0.001", "alpha", "[0.01, 1]"),
+        ("type = 'rough_conductor'\nspecular = [1, 1, 1]\nalpha = 0.2\nalpha_u = 0.3", "alpha", "not both"),
+        ("type = 'rough_conductor'\nspecular = [1, 1, 1]\nalpha = 0.2\nior = -1", "ior", "positive"),
+        (
+            "type = 'rough_conductor'\nreflectance = [0.5, 0.5, 0.5]\nspecular = [1, 1, 1]\nalpha = 0.2",
+            "reflectance",
+            "has no",
+        ),
+        ("type = 'diffuse'\nreflectance = [0.5, 0.5, 0.5]\nalpha = 0.2", "alpha", "has no"),
+        ("type = 'mirror'", "type", "rough_conductor"),
+    ] {
+        let e = parse(material).unwrap_err();
+        assert_eq!(e.field, format!("material[1].{field}"), "{e}");
+        assert!(e.message.contains(says), "{e}");
+        assert!(e.line >= 12, "{e}");
+    }
+    // A zero grain is an error on the surface.
+    let e = Scene::from_toml(
+        &format!(
+            "{HEAD}[[material]]\nname = 'g'\ntype = 'rough_conductor'\nspecular = [1, 1, 1]\nalpha = 0.2\n{}",
+            quad.replace("grain = [0, 1, 0]", "grain = [0, 0, 0]")
+        ),
+        std::path::Path::new("g.toml"),
+        std::path::Path::new("."),
+    )
+    .unwrap_err();
+    assert_eq!(e.field, "surface[0].grain", "{e}");
+}

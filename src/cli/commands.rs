@@ -374,6 +374,9 @@ pub fn inspect(path: &Path, json: bool) -> Result<()> {
             "link_ends": b.link_end_count,
             "frames": v.sequence.map_or(1, |s| s.frames()),
             "instances": v.sequence.map_or(0, |s| s.instances.len()),
+            "prototype_tables": v.reflectance.map_or(0, |r| r.prototypes.len()),
+            "orientations": v.reflectance.map_or(0, |r| r.orientations.len()),
+            "nondiffuse_patches": v.reflectance.map_or(0, |r| r.patches.len()),
             "sections": sections,
         });
         println!("{}", serde_json::to_string_pretty(&out)?);
@@ -416,6 +419,33 @@ pub fn inspect(path: &Path, json: bool) -> Result<()> {
             changes,
             stored as f64 / 1e6
         );
+    }
+    if let Some(r) = v.reflectance {
+        let (mean, max) = r.orientations.iter().fold((0.0f64, 0.0f32), |(m, x), o| {
+            (m + o.error_mean_rad as f64 / r.orientations.len() as f64, x.max(o.error_max_rad))
+        });
+        println!(
+            "  reflectance: {} non-diffuse patches, {} orientation{} (map error mean {:.2}°, max {:.2}°)",
+            r.patches.len(),
+            r.orientations.len(),
+            if r.orientations.len() == 1 { "" } else { "s" },
+            mean.to_degrees(),
+            max.to_degrees()
+        );
+        for (t, p) in r.prototypes.iter().enumerate() {
+            let model = if p.model == archive::layout::table_model::GGX { "GGX lobe" } else { "Lambertian" };
+            let ior = if p.ior == [0.0; 3] { "Fresnel 1".to_string() } else { format!("ior {:?}", p.ior) };
+            println!(
+                "    table {t}: {model}, α = ({}, {}), {ior}, {} band{}, {} entries ({:.1} per direction), threshold {}",
+                p.alpha_u,
+                p.alpha_v,
+                p.bands,
+                if p.bands == 1 { "" } else { "s" },
+                p.entry_count,
+                p.entry_count as f64 / b.direction_count as f64,
+                p.threshold
+            );
+        }
     }
     println!("  sections:");
     println!(

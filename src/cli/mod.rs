@@ -178,7 +178,22 @@ enum Command {
 }
 
 /// Runs the CLI; errors print as `illumnet: error: …` and exit with 1.
+/// A closed stdout (`illumnet inspect ARCHIVE | head`) ends the program
+/// quietly, as it does other command-line tools, instead of with a panic
+/// message: Rust ignores SIGPIPE, so `println!` panics on a broken pipe.
+fn quiet_on_broken_pipe() {
+    let default = std::panic::take_hook();
+    std::panic::set_hook(Box::new(move |info| {
+        let message = info.payload().downcast_ref::<String>().map(String::as_str).unwrap_or("");
+        if message.contains("failed printing to stdout") && message.contains("Broken pipe") {
+            std::process::exit(0);
+        }
+        default(info);
+    }));
+}
+
 pub fn main() -> ExitCode {
+    quiet_on_broken_pipe();
     let cli = Cli::parse();
     if let Some(n) = cli.threads
         && let Err(e) = rayon::ThreadPoolBuilder::new().num_threads(n).build_global()
