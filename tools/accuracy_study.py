@@ -280,9 +280,21 @@ flicker less than 0.8 × the ray-space baseline.
 | ray-space 1/cos θ density bias | `src/build/trace.rs` | within 3% of 1/cos θ | 3% |
 | direction-set cells tile the sphere (4π), cell max/min | `src/geodesic` | 1.235 | 1.25 |
 
-Non-diffuse reflectance (prototype tables, maps, the glossy Cornell box at
-3.14% against its own path-traced reference) is measured in
-`docs/REFLECTANCE.md`.
+## Non-diffuse reflectance (issue #4)
+
+Measured in full in `docs/REFLECTANCE.md`. Against an 8192-spp Mitsuba 3
+reference of the same scene (`tests/data/glossy_floor_ref.exr`):
+
+| scene, default settings | relative L2 | bar |
+|---|---:|---:|
+| `glossy_floor.toml` (broad-specular floor, GGX α = 0.2) | 3.14% | 10% (test: 5%) |
+| `cornell_box.toml` (all diffuse, for comparison) | 3.24% | 10% |
+
+Actual-to-prototype maps (f = 16, 44 orientations): nearest-free mean error
+1.90° (worst orientation 2.12°, half the spacing is 2.17°), the paper's
+rings 7.90°; rendered error of a glossy square's lamp reflection at a 30°
+grain: nearest 8.2%, rings 23.6%. Tables: discrete albedo off by up to 6%
+before the symmetric scaling, 4·10⁻⁸ after; reciprocity exact to 10⁻⁷.
 """
     with open(DOC, "w") as f:
         f.write(doc)
