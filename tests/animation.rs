@@ -329,3 +329,33 @@ fn glossy_movers_radiance_from_the_sequence_equals_from_scratch() {
     eprintln!("glossy movers: worst relative difference {worst:.2e} (radiance), {worst_dir:.2e} (directional)");
     assert!(worst < 1e-3 && worst_dir < 1e-3, "radiance {worst}, directional {worst_dir}");
 }
+
+#[test]
+fn cached_visibility_renders_the_same_images_and_retraces_only_near_movers() {
+    use illumnet::archive::{self, Archive};
+    use illumnet::distribute::{self, DistributeOptions};
+    use illumnet::render::{self, RenderOptions, Renderer};
+    // The adversarial scene with a still camera: later frames reuse what
+    // the samples saw, except near the movers.
+    let text = ADVERSARIAL.replace("keyframes = [{ frame = 0, position = [1, 1, -2], look_at = [1, 1, 1] }, { frame = 6, position = [0.5, 1.2, -2], look_at = [1.2, 0.8, 1] }]\n", "");
+    let scene = Scene::from_toml(&text, std::path::Path::new("still_camera.toml"), std::path::Path::new(".")).unwrap();
+    let hints = BuildHints { patch_size: Some(0.25), frequency: Some(4), ray_spacing: Some(0.04), buckets: Some(1) };
+    let seq = build::build_sequence(&scene, &BuildSettings::resolve(&scene, hints), &NoProgress).unwrap();
+    let arch = Archive::from_bytes(&archive::write_to_vec(&seq.contents).unwrap()).unwrap();
+    let v = arch.view();
+    let opts = RenderOptions { samples_per_axis: 3 };
+    let mut cached = Renderer::new(&v, opts);
+    let total = (v.camera.width * v.camera.height * 9) as usize;
+    for k in 0..scene.frame_count() {
+        let sol = distribute::distribute_frame(&v, k, &DistributeOptions::default(), &NoProgress).unwrap();
+        let radiance = render::frame_radiance(&v, k, &sol);
+        let a = cached.frame(k, &radiance);
+        let b = render::render_frame(&v, k, &radiance, &opts);
+        assert!(a == b, "frame {k}: the cached render differs");
+        if k == 0 {
+            assert_eq!(cached.retraced, total);
+        } else {
+            assert!(cached.retraced < total, "frame {k}: all {total} samples retraced");
+        }
+    }
+}

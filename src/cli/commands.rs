@@ -260,6 +260,7 @@ pub fn render(
     let distributor = distribute::Distributor::new(&view, &opts, &lighting)?;
     let t_setup = t_s.elapsed().as_secs_f64();
     let mut previous: Option<distribute::Solution> = None;
+    let mut renderer = render::Renderer::new(&view, RenderOptions { samples_per_axis: args.samples });
     let keep_images = extras.gif.is_some() || extras.contact_sheet.is_some();
     let mut images = Vec::new();
     let mut iterations = 0;
@@ -284,12 +285,7 @@ pub fn render(
             if b.converged { "" } else { " (NOT converged: raise the iteration limit or the tolerance)" }
         );
         let t2 = Instant::now();
-        let image = render::render_frame(
-            &view,
-            f,
-            &render::frame_radiance(&view, f, &solution),
-            &RenderOptions { samples_per_axis: args.samples },
-        );
+        let image = renderer.frame(f, &render::frame_radiance(&view, f, &solution));
         t_render += t2.elapsed().as_secs_f64();
         image_io::write_png(&image, &out_path(png, f)?, args.exposure).map_err(anyhow::Error::msg)?;
         if let Some(exr) = exr {

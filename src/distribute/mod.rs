@@ -262,7 +262,8 @@ impl Overlay {
     }
 
     /// Adds the overlay's contribution to `recv` (bucketed as in
-    /// [`gather_buckets`]), including what non-diffuse senders send.
+    /// [`gather_buckets`]), including what non-diffuse senders send;
+    /// parallel over blocks of patches like the main gather.
     fn gather(
         &self,
         buckets: usize,
@@ -270,24 +271,28 @@ impl Overlay {
         nd: Option<(&nondiffuse::NonDiffuse<'_>, &[[f32; 4]])>,
         recv: &mut [[f32; 4]],
     ) {
-        for q in 0..self.offsets.len() - 1 {
-            for e in self.offsets[q] as usize..self.offsets[q + 1] as usize {
-                let k = if buckets > 1 { self.bucket[e] as usize } else { 0 };
-                let mut s = shoot[self.other[e] as usize];
-                if let Some((nd, phi)) = nd {
-                    let j = nd.nd_of[self.other[e] as usize];
-                    if j != u32::MAX {
-                        let p = phi[nd.slot(j, self.direction[e] ^ 1)];
-                        for c in 0..4 {
-                            s[c] += p[c];
+        recv.par_chunks_mut(BLOCK * buckets).enumerate().for_each(|(block, out)| {
+            let first = block * BLOCK;
+            for (i, r) in out.chunks_exact_mut(buckets).enumerate() {
+                let q = first + i;
+                for e in self.offsets[q] as usize..self.offsets[q + 1] as usize {
+                    let k = if buckets > 1 { self.bucket[e] as usize } else { 0 };
+                    let mut s = shoot[self.other[e] as usize];
+                    if let Some((nd, phi)) = nd {
+                        let j = nd.nd_of[self.other[e] as usize];
+                        if j != u32::MAX {
+                            let p = phi[nd.slot(j, self.direction[e] ^ 1)];
+                            for c in 0..4 {
+                                s[c] += p[c];
+                            }
                         }
                     }
-                }
-                for c in 0..4 {
-                    recv[q * buckets + k][c] += self.weight[e] * s[c];
+                    for c in 0..4 {
+                        r[k][c] += self.weight[e] * s[c];
+                    }
                 }
             }
-        }
+        });
     }
 }
 

@@ -23,6 +23,8 @@ fn save_atomic(
         _ => Path::new("."),
     };
     let err = |e: &dyn std::fmt::Display| format!("{}: {e}", path.display());
+    // `-o out/frame_%04d.png` into a directory that does not exist yet.
+    std::fs::create_dir_all(dir).map_err(|e| format!("cannot create directory {}: {e}", dir.display()))?;
     let mut builder = tempfile::Builder::new();
     builder.prefix(".illumnet-").suffix(".tmp");
     // Created as a new file would be (0666 less the umask), not tempfile's 0600.

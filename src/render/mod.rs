@@ -99,44 +99,156 @@ pub fn render(v: &InetView<'_>, patch_radiance: &[[f32; 3]], opts: &RenderOption
 
 /// Renders `frame` of a sequence archive: only the primitives present then.
 pub fn render_frame(v: &InetView<'_>, frame: u32, patch_radiance: &[[f32; 3]], opts: &RenderOptions) -> Image {
-    let record = v.sequence.and_then(|s| s.cameras).and_then(|c| c.get(frame as usize)).unwrap_or(v.camera);
-    let camera = PinholeCamera::from_record(record);
-    let present = v.present_primitives(frame);
-    let (all_prims, grids): (Vec<Primitive>, Vec<PatchGrid>) = v.primitives.iter().map(primitive_of).unzip();
-    let normals: Vec<Vec3> = all_prims.iter().map(|p| p.normal()).collect();
-    let kept: Vec<u32> = (0..all_prims.len() as u32).filter(|&i| present[i as usize]).collect();
-    let prims: Vec<Primitive> = kept.iter().map(|&i| all_prims[i as usize]).collect();
-    let bvh = PrimitiveBvh::new(&prims);
-    let vrad = vertex_radiance(v, patch_radiance);
-    let n = opts.samples_per_axis.max(1);
-    let inv = 1.0 / (n * n) as f32;
-    let (w, h) = (camera.width, camera.height);
-    let mut pixels = vec![[0.0f32; 3]; (w * h) as usize];
-    pixels.par_chunks_mut(w as usize).enumerate().for_each(|(y, row)| {
-        for (x, px) in row.iter_mut().enumerate() {
-            let mut acc = Vec3::ZERO;
-            for sy in 0..n {
-                for sx in 0..n {
-                    let s = Vec2::new((sx as f32 + 0.5) / n as f32, (sy as f32 + 0.5) / n as f32);
-                    let (o, d) = camera.ray(x as f32 + s.x, y as f32 + s.y);
-                    let Some(hit) = bvh.closest_hit(o, d, 0.0) else {
-                        continue;
-                    };
-                    let pi = kept[hit.primitive as usize] as usize;
-                    if normals[pi].dot(d) >= 0.0 {
-                        continue; // back face: surfaces are one-sided
+    Renderer::new(v, *opts).frame(frame, patch_radiance)
+}
+
+/// What one image sample sees: interpolation weights on patch vertices.
+#[derive(Clone, Copy)]
+struct SampleHit {
+    /// Distance to the hit (`f32::INFINITY`: nothing, or a back face).
+    t: f32,
+    /// Primitive hit (`u32::MAX`: none).
+    primitive: u32,
+    /// Global vertex ids of the cell's corners (`NO_VERTEX`: unused).
+    vertices: [u32; 4],
+    /// Their interpolation weights.
+    weights: [f32; 4],
+}
+
+const NO_HIT: SampleHit =
+    SampleHit { t: f32::INFINITY, primitive: u32::MAX, vertices: [NO_VERTEX; 4], weights: [0.0; 4] };
+
+/// Renders the frames of one archive, keeping what every image sample saw
+/// (40 bytes per sample: 49 MB at 320×240 with 16 samples per pixel) so that
+/// later frames with the same camera re-trace only the samples that moving
+/// geometry may change: those that saw a temporal instance, and those whose
+/// ray meets a temporal instance present in the frame nearer than what they
+/// saw. Images are bit-identical to tracing every sample (tested).
+pub struct Renderer<'a> {
+    v: InetView<'a>,
+    opts: RenderOptions,
+    all_prims: Vec<Primitive>,
+    grids: Vec<PatchGrid>,
+    normals: Vec<Vec3>,
+    /// Primitives of temporal instances (present in only some frames).
+    temporal: Vec<bool>,
+    cache: Option<(crate::archive::layout::CameraRecord, Vec<SampleHit>)>,
+    /// Samples traced against the whole scene in the last frame.
+    pub retraced: usize,
+}
+
+impl<'a> Renderer<'a> {
+    /// A renderer for `v` with `opts`.
+    pub fn new(v: &InetView<'a>, opts: RenderOptions) -> Self {
+        let (all_prims, grids): (Vec<Primitive>, Vec<PatchGrid>) = v.primitives.iter().map(primitive_of).unzip();
+        let normals = all_prims.iter().map(|p| p.normal()).collect();
+        let mut temporal = vec![false; all_prims.len()];
+        if let Some(s) = v.sequence {
+            for inst in s.instances {
+                if inst.frame_first > 0 || inst.frame_last + 1 < s.frames() {
+                    let first = inst.first_primitive as usize;
+                    temporal[first..first + inst.primitive_count as usize].fill(true);
+                }
+            }
+        }
+        Self { v: *v, opts, all_prims, grids, normals, temporal, cache: None, retraced: 0 }
+    }
+
+    /// Renders `frame` from per-patch radiance.
+    pub fn frame(&mut self, frame: u32, patch_radiance: &[[f32; 3]]) -> Image {
+        let v = &self.v;
+        let record = *v.sequence.and_then(|s| s.cameras).and_then(|c| c.get(frame as usize)).unwrap_or(v.camera);
+        let camera = PinholeCamera::from_record(&record);
+        let present = v.present_primitives(frame);
+        let kept: Vec<u32> = (0..self.all_prims.len() as u32).filter(|&i| present[i as usize]).collect();
+        let prims: Vec<Primitive> = kept.iter().map(|&i| self.all_prims[i as usize]).collect();
+        let bvh = PrimitiveBvh::new(&prims);
+        let n = self.opts.samples_per_axis.max(1);
+        let (w, h) = (camera.width, camera.height);
+        let per_pixel = (n * n) as usize;
+        let trace = |x: u32, y: u32, sx: u32, sy: u32| -> SampleHit {
+            let s = Vec2::new((sx as f32 + 0.5) / n as f32, (sy as f32 + 0.5) / n as f32);
+            let (o, d) = camera.ray(x as f32 + s.x, y as f32 + s.y);
+            let Some(hit) = bvh.closest_hit(o, d, 0.0) else {
+                return NO_HIT;
+            };
+            let pi = kept[hit.primitive as usize] as usize;
+            if self.normals[pi].dot(d) >= 0.0 {
+                // A back face: surfaces are one-sided, it shows black but hides what is behind.
+                return SampleHit { t: hit.hit.t, primitive: pi as u32, ..NO_HIT };
+            }
+            let loc = self.grids[pi].locate(hit.hit.uv);
+            let first_vertex = v.primitives[pi].first_vertex;
+            let mut vertices = [NO_VERTEX; 4];
+            let mut weights = [0.0; 4];
+            for k in 0..4 {
+                if loc.corners[k] != NO_VERTEX && loc.weights[k] != 0.0 {
+                    vertices[k] = first_vertex + loc.corners[k];
+                    weights[k] = loc.weights[k];
+                }
+            }
+            SampleHit { t: hit.hit.t, primitive: pi as u32, vertices, weights }
+        };
+        // Reuse what the samples saw last frame when the camera is the same.
+        let mut samples = match self.cache.take() {
+            Some((cam, samples)) if cam == record && samples.len() == (w * h) as usize * per_pixel => Some(samples),
+            _ => None,
+        };
+        let retraced = std::sync::atomic::AtomicUsize::new(0);
+        match &mut samples {
+            Some(cached) => {
+                // Temporal primitives present now, in a small BVH of their own.
+                let moving: Vec<u32> = kept.iter().copied().filter(|&i| self.temporal[i as usize]).collect();
+                let moving_prims: Vec<Primitive> = moving.iter().map(|&i| self.all_prims[i as usize]).collect();
+                let moving_bvh = (!moving_prims.is_empty()).then(|| PrimitiveBvh::new(&moving_prims));
+                cached.par_chunks_mut(w as usize * per_pixel).enumerate().for_each(|(y, row)| {
+                    for (i, sample) in row.iter_mut().enumerate() {
+                        let (x, k) = ((i / per_pixel) as u32, i % per_pixel);
+                        let (sx, sy) = ((k as u32) % n, (k as u32) / n);
+                        let stale = (sample.primitive != u32::MAX && self.temporal[sample.primitive as usize])
+                            || moving_bvh.as_ref().is_some_and(|b| {
+                                let s = Vec2::new((sx as f32 + 0.5) / n as f32, (sy as f32 + 0.5) / n as f32);
+                                let (o, d) = camera.ray(x as f32 + s.x, y as f32 + s.y);
+                                b.closest_hit(o, d, 0.0).is_some_and(|hit| hit.hit.t <= sample.t)
+                            });
+                        if stale {
+                            *sample = trace(x, y as u32, sx, sy);
+                            retraced.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                        }
                     }
-                    let loc = grids[pi].locate(hit.hit.uv);
-                    let first_vertex = v.primitives[pi].first_vertex;
+                });
+            }
+            None => {
+                let mut fresh = vec![NO_HIT; (w * h) as usize * per_pixel];
+                fresh.par_chunks_mut(w as usize * per_pixel).enumerate().for_each(|(y, row)| {
+                    for (i, sample) in row.iter_mut().enumerate() {
+                        let (x, k) = ((i / per_pixel) as u32, i % per_pixel);
+                        *sample = trace(x, y as u32, (k as u32) % n, (k as u32) / n);
+                    }
+                });
+                retraced.store(fresh.len(), std::sync::atomic::Ordering::Relaxed);
+                samples = Some(fresh);
+            }
+        }
+        let samples = samples.expect("filled above");
+        self.retraced = retraced.into_inner();
+        let vrad = vertex_radiance(v, patch_radiance);
+        let inv = 1.0 / per_pixel as f32;
+        let mut pixels = vec![[0.0f32; 3]; (w * h) as usize];
+        pixels.par_chunks_mut(w as usize).zip(samples.par_chunks(w as usize * per_pixel)).for_each(|(row, hits)| {
+            for (px, pixel_hits) in row.iter_mut().zip(hits.chunks_exact(per_pixel)) {
+                let mut acc = Vec3::ZERO;
+                for hit in pixel_hits {
                     for k in 0..4 {
-                        if loc.corners[k] != NO_VERTEX && loc.weights[k] != 0.0 {
-                            acc += loc.weights[k] * Vec3::from(vrad[(first_vertex + loc.corners[k]) as usize]);
+                        if hit.vertices[k] != NO_VERTEX {
+                            acc += hit.weights[k] * Vec3::from(vrad[hit.vertices[k] as usize]);
                         }
                     }
                 }
+                *px = (acc * inv).to_array();
             }
-            *px = (acc * inv).to_array();
-        }
-    });
-    Image { width: w, height: h, pixels }
+        });
+        self.cache = Some((record, samples));
+        Image { width: w, height: h, pixels }
+    }
 }
