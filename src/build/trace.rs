@@ -197,11 +197,21 @@ pub fn bucket(layout: &BundleLayout, distance: f32, cos_receiver: f32, area_rece
     b as u8
 }
 
+/// One hit of a ray, with what every frame's walk needs computed once
+/// ([`Walk::prepare`]): the walk of a ray that meets temporal instances
+/// runs once per frame where its hits change (15 times on average in the
+/// fan room), so the patch lookup is not repeated per frame.
 #[derive(Clone, Copy)]
 struct RayHitRecord {
     t: f32,
     primitive: u32,
     uv: Vec2,
+    /// Frames the primitive is present in (inclusive).
+    active: (u32, u32),
+    /// `normal · d`.
+    cos: f32,
+    /// Patch hit.
+    patch: u32,
 }
 
 /// A link as traced: `(a << 32 | b, bucket at a, bucket at b)`.
@@ -274,6 +284,16 @@ struct Walk<'a> {
 }
 
 impl Walk<'_> {
+    /// Fills the per-hit fields the walks use.
+    fn prepare(&self, hits: &mut [RayHitRecord]) {
+        for h in hits {
+            let pp = &self.patches.primitives[h.primitive as usize];
+            h.active = self.input.active[h.primitive as usize];
+            h.cos = self.normals[h.primitive as usize].dot(self.dir);
+            h.patch = pp.first_patch + pp.grid.locate(h.uv).cell;
+        }
+    }
+
     /// Walks the hits present in `frame`, in order: consecutive hits facing
     /// each other become links (appended to `links`). Hits count towards
     /// `H_p` in the first frame they are present in. Returns hits counted.
@@ -281,11 +301,11 @@ impl Walk<'_> {
         let mut counted = 0;
         let mut prev: Option<(u32, f32, u32, bool, f32)> = None; // (patch, t, primitive, faces +d, cos)
         for h in hits {
-            let (lo, hi) = self.input.active[h.primitive as usize];
+            let (lo, hi) = h.active;
             if frame < lo || frame > hi {
                 continue;
             }
-            let cos = self.normals[h.primitive as usize].dot(self.dir);
+            let cos = h.cos;
             if cos == 0.0 {
                 continue;
             }
@@ -301,8 +321,7 @@ impl Walk<'_> {
                     continue;
                 }
             }
-            let pp = &self.patches.primitives[h.primitive as usize];
-            let patch = pp.first_patch + pp.grid.locate(h.uv).cell;
+            let patch = h.patch;
             if frame == lo {
                 self.hit_counts[patch as usize].fetch_add(1, Ordering::Relaxed);
                 counted += 1;
@@ -330,14 +349,15 @@ impl Walk<'_> {
     /// instances, the changes at later frames go to `s.deltas`.
     fn ray(&self, pair: u32, s: &mut Scratch) -> u64 {
         let last = self.input.frames - 1;
-        let temporal = s.hits.iter().any(|h| self.input.active[h.primitive as usize] != (0, last));
+        self.prepare(&mut s.hits);
+        let temporal = s.hits.iter().any(|h| h.active != (0, last));
         if !temporal {
             return self.frame(&s.hits, 0, &mut s.keys);
         }
         // The active hits change only where an instance appears or leaves.
         s.change_frames.clear();
         for h in &s.hits {
-            let (lo, hi) = self.input.active[h.primitive as usize];
+            let (lo, hi) = h.active;
             if lo > 0 {
                 s.change_frames.push(lo);
             }
@@ -494,7 +514,14 @@ pub fn trace_all(
                     let origin = g.origin + g.e1 * u + g.e2 * v;
                     s.hits.clear();
                     bvh.all_hits(origin, d, |h| {
-                        s.hits.push(RayHitRecord { t: h.hit.t, primitive: h.primitive, uv: h.hit.uv })
+                        s.hits.push(RayHitRecord {
+                            t: h.hit.t,
+                            primitive: h.primitive,
+                            uv: h.hit.uv,
+                            active: (0, 0),
+                            cos: 0.0,
+                            patch: 0,
+                        })
                     });
                     if s.hits.is_empty() {
                         continue;
