@@ -36,6 +36,20 @@ impl PinholeCamera {
         }
     }
 
+    /// The image point `(x, y)` (pixel units) a world point projects to, or
+    /// `None` when it is not in front of the camera.
+    pub fn project(&self, p: Vec3) -> Option<(f32, f32)> {
+        let d = p - self.origin;
+        let z = d.dot(self.forward);
+        if z <= 1e-6 {
+            return None;
+        }
+        let aspect = self.width as f32 / self.height as f32;
+        let sx = d.dot(self.right) / (z * aspect * self.tan_half_fov);
+        let sy = d.dot(self.up) / (z * self.tan_half_fov);
+        Some(((sx + 1.0) * 0.5 * self.width as f32, (1.0 - sy) * 0.5 * self.height as f32))
+    }
+
     /// Ray through image point `(x, y)` in pixel units (`(0, 0)` is the top
     /// left corner of the image): origin and unit direction.
     pub fn ray(&self, x: f32, y: f32) -> (Vec3, Vec3) {
@@ -43,5 +57,28 @@ impl PinholeCamera {
         let sx = (2.0 * x / self.width as f32 - 1.0) * aspect * self.tan_half_fov;
         let sy = (1.0 - 2.0 * y / self.height as f32) * self.tan_half_fov;
         (self.origin, (self.forward + sx * self.right + sy * self.up).normalize())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn projection_inverts_rays() {
+        let c = PinholeCamera::from_record(&CameraRecord {
+            position: [0.3, 1.0, -2.0],
+            look_at: [0.5, 0.8, 1.0],
+            up: [0.0, 1.0, 0.0],
+            fov_y_deg: 50.0,
+            width: 64,
+            height: 48,
+        });
+        for (x, y) in [(0.5, 0.5), (10.25, 40.0), (63.0, 1.0)] {
+            let (o, d) = c.ray(x, y);
+            let (px, py) = c.project(o + 3.7 * d).unwrap();
+            assert!((px - x).abs() < 1e-3 && (py - y).abs() < 1e-3, "({x}, {y}) -> ({px}, {py})");
+        }
+        assert!(c.project(Vec3::new(0.3, 1.0, -3.0)).is_none(), "behind the camera");
     }
 }

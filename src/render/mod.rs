@@ -201,12 +201,28 @@ impl<'a> Renderer<'a> {
                 let moving: Vec<u32> = kept.iter().copied().filter(|&i| self.temporal[i as usize]).collect();
                 let moving_prims: Vec<Primitive> = moving.iter().map(|&i| self.all_prims[i as usize]).collect();
                 let moving_bvh = (!moving_prims.is_empty()).then(|| PrimitiveBvh::new(&moving_prims));
+                // Pixels the moving primitives may cover: their projected
+                // bounding rectangle (the whole image if one reaches behind
+                // the camera), widened by a pixel.
+                let mut rect = (f32::MAX, f32::MAX, f32::MIN, f32::MIN);
+                for p in &moving_prims {
+                    for v in &p.p[..p.corner_count()] {
+                        match camera.project(*v) {
+                            Some((x, y)) => rect = (rect.0.min(x), rect.1.min(y), rect.2.max(x), rect.3.max(y)),
+                            None => rect = (f32::MIN, f32::MIN, f32::MAX, f32::MAX),
+                        }
+                    }
+                }
+                let inside = |x: u32, y: u32| {
+                    let (x, y) = (x as f32, y as f32);
+                    x + 1.0 >= rect.0 - 1.0 && x <= rect.2 + 1.0 && y + 1.0 >= rect.1 - 1.0 && y <= rect.3 + 1.0
+                };
                 cached.par_chunks_mut(w as usize * per_pixel).enumerate().for_each(|(y, row)| {
                     for (i, sample) in row.iter_mut().enumerate() {
                         let (x, k) = ((i / per_pixel) as u32, i % per_pixel);
                         let (sx, sy) = ((k as u32) % n, (k as u32) / n);
                         let stale = (sample.primitive != u32::MAX && self.temporal[sample.primitive as usize])
-                            || moving_bvh.as_ref().is_some_and(|b| {
+                            || moving_bvh.as_ref().filter(|_| inside(x, y as u32)).is_some_and(|b| {
                                 let s = Vec2::new((sx as f32 + 0.5) / n as f32, (sy as f32 + 0.5) / n as f32);
                                 let (o, d) = camera.ray(x as f32 + s.x, y as f32 + s.y);
                                 b.closest_hit(o, d, 0.0).is_some_and(|hit| hit.hit.t <= sample.t)
