@@ -345,6 +345,7 @@ fn cached_visibility_renders_the_same_images_and_retraces_only_near_movers() {
     let v = arch.view();
     let opts = RenderOptions { samples_per_axis: 3 };
     let mut cached = Renderer::new(&v, opts);
+    let mut uncached = Renderer::new(&v, opts).with_cache_budget(0);
     let total = (v.camera.width * v.camera.height * 9) as usize;
     for k in 0..scene.frame_count() {
         let sol = distribute::distribute_frame(&v, k, &DistributeOptions::default(), &NoProgress).unwrap();
@@ -352,6 +353,8 @@ fn cached_visibility_renders_the_same_images_and_retraces_only_near_movers() {
         let a = cached.frame(k, &radiance);
         let b = render::render_frame(&v, k, &radiance, &opts);
         assert!(a == b, "frame {k}: the cached render differs");
+        assert!(uncached.frame(k, &radiance) == b, "frame {k}: the render without cache differs");
+        assert_eq!(uncached.retraced, total);
         if k == 0 {
             assert_eq!(cached.retraced, total);
         } else {

@@ -113,10 +113,9 @@ impl<'a> ReflectanceView<'a> {
     /// Table `t`'s row `i`: outgoing directions and `bands` factors per entry.
     pub fn row(&self, t: usize, i: usize) -> (&'a [u32], &'a [f32]) {
         let r = &self.prototypes[t];
-        let n = self.direction_count;
+        debug_assert!(i < self.direction_count);
         let base = r.first_row as usize;
         let (a, b) = (self.rows[base + i] as usize, self.rows[base + i + 1] as usize);
-        debug_assert!(i < n);
         let e0 = r.first_entry as usize;
         let f0 = r.first_factor as usize;
         let k = r.bands as usize;
@@ -702,6 +701,9 @@ fn validate_contents(v: &InetView<'_>, meta: &ArchiveMeta) -> Result<(), Archive
     })?;
     for (i, d) in v.directions.iter().enumerate() {
         check(finite(&d.direction), || format!("DIRS[{i}]: non-finite"))?;
+        let len2: f32 = d.direction.iter().map(|x| x * x).sum();
+        check((len2 - 1.0).abs() < 1e-3, || format!("DIRS[{i}]: not a unit vector"))?;
+        check(d.solid_angle_sr.is_finite() && d.solid_angle_sr > 1e-9, || format!("DIRS[{i}]: bad solid angle"))?;
         check(d.neighbours.iter().all(|&n| n == u32::MAX || (n as usize) < nd), || {
             format!("DIRS[{i}]: neighbour out of range")
         })?;
@@ -821,6 +823,11 @@ fn validate_reflectance(v: &InetView<'_>, r: &ReflectanceView<'_>) -> Result<(),
         "PROW/PODR/PFAC hold more than the tables".into()
     })?;
     check(r.outgoing.iter().all(|&o| (o as usize) < n), || "PODR: direction out of range".into())?;
+    for t in 0..r.prototypes.len() {
+        for i in 0..n {
+            check(r.row(t, i).0.windows(2).all(|w| w[0] < w[1]), || format!("PTAB[{t}]: row {i} not ascending"))?;
+        }
+    }
     check(r.factors.iter().all(|f| f.is_finite() && *f >= 0.0), || "PFAC: factor negative or non-finite".into())?;
     // No table returns more than it receives.
     for t in 0..r.prototypes.len() {

@@ -45,7 +45,7 @@ pub fn nondiffuse_index(patches: &Patches, lobes: &[Option<Lobe>]) -> Vec<u32> {
 /// What tabulating took.
 #[derive(Debug, Clone, Default)]
 pub struct ReflectanceStats {
-    /// Tables used, and how many came from the library.
+    /// Tables used.
     pub tables: usize,
     /// Tables read from the library instead of built.
     pub tables_cached: usize,

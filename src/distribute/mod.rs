@@ -400,6 +400,15 @@ impl<'a> Distributor<'a> {
         };
         let patch_surface = v.patch_primitive.iter().map(|&p| v.primitives[p as usize].surface).collect();
         let emission_fixed = lighting.emission_fixed.clone();
+        if let Some(r) = v.reflectance
+            && (r.patches.len() as u64) * (v.directions.len() as u64) >= u32::MAX as u64
+        {
+            return Err(crate::archive::ArchiveError::Corrupt(format!(
+                "{} non-diffuse patches × {} directions exceed what the distribution indexes (2³²)",
+                r.patches.len(),
+                v.directions.len()
+            )));
+        }
         let nd = nondiffuse::NonDiffuse::new(v, &lighting.specular);
         Ok(Self {
             v: *v,

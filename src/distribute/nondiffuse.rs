@@ -21,7 +21,8 @@
 //!
 //! Energy is conserved exactly per patch and per incoming direction, as
 //! `U_p/H_p` does for diffuse patches, whatever the ray counts: light from
-//! direction `i` is scaled on entry by `c_i = a_i / Σ_o n_o·T(i→map[o])/w`,
+//! direction `i` is scaled on entry by
+//! `c_i = a_i / Σ_o n_o·T(map[i]→map[o])/w_map[o]` (`w_p = cos θ_p Ω_p`),
 //! the row's albedo over what its outgoing radiance would carry on this
 //! patch's actual rays. The scale depends on the patch and the direction
 //! only, never on the light, so the step is linear (warm starts, which send
@@ -69,7 +70,7 @@ pub(super) struct NonDiffuse<'a> {
     /// (module docs).
     in_scale: Vec<[f32; 3]>,
     /// Link ends whose other patch is non-diffuse, CSR by receiving patch.
-    corr_offsets: Vec<u32>,
+    corr_offsets: Vec<u64>,
     corr_weight: Vec<f32>,
     corr_slot: Vec<u32>,
     corr_bucket: Vec<u8>,
@@ -133,7 +134,7 @@ impl<'a> NonDiffuse<'a> {
         // Correction list: one scan over the link ends.
         let mut corr_offsets = Vec::with_capacity(np + 1);
         let (mut corr_weight, mut corr_slot, mut corr_bucket) = (Vec::new(), Vec::new(), Vec::new());
-        corr_offsets.push(0u32);
+        corr_offsets.push(0u64);
         for q in 0..np {
             let (a, b) = (v.link_offsets[q] as usize, v.link_offsets[q + 1] as usize);
             for e in a..b {
@@ -145,7 +146,7 @@ impl<'a> NonDiffuse<'a> {
                     corr_bucket.push(v.link_bucket.map_or(0, |bk| bk[e]));
                 }
             }
-            corr_offsets.push(corr_weight.len() as u32);
+            corr_offsets.push(corr_weight.len() as u64);
         }
         let mut linked = vec![0.0f32; patches.len() * n];
         for (k, &q) in patches.iter().enumerate() {
@@ -203,7 +204,8 @@ impl<'a> NonDiffuse<'a> {
         })
     }
 
-    /// Power a sender at non-diffuse index `k` sends per ray along direction `d`.
+    /// Index into the per-ray directional power (`phi`) of non-diffuse patch
+    /// `k` sending along direction `d`.
     #[inline]
     pub fn slot(&self, k: u32, d: u32) -> usize {
         k as usize * self.n + d as usize
@@ -237,7 +239,7 @@ impl<'a> NonDiffuse<'a> {
     /// Patches sharing a table and an orientation go through the table
     /// [`BATCH`] at a time: each table entry read is applied to all of them,
     /// so the table (megabytes) streams from memory once per batch instead
-    /// of once per patch, and the inner loop is 32 independent lanes.
+    /// of once per patch, and the inner loop is 24 independent lanes.
     pub fn step(
         &self,
         v: &InetView<'_>,
@@ -327,7 +329,7 @@ impl<'a> NonDiffuse<'a> {
 }
 
 /// `c_i` of every non-diffuse patch and incoming direction (module docs):
-/// the row's albedo over `Σ_o n_o·T(i→map[o])·/w`, a batch of patches at a
+/// the row's albedo over `Σ_o n_o·T(map[i]→map[o])/w_map[o]`, a batch of patches at a
 /// time (one pass over the table per batch, 8 lanes).
 fn incoming_scales(
     r: &ReflectanceView<'_>,

@@ -139,6 +139,14 @@ pub fn decode(bytes: &[u8], model: &TableModel, key: &[u8], directions: usize) -
     if outgoing.iter().any(|&o| o as usize >= directions) || factors.iter().any(|f| !f.is_finite() || *f < 0.0) {
         return Err("entries invalid".into());
     }
+    for w in offsets.windows(2) {
+        let row = &factors[w[0] as usize * bands..w[1] as usize * bands];
+        for c in 0..bands {
+            if row.iter().skip(c).step_by(bands).map(|&x| x as f64).sum::<f64>() > 1.0 + 1e-4 {
+                return Err("a row returns more than it receives".into());
+            }
+        }
+    }
     Ok(PrototypeTable { model: *model, bands, offsets, outgoing, factors })
 }
 

@@ -63,6 +63,9 @@ pub struct TableStats {
     pub dropped: f64,
     /// Scaling iterations run.
     pub iterations: u32,
+    /// Rows (per band) scaled down after the scaling because it could not
+    /// bring them to their albedo symmetrically (lobes too sharp for the set).
+    pub clamped_rows: usize,
 }
 
 impl PrototypeTable {
@@ -199,12 +202,27 @@ pub fn build(
         if let Some(&a) = row_of.get(i).filter(|&&a| a != usize::MAX) {
             let (cols, vals) = &rows[a];
             let mut got = [0.0f64; 3];
+            let start = factors.len();
             for (e, &b) in cols.iter().enumerate() {
                 outgoing.push(up[b as usize] as u32);
                 for k in 0..bands {
                     let t = vals[e * bands + k] * s[a][k] * s[b as usize][k] * c[b as usize];
                     got[k] += t as f32 as f64;
                     factors.push(t as f32);
+                }
+            }
+            // Where no symmetric scaling exists (a lobe too sharp for the
+            // set: rows of one or two entries), the iteration settles with
+            // some rows above their albedo: scale those down, so that no row
+            // ever returns more than it receives (reciprocity yields there).
+            for k in 0..bands {
+                if got[k] > target[a][k] * (1.0 + 1e-6) && got[k] > 0.0 {
+                    let f = (target[a][k] / got[k]) as f32;
+                    for x in factors[start..].iter_mut().skip(k).step_by(bands) {
+                        *x *= f;
+                    }
+                    got[k] = factors[start..].iter().skip(k).step_by(bands).map(|&x| x as f64).sum();
+                    stats.clamped_rows += 1;
                 }
             }
             let kept: f64 = vals.iter().step_by(bands).zip(cols).map(|(f, &b)| f * c[b as usize]).sum();
@@ -275,5 +293,19 @@ mod tests {
             }
         }
         assert!(worst < 1e-4, "reciprocity error {worst}");
+    }
+
+    #[test]
+    fn lobes_too_sharp_for_the_set_never_return_more_than_they_receive() {
+        // α = 0.01 on 162 directions: rows of a single entry or two.
+        for (f, alpha) in [(4, 0.01), (4, 0.05), (8, 0.01), (8, 0.02), (16, 0.01)] {
+            let dirs = DirectionSet::new(f).unwrap();
+            let lobe = Lobe { alpha_u: alpha, alpha_v: 2.0 * alpha, ior: None };
+            let (t, stats) = build(TableModel::Ggx(lobe), &dirs.directions, &dirs.solid_angle, DEFAULT_THRESHOLD);
+            for i in 0..dirs.len() {
+                let a = t.row_albedo(i)[0];
+                assert!(a <= 1.0 + 1e-6, "α = {alpha}, row {i}: {a} ({stats:?})");
+            }
+        }
     }
 }

@@ -60,7 +60,7 @@ impl Image {
 /// Options for [`render`].
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct RenderOptions {
-    /// Samples per pixel along each axis (`n×n` per pixel).
+    /// Samples per pixel along each axis (`n×n` per pixel; clamped to 1..=256).
     pub samples_per_axis: u32,
 }
 
@@ -115,11 +115,16 @@ struct SampleHit {
     weights: [f32; 4],
 }
 
+/// Largest sample cache a [`Renderer`] keeps (1 GiB: 1920×1080 at 4×4
+/// samples per pixel is 1.3 GB and is shaded without it).
+const CACHE_BUDGET: u64 = 1 << 30;
+
 const NO_HIT: SampleHit =
     SampleHit { t: f32::INFINITY, primitive: u32::MAX, vertices: [NO_VERTEX; 4], weights: [0.0; 4] };
 
 /// Renders the frames of one archive, keeping what every image sample saw
-/// (40 bytes per sample: 49 MB at 320×240 with 16 samples per pixel) so that
+/// (40 bytes per sample: 49 MB at 320×240 with 16 samples per pixel; up to
+/// 1 GiB, larger images are shaded without the cache) so that
 /// later frames with the same camera re-trace only the samples that moving
 /// geometry may change: those that saw a temporal instance, and those whose
 /// ray meets a temporal instance present in the frame nearer than what they
@@ -133,6 +138,7 @@ pub struct Renderer<'a> {
     /// Primitives of temporal instances (present in only some frames).
     temporal: Vec<bool>,
     cache: Option<(crate::archive::layout::CameraRecord, Vec<SampleHit>)>,
+    cache_budget: u64,
     /// Samples traced against the whole scene in the last frame.
     pub retraced: usize,
 }
@@ -151,7 +157,14 @@ impl<'a> Renderer<'a> {
                 }
             }
         }
-        Self { v: *v, opts, all_prims, grids, normals, temporal, cache: None, retraced: 0 }
+        Self { v: *v, opts, all_prims, grids, normals, temporal, cache: None, cache_budget: CACHE_BUDGET, retraced: 0 }
+    }
+
+    /// Sets the largest sample cache kept, in bytes (default 1 GiB); 0 traces
+    /// every sample of every frame.
+    pub fn with_cache_budget(mut self, bytes: u64) -> Self {
+        self.cache_budget = bytes;
+        self
     }
 
     /// Renders `frame` from per-patch radiance.
@@ -163,7 +176,8 @@ impl<'a> Renderer<'a> {
         let kept: Vec<u32> = (0..self.all_prims.len() as u32).filter(|&i| present[i as usize]).collect();
         let prims: Vec<Primitive> = kept.iter().map(|&i| self.all_prims[i as usize]).collect();
         let bvh = PrimitiveBvh::new(&prims);
-        let n = self.opts.samples_per_axis.max(1);
+        // At most 256 samples per axis (the CLI allows 64): n² fits u32.
+        let n = self.opts.samples_per_axis.clamp(1, 256);
         let (w, h) = (camera.width, camera.height);
         let per_pixel = (n * n) as usize;
         let trace = |x: u32, y: u32, sx: u32, sy: u32| -> SampleHit {
@@ -189,6 +203,31 @@ impl<'a> Renderer<'a> {
             }
             SampleHit { t: hit.hit.t, primitive: pi as u32, vertices, weights }
         };
+        // Images whose samples would not fit the cache budget are shaded
+        // directly, sample by sample, keeping nothing.
+        let sample_count = (w as u64) * (h as u64) * per_pixel as u64;
+        if sample_count * std::mem::size_of::<SampleHit>() as u64 > self.cache_budget {
+            self.cache = None;
+            self.retraced = sample_count as usize;
+            let vrad = vertex_radiance(v, patch_radiance);
+            let inv = 1.0 / per_pixel as f32;
+            let mut pixels = vec![[0.0f32; 3]; (w * h) as usize];
+            pixels.par_chunks_mut(w as usize).enumerate().for_each(|(y, row)| {
+                for (x, px) in row.iter_mut().enumerate() {
+                    let mut acc = Vec3::ZERO;
+                    for k in 0..per_pixel as u32 {
+                        let hit = trace(x as u32, y as u32, k % n, k / n);
+                        for c in 0..4 {
+                            if hit.vertices[c] != NO_VERTEX {
+                                acc += hit.weights[c] * Vec3::from(vrad[hit.vertices[c] as usize]);
+                            }
+                        }
+                    }
+                    *px = (acc * inv).to_array();
+                }
+            });
+            return Image { width: w, height: h, pixels };
+        }
         // Reuse what the samples saw last frame when the camera is the same.
         let mut samples = match self.cache.take() {
             Some((cam, samples)) if cam == record && samples.len() == (w * h) as usize * per_pixel => Some(samples),
