@@ -527,7 +527,8 @@ impl<'a> Distributor<'a> {
         let mut phi_next = vec![[0.0f32; 4]; nn];
         let mut dir_total = vec![[0.0f32; 4]; nn];
         let mut pending = vec![[0.0f64; 3]; nd.map_or(0, |x| x.patches.len())];
-        let linked_dir: Vec<f32> = match (nd, &overlay) {
+        // Borrowed unless the frame's overlay changes it.
+        let linked_dir: std::borrow::Cow<'_, [f32]> = match (nd, &overlay) {
             (Some(x), Some(o)) => {
                 let mut l = x.linked.clone();
                 for (k, &q) in x.patches.iter().enumerate() {
@@ -535,10 +536,10 @@ impl<'a> Distributor<'a> {
                         l[k * x.n + o.direction[e] as usize] += o.weight[e];
                     }
                 }
-                l
+                std::borrow::Cow::Owned(l)
             }
-            (Some(x), None) => x.linked.clone(),
-            _ => Vec::new(),
+            (Some(x), None) => std::borrow::Cow::Borrowed(&x.linked[..]),
+            _ => std::borrow::Cow::Borrowed(&[][..]),
         };
         let overlay_ends = |q: usize, add: &mut dyn FnMut(u32, f32, u32)| {
             if let Some(o) = &overlay {

@@ -214,8 +214,8 @@ impl<'a> NonDiffuse<'a> {
     /// Adds what non-diffuse senders send along their directions to `recv`
     /// (bucketed as the main gather, `nb` buckets per patch).
     pub fn gather_corrections(&self, nb: usize, use_buckets: bool, phi: &[[f32; 4]], recv: &mut [[f32; 4]]) {
-        recv.par_chunks_mut(512 * nb).enumerate().for_each(|(block, out)| {
-            let first = block * 512;
+        recv.par_chunks_mut(super::BLOCK * nb).enumerate().for_each(|(block, out)| {
+            let first = block * super::BLOCK;
             for (i, r) in out.chunks_exact_mut(nb).enumerate() {
                 let q = first + i;
                 for e in self.corr_offsets[q] as usize..self.corr_offsets[q + 1] as usize {

@@ -119,6 +119,19 @@ struct SampleHit {
 /// samples per pixel is 1.3 GB and is shaded without it).
 const CACHE_BUDGET: u64 = 1 << 30;
 
+impl SampleHit {
+    /// Adds the interpolated vertex radiance this sample sees to `acc`
+    /// (term by term, so a pixel sums in one fixed order).
+    #[inline]
+    fn add_radiance(&self, vrad: &[[f32; 3]], acc: &mut Vec3) {
+        for k in 0..4 {
+            if self.vertices[k] != NO_VERTEX {
+                *acc += self.weights[k] * Vec3::from(vrad[self.vertices[k] as usize]);
+            }
+        }
+    }
+}
+
 const NO_HIT: SampleHit =
     SampleHit { t: f32::INFINITY, primitive: u32::MAX, vertices: [NO_VERTEX; 4], weights: [0.0; 4] };
 
@@ -180,9 +193,13 @@ impl<'a> Renderer<'a> {
         let n = self.opts.samples_per_axis.clamp(1, 256);
         let (w, h) = (camera.width, camera.height);
         let per_pixel = (n * n) as usize;
-        let trace = |x: u32, y: u32, sx: u32, sy: u32| -> SampleHit {
+        // Sample (sx, sy) of the n×n grid in pixel (x, y).
+        let sample_ray = |x: u32, y: u32, sx: u32, sy: u32| {
             let s = Vec2::new((sx as f32 + 0.5) / n as f32, (sy as f32 + 0.5) / n as f32);
-            let (o, d) = camera.ray(x as f32 + s.x, y as f32 + s.y);
+            camera.ray(x as f32 + s.x, y as f32 + s.y)
+        };
+        let trace = |x: u32, y: u32, sx: u32, sy: u32| -> SampleHit {
+            let (o, d) = sample_ray(x, y, sx, sy);
             let Some(hit) = bvh.closest_hit(o, d, 0.0) else {
                 return NO_HIT;
             };
@@ -216,12 +233,7 @@ impl<'a> Renderer<'a> {
                 for (x, px) in row.iter_mut().enumerate() {
                     let mut acc = Vec3::ZERO;
                     for k in 0..per_pixel as u32 {
-                        let hit = trace(x as u32, y as u32, k % n, k / n);
-                        for c in 0..4 {
-                            if hit.vertices[c] != NO_VERTEX {
-                                acc += hit.weights[c] * Vec3::from(vrad[hit.vertices[c] as usize]);
-                            }
-                        }
+                        trace(x as u32, y as u32, k % n, k / n).add_radiance(&vrad, &mut acc);
                     }
                     *px = (acc * inv).to_array();
                 }
@@ -262,8 +274,7 @@ impl<'a> Renderer<'a> {
                         let (sx, sy) = ((k as u32) % n, (k as u32) / n);
                         let stale = (sample.primitive != u32::MAX && self.temporal[sample.primitive as usize])
                             || moving_bvh.as_ref().filter(|_| inside(x, y as u32)).is_some_and(|b| {
-                                let s = Vec2::new((sx as f32 + 0.5) / n as f32, (sy as f32 + 0.5) / n as f32);
-                                let (o, d) = camera.ray(x as f32 + s.x, y as f32 + s.y);
+                                let (o, d) = sample_ray(x, y as u32, sx, sy);
                                 b.closest_hit(o, d, 0.0).is_some_and(|hit| hit.hit.t <= sample.t)
                             });
                         if stale {
@@ -294,11 +305,7 @@ impl<'a> Renderer<'a> {
             for (px, pixel_hits) in row.iter_mut().zip(hits.chunks_exact(per_pixel)) {
                 let mut acc = Vec3::ZERO;
                 for hit in pixel_hits {
-                    for k in 0..4 {
-                        if hit.vertices[k] != NO_VERTEX {
-                            acc += hit.weights[k] * Vec3::from(vrad[hit.vertices[k] as usize]);
-                        }
-                    }
+                    hit.add_radiance(&vrad, &mut acc);
                 }
                 *px = (acc * inv).to_array();
             }
