@@ -84,7 +84,8 @@ fn sequence_links_equal_from_scratch_links_at_every_frame() {
     let scene = adversarial();
     let hints = BuildHints { patch_size: Some(0.2), frequency: Some(5), ray_spacing: Some(0.03), buckets: Some(1) };
     let (seq, settings) = sequence(&scene, hints);
-    assert!(seq.cumulative.iter().any(|d| !d.is_empty()), "movers must change links");
+    let index = &seq.contents.sequence.as_ref().unwrap().deltas.index;
+    assert!(index.iter().any(|d| d.count > 0), "movers must change links");
     // `hold` makes the late starter one instance per held run: 3 instances.
     let late = scene.surfaces.iter().position(|s| s.name == "late_starter").unwrap() as u32;
     assert_eq!(seq.instances.iter().filter(|i| i.surface == late).count(), 3);
@@ -124,7 +125,7 @@ fn sequence_links_equal_from_scratch_links_at_every_frame() {
         "{} frames, {} active links checked, {} delta entries",
         scene.frame_count(),
         total_links,
-        seq.cumulative.iter().map(Vec::len).sum::<usize>()
+        index.iter().map(|d| d.count).sum::<u64>()
     );
 }
 
@@ -156,7 +157,7 @@ fn frame_radiance_from_the_sequence_archive_equals_from_scratch() {
     let (seq, settings) = sequence(&scene, hints);
     let bytes = archive::write_to_vec(&seq.contents).unwrap();
     let arch = Archive::from_bytes(&bytes).unwrap();
-    assert_eq!(arch.header().version_read, 3, "sequence archives need a sequence-aware reader");
+    assert_eq!(arch.header().version_read, 5, "sequence archives need a reader of version 5");
     let v = arch.view();
     let opts = DistributeOptions { tolerance: 1e-7, ..Default::default() };
     let mut worst = 0.0f64;
@@ -214,6 +215,72 @@ fn corrupt_sequence_sections_are_errors() {
         }
     }
     assert_eq!(checked, 12);
+}
+
+#[test]
+fn sequence_archive_bytes_do_not_depend_on_thread_count() {
+    // Each frame's changes are compressed in blocks by chunks of direction
+    // pairs traced in parallel: the chunking must not follow the threads.
+    use illumnet::archive;
+    let scene = adversarial();
+    let hints = BuildHints { patch_size: Some(0.4), frequency: Some(4), ray_spacing: Some(0.08), buckets: Some(1) };
+    let settings = BuildSettings::resolve(&scene, hints);
+    let build_with = |threads: usize| {
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+        pool.install(|| archive::write_to_vec(&build::build_sequence(&scene, &settings, &NoProgress).unwrap().contents))
+            .unwrap()
+    };
+    let one = build_with(1);
+    assert!(build_with(2) == one && build_with(3) == one, "sequence archives differ between thread counts");
+}
+
+#[test]
+fn version_4_sequence_archives_with_record_checksums_still_read() {
+    // See: format-spec/archive.md §5.13. Before version 5, `DIDX.checksum`
+    // covered the decompressed records; a version 5 reader must accept such
+    // files and still catch a wrong checksum in them.
+    use illumnet::archive::{self, Archive, tag_name};
+    use xxhash_rust::xxh3::xxh3_64;
+    let scene = adversarial();
+    let hints = BuildHints { patch_size: Some(0.4), frequency: Some(3), ray_spacing: Some(0.08), buckets: Some(1) };
+    let seq = build::build_sequence(&scene, &BuildSettings::resolve(&scene, hints), &NoProgress).unwrap();
+    let bytes = archive::write_to_vec(&seq.contents).unwrap();
+    let deltas = &seq.contents.sequence.as_ref().unwrap().deltas;
+    let rewrite = |spoil: bool| {
+        let mut b = bytes.clone();
+        let arch = Archive::from_bytes(&bytes).unwrap();
+        let table = arch.header().table_offset as usize;
+        let (i, e) = arch.sections().iter().enumerate().find(|(_, e)| tag_name(e.tag) == "DIDX").unwrap();
+        for f in 0..deltas.index.len() {
+            let records = deltas.frame(f).unwrap();
+            let sum = xxh3_64(bytemuck::cast_slice(&records)) ^ spoil as u64;
+            let at = e.offset as usize + 32 * f + 24;
+            b[at..at + 8].copy_from_slice(&sum.to_le_bytes());
+        }
+        let section = xxh3_64(&b[e.offset as usize..(e.offset + e.stored_length) as usize]);
+        b[table + 64 * i + 48..][..8].copy_from_slice(&section.to_le_bytes());
+        let n = arch.sections().len();
+        let table_sum = xxh3_64(&b[table..table + 64 * n]);
+        b[48..56].copy_from_slice(&table_sum.to_le_bytes());
+        b[8..12].copy_from_slice(&4u32.to_le_bytes()); // version_write
+        b[12..16].copy_from_slice(&3u32.to_le_bytes()); // version_read
+        let header_sum = xxh3_64(&b[..120]);
+        b[120..128].copy_from_slice(&header_sum.to_le_bytes());
+        b
+    };
+    let old = rewrite(false);
+    let arch = Archive::from_bytes(&old).unwrap();
+    let s = arch.view().sequence.unwrap();
+    let changed = (0..scene.frame_count()).filter(|&f| deltas.index[f as usize].count > 0).collect::<Vec<_>>();
+    assert!(!changed.is_empty());
+    for &f in &changed {
+        assert_eq!(s.frame_delta(f).unwrap(), deltas.frame(f as usize).unwrap(), "frame {f}");
+    }
+    // The same file read as version 5 would check the stored bytes: wrong.
+    let spoiled = rewrite(true);
+    let arch = Archive::from_bytes(&spoiled).unwrap();
+    let err = arch.view().sequence.unwrap().frame_delta(changed[0]).unwrap_err().to_string();
+    assert!(err.contains("checksum"), "{err}");
 }
 
 #[test]
@@ -284,7 +351,7 @@ fn glossy_movers_radiance_from_the_sequence_equals_from_scratch() {
     let seq = build::build_sequence_with_links(&scene, &settings, &NoProgress).unwrap();
     let arch = Archive::from_bytes(&archive::write_to_vec(&seq.contents).unwrap()).unwrap();
     let v = arch.view();
-    assert_eq!(arch.header().version_read, 4);
+    assert_eq!(arch.header().version_read, 5, "sequence (5) takes precedence over reflectance (4)");
     let r = v.reflectance.unwrap();
     assert!(r.orientations.len() > 6, "moving glossy boxes have one orientation per face and turn");
     let opts = DistributeOptions { tolerance: 1e-7, ..Default::default() };

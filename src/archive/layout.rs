@@ -10,21 +10,26 @@ use bytemuck::{Pod, Zeroable};
 /// File magic, bytes 0..8 (§3).
 pub const MAGIC: [u8; 8] = *b"ILLUMNET";
 /// The format version this code writes (§3, `version_write`).
-pub const VERSION_WRITE: u32 = 4;
+pub const VERSION_WRITE: u32 = 5;
 /// The oldest reader version able to read a geodesic archive this code
 /// writes (§3, `version_read`): version 2 only added optional content.
 pub const VERSION_READ: u32 = 1;
 /// `version_read` of ray-space baseline archives, which version 1 readers
 /// would misread as geodesic.
 pub const VERSION_READ_RAY_SPACE: u32 = 2;
-/// `version_read` of sequence archives (animation sections, §5.13), which
-/// older readers would render with every temporal instance at once.
-pub const VERSION_READ_SEQUENCE: u32 = 3;
+/// `version_read` of sequence archives (animation sections, §5.13): version
+/// 3 readers would render every temporal instance at once, version 4 readers
+/// would reject the per-frame checksums of version 5 (taken over the stored
+/// bytes) and frames of several zstd frames.
+pub const VERSION_READ_SEQUENCE: u32 = 5;
+/// Files written before this version checksum each frame's decompressed
+/// delta records rather than its stored bytes (§5.13).
+pub const VERSION_STORED_DELTA_CHECKSUMS: u32 = 5;
 /// `version_read` of archives with non-diffuse materials (reflectance
 /// sections, §5.14), which older readers would render as black.
 pub const VERSION_READ_REFLECTANCE: u32 = 4;
 /// The highest `version_read` this code can read (§6).
-pub const READER_VERSION: u32 = 4;
+pub const READER_VERSION: u32 = 5;
 /// Header size in bytes (§3).
 pub const HEADER_SIZE: usize = 128;
 /// Section table entry size in bytes (§4).

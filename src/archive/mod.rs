@@ -17,6 +17,7 @@
 //! Architecture invariant: this module knows nothing about how the data was
 //! produced (build) or consumed (distribute, render).
 
+pub mod deltas;
 pub mod layout;
 mod read;
 mod write;
@@ -127,8 +128,8 @@ pub struct SequenceContents {
     /// `INST`: every primitive belongs to exactly one instance.
     pub instances: Vec<layout::InstanceRecord>,
     /// Per frame, the changes of the link multiset relative to frame 0
-    /// (frame 0's list is empty); stored as `DIDX` + `DELT`.
-    pub deltas: Vec<Vec<layout::DeltaRecord>>,
+    /// (frame 0's list is empty), compressed: `DIDX` + `DELT`.
+    pub deltas: deltas::EncodedDeltas,
     /// `CAMF`: one camera per frame, or empty when the camera is still.
     pub cameras: Vec<layout::CameraRecord>,
     /// `EMIF`: frames × surfaces emitted radiances, or empty when no

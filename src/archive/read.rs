@@ -152,6 +152,9 @@ pub struct SequenceView<'a> {
     patch_count: u32,
     pair_count: u32,
     max_bucket: u8,
+    /// `DIDX.checksum` covers the stored bytes (version 5 and later) rather
+    /// than the decompressed records.
+    stored_checksums: bool,
 }
 
 impl SequenceView<'_> {
@@ -175,20 +178,13 @@ impl SequenceView<'_> {
             return Ok(Vec::new());
         }
         let stored = &self.payload[ix.offset as usize..(ix.offset + ix.stored_length) as usize];
-        let len = ix.count as usize * size_of::<DeltaRecord>();
-        // Check the frame's declared size before allocating for it.
-        match zstd::zstd_safe::get_frame_content_size(stored) {
-            Ok(Some(n)) if n == len as u64 => {}
-            _ => {
-                return Err(bad(format!("DELT frame {frame}: zstd frame size does not match DIDX count {}", ix.count)));
-            }
+        if self.stored_checksums && xxh3_64(stored) != ix.checksum {
+            return Err(bad(format!("DELT frame {frame}: checksum mismatch")));
         }
-        let raw = zstd::bulk::decompress(stored, len)
-            .map_err(|e| bad(format!("DELT frame {frame}: does not decompress: {e}")))?;
-        if raw.len() != len || xxh3_64(&raw) != ix.checksum {
-            return Err(bad(format!("DELT frame {frame}: wrong length or checksum after decompression")));
+        let records = super::deltas::decode(stored, ix.count, frame)?;
+        if !self.stored_checksums && xxh3_64(bytemuck::cast_slice(&records)) != ix.checksum {
+            return Err(bad(format!("DELT frame {frame}: checksum mismatch after decompression")));
         }
-        let records: Vec<DeltaRecord> = raw.chunks_exact(size_of::<DeltaRecord>()).map(pod_read_unaligned).collect();
         let key = |d: &DeltaRecord| (d.pair, d.a, d.b, d.bucket_a, d.bucket_b);
         if records.windows(2).any(|w| key(&w[0]) >= key(&w[1])) {
             return Err(bad(format!("DELT frame {frame}: records not sorted and unique")));
@@ -425,6 +421,7 @@ impl Archive {
                         patch_count: b.patch_count,
                         pair_count: b.direction_count / 2,
                         max_bucket: b.max_bucket.min(255) as u8,
+                        stored_checksums: self.header.version_write >= layout::VERSION_STORED_DELTA_CHECKSUMS,
                     })
                 }
             },

@@ -9,10 +9,6 @@ use xxhash_rust::xxh3::{Xxh3, xxh3_64};
 use super::layout::{self, HeaderRecord, SectionEntry, Tag, compression, tag};
 use super::{ArchiveContents, ArchiveError};
 
-/// zstd level of the per-frame deltas: level 1 compresses them about as well
-/// as 3 (delta records are sorted and repetitive) in less time.
-const DELTA_LEVEL: i32 = 1;
-
 /// Writes sections one after another, then the table and the header.
 struct SectionWriter<W: Write + Seek> {
     out: W,
@@ -112,11 +108,11 @@ fn write_all<W: Write + Seek>(out: W, c: &ArchiveContents) -> Result<W, ArchiveE
     if c.build.direction_set != 0 {
         w.version_read = layout::VERSION_READ_RAY_SPACE;
     }
-    if c.sequence.is_some() {
-        w.version_read = layout::VERSION_READ_SEQUENCE;
-    }
     if c.reflectance.is_some() {
         w.version_read = layout::VERSION_READ_REFLECTANCE;
+    }
+    if c.sequence.is_some() {
+        w.version_read = layout::VERSION_READ_SEQUENCE;
     }
     let mut sections = || -> std::io::Result<()> {
         w.column(tag::BUILD, std::slice::from_ref(&c.build))?;
@@ -154,37 +150,15 @@ fn write_all<W: Write + Seek>(out: W, c: &ArchiveContents) -> Result<W, ArchiveE
         if let Some(seq) = &c.sequence {
             w.column(tag::ANIMATION, std::slice::from_ref(&seq.record))?;
             w.column(tag::INSTANCES, &seq.instances)?;
-            // Each frame's records are one zstd frame: any frame decodes alone.
-            use rayon::prelude::*;
-            let compressed: Vec<std::io::Result<Vec<u8>>> = seq
-                .deltas
-                .par_iter()
-                .map(|records| {
-                    let raw: &[u8] = cast_slice(records);
-                    if records.is_empty() { Ok(Vec::new()) } else { zstd::bulk::compress(raw, DELTA_LEVEL) }
-                })
-                .collect();
-            let mut payload = Vec::new();
-            let mut index = Vec::with_capacity(seq.deltas.len());
-            for (records, stored) in seq.deltas.iter().zip(compressed) {
-                let raw: &[u8] = cast_slice(records);
-                let stored = stored?;
-                index.push(layout::DeltaIndexRecord {
-                    offset: payload.len() as u64,
-                    stored_length: stored.len() as u64,
-                    count: records.len() as u64,
-                    checksum: xxh3_64(raw),
-                });
-                payload.extend_from_slice(&stored);
-            }
             if !seq.cameras.is_empty() {
                 w.column(tag::FRAME_CAMERAS, &seq.cameras)?;
             }
             if !seq.emissions.is_empty() {
                 w.column(tag::FRAME_EMISSION, &seq.emissions)?;
             }
-            w.column(tag::DELTA_INDEX, &index)?;
-            w.raw(tag::DELTAS, compression::NONE, &payload, payload.len() as u64, seq.deltas.len() as u64, 0)?;
+            let d = &seq.deltas;
+            w.column(tag::DELTA_INDEX, &d.index)?;
+            w.raw(tag::DELTAS, compression::NONE, &d.payload, d.payload.len() as u64, d.index.len() as u64, 0)?;
         }
         Ok(())
     };

@@ -25,7 +25,7 @@ pub use trace::BundleStats;
 use crate::archive::layout::{
     self, BuildRecord, CameraRecord, DirectionRecord, MaterialRecord, PrimitiveRecord, SurfaceRecord,
 };
-use crate::archive::layout::{AnimationRecord, DeltaRecord, InstanceRecord};
+use crate::archive::layout::{AnimationRecord, InstanceRecord};
 use crate::archive::{ArchiveContents, ArchiveMeta, SequenceContents};
 use crate::geodesic::{DirectionSet, DirectionSetKind};
 use crate::geometry::Primitive;
@@ -128,10 +128,6 @@ pub struct Sequence {
     /// Frame 0's links, by pair, when kept for verification
     /// ([`build_sequence_with_links`]; about 20 bytes per link).
     pub base: Option<Vec<LinkRecord>>,
-    /// Per frame, the link changes relative to frame 0 (frame 0: none),
-    /// kept with the links by [`build_sequence_with_links`]; empty otherwise
-    /// (the archive contents hold them).
-    pub cumulative: Vec<Vec<trace::DeltaEntry>>,
     /// Per patch: (surface, primitive index within its surface, cell), the
     /// same in every build of the same surfaces and resolution.
     pub patch_identity: Vec<(u32, u32, u32)>,
@@ -146,17 +142,20 @@ pub struct Sequence {
 pub type LinkIdentity = (u32, (u32, u32, u32), (u32, u32, u32), u8, u8);
 
 impl Sequence {
-    /// The multiset of links active at `frame`: frame 0's links plus every
-    /// delta up to `frame`, keyed by patch identity, with ray counts.
-    /// `None` when the links were not kept.
+    /// The multiset of links active at `frame`: frame 0's links plus the
+    /// frame's changes (decoded from the archive contents), keyed by patch
+    /// identity, with ray counts. `None` when the links were not kept.
     pub fn active_links(&self, frame: u32) -> Option<std::collections::BTreeMap<LinkIdentity, i64>> {
         let id = |p: u32| self.patch_identity[p as usize];
         let mut m = std::collections::BTreeMap::new();
         for l in self.base.as_ref()? {
             *m.entry((l.pair, id(l.a), id(l.b), l.bucket_a, l.bucket_b)).or_insert(0) += l.weight as i64;
         }
-        for d in self.cumulative.get(frame as usize).into_iter().flatten() {
-            *m.entry((d.pair, id(d.a), id(d.b), d.bucket_a, d.bucket_b)).or_insert(0) += d.count as i64;
+        if let Some(seq) = &self.contents.sequence {
+            let deltas = seq.deltas.frame(frame as usize).expect("deltas encoded by this build decode");
+            for d in deltas {
+                *m.entry((d.pair, id(d.a), id(d.b), d.bucket_a, d.bucket_b)).or_insert(0) += d.count as i64;
+            }
         }
         m.retain(|_, n| *n != 0);
         Some(m)
@@ -196,12 +195,13 @@ pub fn instances(scene: &Scene) -> Vec<Instance> {
 }
 
 /// The animation sections for an animated scene: instances and, per frame,
-/// the link changes relative to frame 0 (cumulative, so that any frame is
-/// reached by decoding one record; see `format-spec/archive.md` §5.13).
+/// the link changes relative to frame 0 (so that any frame is reached by
+/// decoding one entry; see `format-spec/archive.md` §5.13), assembled from
+/// the blocks tracing compressed.
 fn sequence_sections(
     scene: &Scene,
     instances: &[Instance],
-    cumulative: Vec<Vec<trace::DeltaEntry>>,
+    blocks: &[Vec<crate::archive::deltas::Block>],
 ) -> Option<SequenceContents> {
     let anim = scene.animation?;
     if !scene.is_animated() {
@@ -223,23 +223,7 @@ fn sequence_sections(
             r
         })
         .collect();
-    // Consumed frame by frame, so each list is freed once converted.
-    let deltas = cumulative
-        .into_iter()
-        .map(|list| {
-            list.into_iter()
-                .map(|d| DeltaRecord {
-                    pair: d.pair,
-                    a: d.a,
-                    b: d.b,
-                    count: d.count,
-                    bucket_a: d.bucket_a,
-                    bucket_b: d.bucket_b,
-                    reserved: 0,
-                })
-                .collect()
-        })
-        .collect();
+    let deltas = crate::archive::deltas::EncodedDeltas::from_blocks(anim.frames as usize, blocks);
     let cameras = match scene.camera_keys.is_empty() {
         true => Vec::new(),
         false => (0..anim.frames).map(|f| camera_record(&scene.camera_at(f))).collect(),
@@ -364,8 +348,7 @@ fn build_impl(
             })
             .collect()
     });
-    let trace::Traced { bundles, hits: traced_hits, nd_hits, cumulative: mut traced_cumulative, stats: traced_stats } =
-        traced;
+    let trace::Traced { bundles, hits: traced_hits, nd_hits, deltas: traced_deltas, stats: traced_stats } = traced;
     drop(bundles); // the link table now holds them
     let assemble_s = t2.elapsed().as_secs_f64();
 
@@ -525,12 +508,7 @@ fn build_impl(
             surface_names: scene.surfaces.iter().map(|s| s.name.clone()).collect(),
             material_names: scene.materials.iter().map(|m| m.name.clone()).collect(),
         },
-        // Lean builds hand the deltas over; verification builds keep a copy.
-        sequence: sequence_sections(
-            scene,
-            &instances,
-            if keep_links { traced_cumulative.clone() } else { std::mem::take(&mut traced_cumulative) },
-        ),
+        sequence: sequence_sections(scene, &instances, &traced_deltas),
         reflectance: reflectance_contents,
     };
     let mut patch_identity = Vec::with_capacity(prims.len());
@@ -545,7 +523,6 @@ fn build_impl(
         frames: scene.frame_count(),
         instances,
         base,
-        cumulative: traced_cumulative,
         patch_identity,
         bounds,
         warnings: rstats.warnings,

@@ -11,6 +11,8 @@ use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
 
+use crate::archive::deltas::Block;
+use crate::archive::layout::DeltaRecord;
 use crate::geodesic::{DirectionSet, DirectionSetKind};
 use crate::geometry::Primitive;
 use crate::geometry::accel::PrimitiveBvh;
@@ -217,26 +219,6 @@ struct RayHitRecord {
 /// A link as traced: `(a << 32 | b, bucket at a, bucket at b)`.
 type LinkKey = (u64, u8, u8);
 
-/// One change of the active link multiset at a frame (issue #5): `count`
-/// rays of pair `pair` start (`> 0`) or stop (`< 0`) joining `a → b`.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
-pub struct DeltaEntry {
-    /// Frame the change applies from.
-    pub frame: u32,
-    /// Direction pair.
-    pub pair: u32,
-    /// Patch facing along the pair's first direction.
-    pub a: u32,
-    /// Patch facing back.
-    pub b: u32,
-    /// Bucket at `a`.
-    pub bucket_a: u8,
-    /// Bucket at `b`.
-    pub bucket_b: u8,
-    /// Signed number of rays.
-    pub count: i32,
-}
-
 /// What to trace: primitives with the frames each is present in.
 pub struct TraceInput<'a> {
     /// All primitives: permanent ones and temporal instances.
@@ -253,6 +235,12 @@ pub struct TraceInput<'a> {
     pub bounds: (Vec3, Vec3),
 }
 
+/// Direction pairs are traced in this many chunks (or one pair per chunk
+/// when there are fewer pairs). Each chunk compresses its share of every
+/// frame's delta as one block, so the count is fixed: the archive's bytes
+/// must not depend on the number of threads.
+const CHUNKS: u32 = 64;
+
 /// Per-thread scratch space.
 #[derive(Default)]
 struct Scratch {
@@ -261,7 +249,14 @@ struct Scratch {
     frame_links: Vec<LinkKey>,
     prev_links: Vec<LinkKey>,
     change_frames: Vec<u32>,
-    deltas: Vec<DeltaEntry>,
+    /// Per frame, the current pair's changes at that frame (per ray, unmerged).
+    changes: Vec<Vec<DeltaRecord>>,
+    /// The current pair's changes relative to frame 0 at the previous frame,
+    /// and the next frame's.
+    cumulative: Vec<DeltaRecord>,
+    next: Vec<DeltaRecord>,
+    /// Per frame, the chunk's changes relative to frame 0, in pair order.
+    chunk: Vec<Vec<DeltaRecord>>,
 }
 
 /// Shared, read-only state of one bundle's walk along its rays.
@@ -346,7 +341,7 @@ impl Walk<'_> {
     }
 
     /// One ray: frame 0's links go to `s.keys`; for rays that meet temporal
-    /// instances, the changes at later frames go to `s.deltas`.
+    /// instances, the changes at later frames go to `s.changes`.
     fn ray(&self, pair: u32, s: &mut Scratch) -> u64 {
         let last = self.input.frames - 1;
         self.prepare(&mut s.hits);
@@ -376,15 +371,16 @@ impl Walk<'_> {
             s.frame_links.clear();
             counted += self.frame(&s.hits, f, &mut s.frame_links);
             s.frame_links.sort_unstable();
+            let out = &mut s.changes[f as usize];
             diff(&s.prev_links, &s.frame_links, |key, count| {
-                s.deltas.push(DeltaEntry {
-                    frame: f,
+                out.push(DeltaRecord {
                     pair,
                     a: (key.0 >> 32) as u32,
                     b: key.0 as u32,
+                    count,
                     bucket_a: key.1,
                     bucket_b: key.2,
-                    count,
+                    reserved: 0,
                 })
             });
             std::mem::swap(&mut s.prev_links, &mut s.frame_links);
@@ -426,10 +422,11 @@ pub struct Traced {
     pub hits: Vec<u32>,
     /// Per non-diffuse patch and direction pair, rays crossing it.
     pub nd_hits: Vec<u32>,
-    /// Per frame, the changes of the link multiset relative to frame 0,
-    /// sorted by `(pair, a, b, buckets)`; frame 0's list is empty, and stills
-    /// have just that one.
-    pub cumulative: Vec<Vec<DeltaEntry>>,
+    /// Per chunk of direction pairs (in pair order), per frame, the changes
+    /// of the link multiset relative to frame 0, compressed
+    /// (`archive::deltas::EncodedDeltas::from_blocks` assembles them); frame
+    /// 0's blocks are empty, and stills have just those.
+    pub deltas: Vec<Vec<Block>>,
     /// Totals.
     pub stats: BundleStats,
 }
@@ -483,138 +480,187 @@ pub fn trace_all(
     let nd_count = nd_index.iter().filter(|&&i| i != u32::MAX).count();
     let nd_hits: Vec<AtomicU32> = (0..nd_count * pairs as usize).map(|_| AtomicU32::new(0)).collect();
     let eps_t = (hi - lo).length() * 1e-6;
-    progress.start("tracing direction bundles", pairs as u64);
-    let results: Vec<(Bundle, Vec<Vec<DeltaEntry>>, BundleStats)> = (0..pairs)
-        .into_par_iter()
-        .map_init(Scratch::default, |s, k| {
-            let d = dir_of(k);
-            let lay = &layouts[k as usize];
-            let g = grid_for(d, k, lo, hi, lay);
-            let walk = Walk {
-                input,
-                patches,
-                normals: &normals,
-                hit_counts: &hit_counts,
-                layout: lay,
-                dir: d,
-                eps_t,
-                max_bucket,
-                pair: k,
-                pairs,
-                nd_index,
-                nd_hits: &nd_hits,
-            };
-            let mut stats = BundleStats { rays: g.nu * g.nv, ..Default::default() };
-            s.keys.clear();
-            s.deltas.clear();
-            for jj in 0..g.nv {
-                let v = ((g.j0 + jj as i64) as f32 + g.offset.y) * g.step;
-                for ii in 0..g.nu {
-                    let u = ((g.i0 + ii as i64) as f32 + g.offset.x) * g.step;
-                    let origin = g.origin + g.e1 * u + g.e2 * v;
-                    s.hits.clear();
-                    bvh.all_hits(origin, d, |h| {
-                        s.hits.push(RayHitRecord {
-                            t: h.hit.t,
-                            primitive: h.primitive,
-                            uv: h.hit.uv,
-                            active: (0, 0),
-                            cos: 0.0,
-                            patch: 0,
-                        })
-                    });
-                    if s.hits.is_empty() {
-                        continue;
-                    }
-                    let key = input.sort_key;
-                    s.hits.sort_unstable_by(|x, y| {
-                        x.t.total_cmp(&y.t).then(key[x.primitive as usize].cmp(&key[y.primitive as usize]))
-                    });
-                    stats.hits += walk.ray(k, s);
+    let frames = input.frames as usize;
+    let per_chunk = pairs.div_ceil(CHUNKS).max(1);
+    let chunks = pairs.div_ceil(per_chunk);
+    let trace_pair = |s: &mut Scratch, k: u32| -> (Bundle, BundleStats) {
+        let d = dir_of(k);
+        let lay = &layouts[k as usize];
+        let g = grid_for(d, k, lo, hi, lay);
+        let walk = Walk {
+            input,
+            patches,
+            normals: &normals,
+            hit_counts: &hit_counts,
+            layout: lay,
+            dir: d,
+            eps_t,
+            max_bucket,
+            pair: k,
+            pairs,
+            nd_index,
+            nd_hits: &nd_hits,
+        };
+        let mut stats = BundleStats { rays: g.nu * g.nv, ..Default::default() };
+        s.keys.clear();
+        for jj in 0..g.nv {
+            let v = ((g.j0 + jj as i64) as f32 + g.offset.y) * g.step;
+            for ii in 0..g.nu {
+                let u = ((g.i0 + ii as i64) as f32 + g.offset.x) * g.step;
+                let origin = g.origin + g.e1 * u + g.e2 * v;
+                s.hits.clear();
+                bvh.all_hits(origin, d, |h| {
+                    s.hits.push(RayHitRecord {
+                        t: h.hit.t,
+                        primitive: h.primitive,
+                        uv: h.hit.uv,
+                        active: (0, 0),
+                        cos: 0.0,
+                        patch: 0,
+                    })
+                });
+                if s.hits.is_empty() {
+                    continue;
                 }
+                let key = input.sort_key;
+                s.hits.sort_unstable_by(|x, y| {
+                    x.t.total_cmp(&y.t).then(key[x.primitive as usize].cmp(&key[y.primitive as usize]))
+                });
+                stats.hits += walk.ray(k, s);
             }
-            stats.links = s.keys.len() as u64;
-            s.keys.sort_unstable();
-            let mut bundle = Bundle { pair: k, ..Default::default() };
-            for run in s.keys.chunk_by(|x, y| x == y) {
-                let (key, ba, bb) = run[0];
-                bundle.a.push((key >> 32) as u32);
-                bundle.b.push(key as u32);
-                bundle.w.push(run.len() as u32);
-                bundle.bucket_a.push(ba);
-                bundle.bucket_b.push(bb);
+        }
+        stats.links = s.keys.len() as u64;
+        s.keys.sort_unstable();
+        let mut bundle = Bundle { pair: k, ..Default::default() };
+        for run in s.keys.chunk_by(|x, y| x == y) {
+            let (key, ba, bb) = run[0];
+            bundle.a.push((key >> 32) as u32);
+            bundle.b.push(key as u32);
+            bundle.w.push(run.len() as u32);
+            bundle.bucket_a.push(ba);
+            bundle.bucket_b.push(bb);
+        }
+        accumulate_changes(s);
+        progress.advance(1);
+        (bundle, stats)
+    };
+    progress.start("tracing direction bundles", pairs as u64);
+    // Per chunk: its bundles, its block of every frame's changes, totals.
+    type Chunk = (Vec<Bundle>, Vec<Block>, BundleStats);
+    let results: Vec<Result<Chunk, String>> = (0..chunks)
+        .into_par_iter()
+        .map_init(Scratch::default, |s, c| {
+            s.changes.resize_with(frames, Vec::new);
+            s.chunk.resize_with(frames, Vec::new);
+            let mut stats = BundleStats::default();
+            let mut bundles = Vec::new();
+            for k in c * per_chunk..((c + 1) * per_chunk).min(pairs) {
+                let (b, st) = trace_pair(s, k);
+                stats.rays += st.rays;
+                stats.hits += st.hits;
+                stats.links += st.links;
+                bundles.push(b);
             }
-            let deltas = cumulative_deltas(&mut s.deltas, input.frames);
-            progress.advance(1);
-            (bundle, deltas, stats)
+            let blocks = s
+                .chunk
+                .iter_mut()
+                .map(|records| {
+                    let b = Block::compress(records);
+                    records.clear();
+                    b
+                })
+                .collect::<std::io::Result<Vec<Block>>>()
+                .map_err(|e| format!("cannot compress the per-frame link changes: {e}"))?;
+            Ok((bundles, blocks, stats))
         })
         .collect();
     progress.finish();
     let mut stats = BundleStats::default();
-    let mut bundles = Vec::with_capacity(results.len());
-    let mut cumulative: Vec<Vec<DeltaEntry>> = vec![Vec::new(); input.frames as usize];
-    for (b, d, s) in results {
+    let mut bundles = Vec::with_capacity(pairs as usize);
+    let mut deltas = Vec::with_capacity(chunks as usize);
+    for r in results {
+        let (b, d, s) = r?;
         stats.rays += s.rays;
         stats.hits += s.hits;
         stats.links += s.links;
-        bundles.push(b);
-        // Bundles come in pair order: concatenation keeps (pair, …) order.
-        for (f, list) in d.into_iter().enumerate() {
-            cumulative[f].extend(list);
-        }
+        bundles.extend(b);
+        deltas.push(d);
     }
     let hits: Vec<u32> =
         hit_counts.into_iter().map(|h| u32::try_from(h.into_inner())).collect::<Result<_, _>>().map_err(|_| {
             "a patch is hit by more than 2³² rays: use smaller patches or a larger ray spacing".to_string()
         })?;
     let nd_hits = nd_hits.into_iter().map(AtomicU32::into_inner).collect();
-    Ok(Traced { bundles, hits, nd_hits, cumulative, stats })
+    Ok(Traced { bundles, hits, nd_hits, deltas, stats })
 }
 
-/// One bundle's per-frame changes relative to frame 0, from its per-ray
-/// incremental changes: frame `f`'s list sums every change at frames ≤ f.
-/// Empty lists for bundles whose links never change.
-fn cumulative_deltas(raw: &mut [DeltaEntry], frames: u32) -> Vec<Vec<DeltaEntry>> {
-    if raw.is_empty() {
-        return Vec::new();
-    }
-    let merged = merge_deltas(raw);
-    let mut out = vec![Vec::new(); frames as usize];
-    let mut acc: std::collections::BTreeMap<(u32, u32, u8, u8), i32> = Default::default();
-    let mut next = 0;
-    for f in 1..frames {
-        while next < merged.len() && merged[next].frame == f {
-            let d = &merged[next];
-            *acc.entry((d.a, d.b, d.bucket_a, d.bucket_b)).or_insert(0) += d.count;
-            next += 1;
+/// Turns the current pair's per-ray changes (`s.changes`, per frame) into
+/// its changes relative to frame 0 at every frame, appended to `s.chunk`:
+/// frame `f`'s list is frame `f − 1`'s merged with the changes at `f`.
+/// Pairs whose links never change append nothing.
+fn accumulate_changes(s: &mut Scratch) {
+    s.cumulative.clear();
+    for f in 1..s.changes.len() {
+        let changes = &mut s.changes[f];
+        if changes.is_empty() && s.cumulative.is_empty() {
+            continue;
         }
-        acc.retain(|_, n| *n != 0);
-        let pair = merged[0].pair;
-        out[f as usize] = acc
-            .iter()
-            .map(|(&(a, b, bucket_a, bucket_b), &count)| DeltaEntry { frame: f, pair, a, b, bucket_a, bucket_b, count })
-            .collect();
-    }
-    out
-}
-
-/// Sums entries with the same `(frame, pair, a, b, buckets)`, drops zeros.
-fn merge_deltas(raw: &mut [DeltaEntry]) -> Vec<DeltaEntry> {
-    raw.sort_unstable_by_key(|d| (d.frame, d.pair, d.a, d.b, d.bucket_a, d.bucket_b));
-    let mut out: Vec<DeltaEntry> = Vec::new();
-    for d in raw.iter() {
-        match out.last_mut() {
-            Some(l)
-                if (l.frame, l.pair, l.a, l.b, l.bucket_a, l.bucket_b)
-                    == (d.frame, d.pair, d.a, d.b, d.bucket_a, d.bucket_b) =>
-            {
-                l.count += d.count
+        // Sum the rays' changes of one link.
+        changes.sort_unstable_by_key(record_key);
+        let mut n = 0;
+        for i in 0..changes.len() {
+            if n > 0 && record_key(&changes[n - 1]) == record_key(&changes[i]) {
+                changes[n - 1].count += changes[i].count;
+            } else {
+                changes[n] = changes[i];
+                n += 1;
             }
-            _ => out.push(*d),
         }
+        changes.truncate(n);
+        s.next.clear();
+        let (prev, add) = (&s.cumulative, &*changes);
+        let (mut i, mut j) = (0, 0);
+        while i < prev.len() || j < add.len() {
+            let d = match (prev.get(i), add.get(j)) {
+                (Some(p), Some(c)) => match record_key(p).cmp(&record_key(c)) {
+                    std::cmp::Ordering::Less => {
+                        i += 1;
+                        *p
+                    }
+                    std::cmp::Ordering::Greater => {
+                        j += 1;
+                        *c
+                    }
+                    std::cmp::Ordering::Equal => {
+                        i += 1;
+                        j += 1;
+                        DeltaRecord { count: p.count + c.count, ..*p }
+                    }
+                },
+                (Some(p), None) => {
+                    i += 1;
+                    *p
+                }
+                (None, Some(c)) => {
+                    j += 1;
+                    *c
+                }
+                (None, None) => unreachable!(),
+            };
+            if d.count != 0 {
+                s.next.push(d);
+            }
+        }
+        changes.clear();
+        std::mem::swap(&mut s.cumulative, &mut s.next);
+        s.chunk[f].extend_from_slice(&s.cumulative);
     }
-    out.retain(|d| d.count != 0);
-    out
+}
+
+/// The order of one pair's records: `(a, b, bucket_a, bucket_b)`.
+#[inline]
+fn record_key(d: &DeltaRecord) -> u128 {
+    ((d.a as u128) << 48) | ((d.b as u128) << 16) | ((d.bucket_a as u128) << 8) | d.bucket_b as u128
 }
 
 #[cfg(test)]
