@@ -171,6 +171,8 @@ fn frame_radiance_from_the_sequence_archive_equals_from_scratch() {
         let mut compared = 0;
         for p in 0..v.patch_count() {
             if !present[v.patch_primitive[p] as usize] {
+                // Absent patches take no part: exactly nothing arrives.
+                assert_eq!(sol.received[p], [0.0; 3], "frame {k}: absent patch {p} received light");
                 continue;
             }
             let w = want_by_id[&seq.patch_identity[p]];

@@ -160,33 +160,55 @@ pub fn patch_materials(v: &InetView<'_>, lighting: &Lighting) -> (Vec<[f32; 3]>,
 /// enough to balance two to dozens of cores.
 const BLOCK: usize = 512;
 
-/// Gathers `recv[q] = Σ w·shoot[other]` over each patch's link ends.
-fn gather(offsets: &[u64], other: &[u32], weight: &[f32], shoot: &[[f32; 4]], recv: &mut [[f32; 4]]) {
+/// `Σ w·shoot[other]` over a run of link ends. (Measured: the sum runs at
+/// the machine's gather limit; more partial sums gain nothing.)
+#[inline(always)]
+fn weighted_sum(other: &[u32], weight: &[f32], shoot: &[[f32; 4]]) -> [f32; 4] {
+    let mut acc = [0.0f32; 4];
+    for (&o, &w) in other.iter().zip(weight) {
+        let s = shoot[o as usize];
+        for c in 0..4 {
+            acc[c] += w * s[c];
+        }
+    }
+    acc
+}
+
+/// Gathers `recv[q] = Σ w·shoot[other]` over each patch's link ends;
+/// patches not `present` (temporal instances absent from the frame)
+/// receive nothing.
+fn gather(
+    offsets: &[u64],
+    other: &[u32],
+    weight: &[f32],
+    present: Option<&[bool]>,
+    shoot: &[[f32; 4]],
+    recv: &mut [[f32; 4]],
+) {
     recv.par_chunks_mut(BLOCK).enumerate().for_each(|(block, out)| {
         let first = block * BLOCK;
         for (i, r) in out.iter_mut().enumerate() {
             let q = first + i;
-            let (a, b) = (offsets[q] as usize, offsets[q + 1] as usize);
-            let mut acc = [0.0f32; 4];
-            for (&o, &w) in other[a..b].iter().zip(&weight[a..b]) {
-                let s = shoot[o as usize];
-                for c in 0..4 {
-                    acc[c] += w * s[c];
-                }
+            if present.is_some_and(|p| !p[q]) {
+                *r = [0.0; 4];
+                continue;
             }
-            *r = acc;
+            let (a, b) = (offsets[q] as usize, offsets[q + 1] as usize);
+            *r = weighted_sum(&other[a..b], &weight[a..b], shoot);
         }
     });
 }
 
 /// Like [`gather`], but sorts what arrives into buckets: `recv[q·B + k]`
 /// holds the light patch `q` received over ends of bucket `k` (B = buckets).
+#[allow(clippy::too_many_arguments)]
 fn gather_buckets(
     offsets: &[u64],
     other: &[u32],
     weight: &[f32],
     bucket: &[u8],
     buckets: usize,
+    present: Option<&[bool]>,
     shoot: &[[f32; 4]],
     recv: &mut [[f32; 4]],
 ) {
@@ -194,26 +216,23 @@ fn gather_buckets(
         let first = block * BLOCK;
         for (i, r) in out.chunks_exact_mut(buckets).enumerate() {
             let q = first + i;
-            let (a, b) = (offsets[q] as usize, offsets[q + 1] as usize);
-            // Ends come grouped by bucket (build::links): accumulate each run
-            // in registers. Buckets are validated to be < `buckets`.
             r.fill([0.0; 4]);
+            if present.is_some_and(|p| !p[q]) {
+                continue;
+            }
+            let (a, b) = (offsets[q] as usize, offsets[q + 1] as usize);
+            // Ends come grouped by bucket (build::links): one sum per run.
+            // Buckets are validated to be < `buckets`.
             let mut e = a;
             while e < b {
                 let k = bucket[e];
-                let mut acc = [0.0f32; 4];
-                while e < b && bucket[e] == k {
-                    let s = shoot[other[e] as usize];
-                    let w = weight[e];
-                    for c in 0..4 {
-                        acc[c] += w * s[c];
-                    }
-                    e += 1;
-                }
+                let end = e + bucket[e..b].iter().position(|&x| x != k).unwrap_or(b - e);
+                let acc = weighted_sum(&other[e..end], &weight[e..end], shoot);
                 let slot = &mut r[k as usize];
                 for c in 0..4 {
                     slot[c] += acc[c];
                 }
+                e = end;
             }
         }
     });
@@ -224,41 +243,95 @@ pub fn distribute(v: &InetView<'_>, opts: &DistributeOptions, progress: &dyn Pro
     distribute_frame(v, 0, opts, progress).expect("frame 0 of a validated archive has no delta to decode")
 }
 
-/// Link ends a frame adds to or removes from frame 0's table (negative
-/// weights remove), as CSR by owner patch.
-struct Overlay {
+/// Link ends as CSR by owner patch, each owner's ends split into one run
+/// per bucket (`offsets[q·B + k]..offsets[q·B + k + 1]`, B buckets).
+#[derive(Default)]
+struct Ends {
     offsets: Vec<u32>,
     other: Vec<u32>,
     weight: Vec<f32>,
-    bucket: Vec<u8>,
     direction: Vec<u32>,
 }
 
-impl Overlay {
-    fn new(n: usize, records: &[crate::archive::layout::DeltaRecord]) -> Self {
-        let mut count = vec![0u32; n + 1];
+impl Ends {
+    /// The ends of `records` (both ends of each) that `keep(owner, other)`.
+    fn new(
+        n: usize,
+        buckets: usize,
+        records: &[crate::archive::layout::DeltaRecord],
+        keep: impl Fn(u32, u32) -> bool,
+    ) -> Self {
+        let slot = |me: u32, k: u8| me as usize * buckets + if buckets > 1 { k as usize } else { 0 };
+        let ends = |d: &crate::archive::layout::DeltaRecord| {
+            [(d.a, d.b, d.bucket_a, 2 * d.pair), (d.b, d.a, d.bucket_b, 2 * d.pair + 1)]
+        };
+        let mut count = vec![0u32; n * buckets + 1];
         for d in records {
-            count[d.a as usize + 1] += 1;
-            count[d.b as usize + 1] += 1;
+            for (me, them, k, _) in ends(d) {
+                if keep(me, them) {
+                    count[slot(me, k) + 1] += 1;
+                }
+            }
         }
-        for i in 0..n {
+        for i in 0..n * buckets {
             count[i + 1] += count[i];
         }
         let offsets = count.clone();
         let mut cursor = count;
-        let m = offsets[n] as usize;
-        let (mut other, mut weight, mut bucket, mut direction) = (vec![0; m], vec![0.0; m], vec![0; m], vec![0; m]);
+        let m = offsets[n * buckets] as usize;
+        let (mut other, mut weight, mut direction) = (vec![0; m], vec![0.0; m], vec![0; m]);
         for d in records {
-            for (me, them, k, dir) in [(d.a, d.b, d.bucket_a, 2 * d.pair), (d.b, d.a, d.bucket_b, 2 * d.pair + 1)] {
-                let e = cursor[me as usize] as usize;
-                other[e] = them;
-                weight[e] = d.count as f32;
-                bucket[e] = k;
-                direction[e] = dir;
-                cursor[me as usize] += 1;
+            for (me, them, k, dir) in ends(d) {
+                if keep(me, them) {
+                    let e = cursor[slot(me, k)] as usize;
+                    other[e] = them;
+                    weight[e] = d.count as f32;
+                    direction[e] = dir;
+                    cursor[slot(me, k)] += 1;
+                }
             }
         }
-        Self { offsets, other, weight, bucket, direction }
+        Self { offsets, other, weight, direction }
+    }
+
+    /// Patch `q`'s ends of bucket `k`.
+    fn run(&self, q: usize, buckets: usize, k: usize) -> std::ops::Range<usize> {
+        self.offsets[q * buckets + k] as usize..self.offsets[q * buckets + k + 1] as usize
+    }
+}
+
+/// What a frame changes in frame 0's links: link ends added (positive
+/// weights) or removed (negative).
+struct Overlay {
+    /// Every end, by owner (one bucket run each): what non-diffuse patches
+    /// send and receive along. Built only for archives with non-diffuse patches.
+    all: Option<Ends>,
+    /// The ends between two patches present in the frame, by owner and
+    /// bucket: what the gather adds. Ends that touch an absent patch are
+    /// left out: absent patches receive nothing and so send nothing,
+    /// where adding frame 0's ends and subtracting them again would leave
+    /// rounding residue.
+    gather: Ends,
+    /// Per patch, the change of its summed link weight.
+    linked: Vec<f64>,
+}
+
+impl Overlay {
+    fn new(
+        n: usize,
+        buckets: usize,
+        records: &[crate::archive::layout::DeltaRecord],
+        present: &[bool],
+        nondiffuse: bool,
+    ) -> Self {
+        let mut linked = vec![0.0f64; n];
+        for d in records {
+            linked[d.a as usize] += d.count as f64;
+            linked[d.b as usize] += d.count as f64;
+        }
+        let gather = Ends::new(n, buckets, records, |me, them| present[me as usize] && present[them as usize]);
+        let all = nondiffuse.then(|| Ends::new(n, 1, records, |_, _| true));
+        Self { all, gather, linked }
     }
 
     /// Adds the overlay's contribution to `recv` (bucketed as in
@@ -271,24 +344,30 @@ impl Overlay {
         nd: Option<(&nondiffuse::NonDiffuse<'_>, &[[f32; 4]])>,
         recv: &mut [[f32; 4]],
     ) {
+        let g = &self.gather;
         recv.par_chunks_mut(BLOCK * buckets).enumerate().for_each(|(block, out)| {
             let first = block * BLOCK;
             for (i, r) in out.chunks_exact_mut(buckets).enumerate() {
                 let q = first + i;
-                for e in self.offsets[q] as usize..self.offsets[q + 1] as usize {
-                    let k = if buckets > 1 { self.bucket[e] as usize } else { 0 };
-                    let mut s = shoot[self.other[e] as usize];
+                for (k, slot) in r.iter_mut().enumerate() {
+                    let run = g.run(q, buckets, k);
+                    if run.is_empty() {
+                        continue;
+                    }
+                    let acc = weighted_sum(&g.other[run.clone()], &g.weight[run.clone()], shoot);
+                    for c in 0..4 {
+                        slot[c] += acc[c];
+                    }
                     if let Some((nd, phi)) = nd {
-                        let j = nd.nd_of[self.other[e] as usize];
-                        if j != u32::MAX {
-                            let p = phi[nd.slot(j, self.direction[e] ^ 1)];
-                            for c in 0..4 {
-                                s[c] += p[c];
+                        for e in run {
+                            let j = nd.nd_of[g.other[e] as usize];
+                            if j != u32::MAX {
+                                let p = phi[nd.slot(j, g.direction[e] ^ 1)];
+                                for c in 0..4 {
+                                    slot[c] += g.weight[e] * p[c];
+                                }
                             }
                         }
-                    }
-                    for c in 0..4 {
-                        r[k][c] += self.weight[e] * s[c];
                     }
                 }
             }
@@ -442,7 +521,7 @@ impl<'a> Distributor<'a> {
             (&self.rho, &self.share, &self.area_eff, self.nb, self.bucket_column, &self.rings);
         let mut emit = self.emit.clone();
         let t_delta = std::time::Instant::now();
-        let overlay = match &v.sequence {
+        let (overlay, present_patch) = match &v.sequence {
             Some(s) => {
                 if frame >= s.frames() {
                     return Err(crate::archive::ArchiveError::Corrupt(format!(
@@ -462,9 +541,11 @@ impl<'a> Distributor<'a> {
                         emit[p] = keyed[surface];
                     }
                 }
-                Some(Overlay::new(n, &s.frame_delta(frame)?))
+                let present_patch: Vec<bool> = v.patch_primitive.iter().map(|&p| present[p as usize]).collect();
+                let records = s.frame_delta(frame)?;
+                (Some(Overlay::new(n, nb, &records, &present_patch, self.nd.is_some())), Some(present_patch))
             }
-            None if frame == 0 => None,
+            None if frame == 0 => (None, None),
             None => {
                 return Err(crate::archive::ArchiveError::Corrupt(format!(
                     "frame {frame} requested from a still archive"
@@ -473,9 +554,8 @@ impl<'a> Distributor<'a> {
         };
         let mut linked = self.linked.clone();
         if let Some(o) = &overlay {
-            for p in 0..n {
-                linked[p] +=
-                    o.weight[o.offsets[p] as usize..o.offsets[p + 1] as usize].iter().map(|&x| x as f64).sum::<f64>();
+            for (l, d) in linked.iter_mut().zip(&o.linked) {
+                *l += d;
             }
         }
         let delta_s = if overlay.is_some() { t_delta.elapsed().as_secs_f64() } else { 0.0 };
@@ -528,11 +608,12 @@ impl<'a> Distributor<'a> {
         let mut dir_total = vec![[0.0f32; 4]; nn];
         let mut pending = vec![[0.0f64; 3]; nd.map_or(0, |x| x.patches.len())];
         // Borrowed unless the frame's overlay changes it.
-        let linked_dir: std::borrow::Cow<'_, [f32]> = match (nd, &overlay) {
+        let all_ends = overlay.as_ref().and_then(|o| o.all.as_ref());
+        let linked_dir: std::borrow::Cow<'_, [f32]> = match (nd, all_ends) {
             (Some(x), Some(o)) => {
                 let mut l = x.linked.clone();
                 for (k, &q) in x.patches.iter().enumerate() {
-                    for e in o.offsets[q as usize] as usize..o.offsets[q as usize + 1] as usize {
+                    for e in o.run(q as usize, 1, 0) {
                         l[k * x.n + o.direction[e] as usize] += o.weight[e];
                     }
                 }
@@ -542,8 +623,8 @@ impl<'a> Distributor<'a> {
             _ => std::borrow::Cow::Borrowed(&[][..]),
         };
         let overlay_ends = |q: usize, add: &mut dyn FnMut(u32, f32, u32)| {
-            if let Some(o) = &overlay {
-                for e in o.offsets[q] as usize..o.offsets[q + 1] as usize {
+            if let Some(o) = all_ends {
+                for e in o.run(q, 1, 0) {
                     add(o.other[e], o.weight[e], o.direction[e]);
                 }
             }
@@ -581,7 +662,16 @@ impl<'a> Distributor<'a> {
             let nd_phi = nd.map(|x| (x, &phi[..]));
             match (bucket_column, &rings) {
                 (Some(bk), Some(rings)) => {
-                    gather_buckets(v.link_offsets, v.link_other, v.link_weight, bk, nb, &shoot, &mut recv);
+                    gather_buckets(
+                        v.link_offsets,
+                        v.link_other,
+                        v.link_weight,
+                        bk,
+                        nb,
+                        present_patch.as_deref(),
+                        &shoot,
+                        &mut recv,
+                    );
                     if let Some(o) = &overlay {
                         o.gather(nb, &shoot, nd_phi, &mut recv);
                     }
@@ -591,7 +681,7 @@ impl<'a> Distributor<'a> {
                     rings.spread(&recv, nb, &mut spread);
                 }
                 _ => {
-                    gather(v.link_offsets, v.link_other, v.link_weight, &shoot, &mut recv);
+                    gather(v.link_offsets, v.link_other, v.link_weight, present_patch.as_deref(), &shoot, &mut recv);
                     if let Some(o) = &overlay {
                         o.gather(1, &shoot, nd_phi, &mut recv);
                     }
