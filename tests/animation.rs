@@ -294,27 +294,36 @@ fn warm_start_converges_to_the_same_light_in_fewer_iterations() {
     let seq = build::build_sequence(&scene, &BuildSettings::resolve(&scene, hints), &NoProgress).unwrap();
     let arch = Archive::from_bytes(&archive::write_to_vec(&seq.contents).unwrap()).unwrap();
     let v = arch.view();
-    let opts = DistributeOptions { tolerance: 1e-5, ..Default::default() };
-    let (mut cold_iterations, mut warm_iterations, mut worst) = (0, 0, 0.0f64);
-    let mut previous = distribute::distribute_frame(&v, 0, &opts, &NoProgress).unwrap();
-    for k in 1..scene.frame_count() {
-        let cold = distribute::distribute_frame(&v, k, &opts, &NoProgress).unwrap();
-        let warm = distribute::distribute_frame_from(&v, k, &opts, Some(&previous), &NoProgress).unwrap();
-        cold_iterations += cold.balance.iterations;
-        warm_iterations += warm.balance.iterations;
-        assert!(warm.balance.imbalance().abs() < 1e-5, "frame {k}: {:?}", warm.balance);
-        for (a, b) in cold.radiance.iter().zip(&warm.radiance) {
-            for c in 0..3 {
-                worst = worst.max((a[c] - b[c]).abs() as f64 / (a[c].abs() as f64).max(1e-2));
+    // Plain iteration (depth 0) and Anderson acceleration (the default).
+    let mut iterations = Vec::new();
+    for depth in [0, 5] {
+        let opts = DistributeOptions { tolerance: 1e-5, anderson_depth: depth, ..Default::default() };
+        let (mut cold_iterations, mut warm_iterations, mut worst) = (0, 0, 0.0f64);
+        let mut previous = distribute::distribute_frame(&v, 0, &opts, &NoProgress).unwrap();
+        for k in 1..scene.frame_count() {
+            let cold = distribute::distribute_frame(&v, k, &opts, &NoProgress).unwrap();
+            let warm = distribute::distribute_frame_from(&v, k, &opts, Some(&previous), &NoProgress).unwrap();
+            cold_iterations += cold.balance.iterations;
+            warm_iterations += warm.balance.iterations;
+            assert!(warm.balance.imbalance().abs() < 1e-5, "frame {k}: {:?}", warm.balance);
+            for (a, b) in cold.radiance.iter().zip(&warm.radiance) {
+                for c in 0..3 {
+                    worst = worst.max((a[c] - b[c]).abs() as f64 / (a[c].abs() as f64).max(1e-2));
+                }
             }
+            previous = warm;
         }
-        previous = warm;
+        eprintln!(
+            "Anderson depth {depth}: iterations over frames 1..7: cold {cold_iterations}, warm {warm_iterations}; \
+             worst difference {worst:.1e}"
+        );
+        assert!(worst < 1e-3, "depth {depth}: warm and cold solutions differ by {worst}");
+        assert!(warm_iterations <= cold_iterations, "depth {depth}: warm {warm_iterations} vs cold {cold_iterations}");
+        iterations.push((cold_iterations, warm_iterations));
     }
-    eprintln!(
-        "iterations over frames 1..7: cold {cold_iterations}, warm {warm_iterations}; worst difference {worst:.1e}"
-    );
-    assert!(worst < 1e-3, "warm and cold solutions differ by {worst}");
-    assert!(warm_iterations < cold_iterations, "warm {warm_iterations} vs cold {cold_iterations}");
+    let ((plain_cold, plain_warm), (fast_cold, fast_warm)) = (iterations[0], iterations[1]);
+    assert!(plain_warm < plain_cold, "plain: warm {plain_warm} vs cold {plain_cold}");
+    assert!(fast_cold < plain_cold && fast_warm < plain_warm, "Anderson {iterations:?}");
 }
 
 #[test]

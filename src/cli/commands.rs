@@ -217,6 +217,9 @@ pub fn render(
     extras: Extras<'_>,
     progress: &dyn Progress,
 ) -> Result<()> {
+    if args.anderson > distribute::MAX_ANDERSON_DEPTH {
+        bail!("--anderson keeps at most {} secant pairs, got {}", distribute::MAX_ANDERSON_DEPTH, args.anderson);
+    }
     if !(args.tolerance > 0.0 && args.tolerance < 1.0) {
         bail!("--tolerance must be in (0, 1), got {}", args.tolerance);
     }
@@ -250,6 +253,7 @@ pub fn render(
         tolerance: args.tolerance,
         buckets: !args.no_buckets,
         patch_size_correction: !args.no_patch_size_correction,
+        anderson_depth: args.anderson,
         ..Default::default()
     };
     let (mut t_dist, mut t_render, mut ends, mut t_delta) = (0.0, 0.0, 0.0, 0.0);

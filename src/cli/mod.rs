@@ -82,6 +82,10 @@ struct RenderArgs {
     /// For measurement: ignore the archive's buckets (no spreading).
     #[arg(long)]
     no_buckets: bool,
+    /// Secant pairs the Anderson acceleration of the distribution keeps
+    /// (0: plain iteration; at most 8; diffuse archives only).
+    #[arg(long, default_value_t = 5, value_name = "N")]
+    anderson: usize,
     /// For measurement: drop the H_p/H_u patch-size correction of §3.4.
     #[arg(long)]
     no_patch_size_correction: bool,

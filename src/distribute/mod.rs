@@ -21,6 +21,9 @@
 //! state it gathers from is 16 bytes per patch, cache-resident for scenes of
 //! up to ~10⁵ patches.
 
+mod anderson;
+
+pub use anderson::MAX_DEPTH as MAX_ANDERSON_DEPTH;
 mod buckets;
 mod nondiffuse;
 
@@ -44,11 +47,15 @@ pub struct DistributeOptions {
     /// Spread light over the rings of neighbours its link end's bucket names
     /// (§3.4), when the archive has buckets (default on).
     pub buckets: bool,
+    /// Secant pairs kept for Anderson acceleration (`anderson.rs`; default
+    /// 5, at most [`MAX_ANDERSON_DEPTH`]); 0 iterates plainly. Archives with non-diffuse patches always
+    /// iterate plainly.
+    pub anderson_depth: usize,
 }
 
 impl Default for DistributeOptions {
     fn default() -> Self {
-        Self { tolerance: 1e-4, max_iterations: 1000, patch_size_correction: true, buckets: true }
+        Self { tolerance: 1e-4, max_iterations: 1000, patch_size_correction: true, buckets: true, anderson_depth: 5 }
     }
 }
 
@@ -93,6 +100,9 @@ pub struct Solution {
     /// Outgoing radiance of non-diffuse patches per direction (the
     /// view-dependent term of §3.5), when the archive has any.
     pub directional: Option<DirectionalRadiance>,
+    /// The acceleration's secant history, which the next frame of a
+    /// sequence starts from when warm-started from this solution.
+    history: anderson::Anderson,
 }
 
 /// Radiance leaving non-diffuse patches along each direction of the set,
@@ -579,7 +589,7 @@ impl<'a> Distributor<'a> {
         let mut shoot = vec![[0.0f32; 4]; n];
         let mut recv = vec![[0.0f32; 4]; n * nb];
         let mut spread = vec![[0.0f32; 4]; n];
-        // Warm start: send O₀ first; `guess` keeps it to form the residual.
+        // Warm start: send O₀ first (the residual then carries E − O₀).
         let guess: Option<Vec<[f32; 4]>> = start.filter(|s| s.received.len() == n && emitted_total > 0.0).map(|s| {
             (0..n)
                 .map(|p| {
@@ -594,10 +604,18 @@ impl<'a> Distributor<'a> {
                 })
                 .collect()
         });
-        let emission = unshot.clone();
-        if let Some(g) = &guess {
-            unshot.copy_from_slice(g);
-        }
+        // `unshot` is the residual: the power still to send. What an
+        // iteration sends is `send`: the residual itself, the warm guess
+        // first, or Anderson's mixed step.
+        let mut send = vec![[0.0f32; 4]; n];
+        // A warm start also starts from the previous frame's secant pairs:
+        // its operator differs a little, but the pairs only steer the step,
+        // and its slowest mode is this frame's too.
+        let mut anderson = match start {
+            Some(s) if guess.is_some() && s.history.fits(n, opts.anderson_depth) => s.history.clone(),
+            _ => anderson::Anderson::new(if self.nd.is_none() { opts.anderson_depth } else { 0 }),
+        };
+        let mut residual_change = vec![[0.0f32; 4]; n];
         // Non-diffuse patches (nondiffuse.rs): per-ray directional power to
         // shoot, its running total, the power it carries, and per frame the
         // rays of each direction that reach a facing patch.
@@ -631,13 +649,27 @@ impl<'a> Distributor<'a> {
         };
         progress.start("distributing light", 0);
         let mut residual_total = emitted_total;
-        while residual_total > opts.tolerance * emitted_total && bal.iterations < opts.max_iterations {
+        // A mixed step leaves a residual shaped by the least-squares fit, not
+        // by the light: converged after one, the loop takes one plain step,
+        // which spreads what is left like plain iteration would (per-patch
+        // errors as small as plain iteration's at the same tolerance).
+        let mut last_mixed = false;
+        while (residual_total > opts.tolerance * emitted_total || last_mixed) && bal.iterations < opts.max_iterations {
+            let warm_jump = bal.iterations == 0 && guess.is_some();
+            let converged = residual_total <= opts.tolerance * emitted_total;
+            match &guess {
+                Some(g) if warm_jump => send.copy_from_slice(g),
+                _ if converged => send.copy_from_slice(&unshot),
+                _ => anderson.step(&unshot, &mut send),
+            }
+            last_mixed = !warm_jump && !converged && anderson.pairs() > 0;
+            let previous_residual = residual_total;
             for p in 0..n {
                 let s = share[p];
                 let escape = 1.0 - linked[p] * s as f64;
                 for c in 0..3 {
-                    shoot[p][c] = unshot[p][c] * s;
-                    bal.escaped[c] += unshot[p][c] as f64 * escape;
+                    shoot[p][c] = send[p][c] * s;
+                    bal.escaped[c] += send[p][c] as f64 * escape;
                 }
             }
             if let Some(x) = nd {
@@ -708,7 +740,6 @@ impl<'a> Distributor<'a> {
                     }
                 }
             }
-            let first_warm = bal.iterations == 0 && guess.is_some();
             for p in 0..n {
                 for c in 0..3 {
                     let direct = recv[p * nb][c];
@@ -716,12 +747,18 @@ impl<'a> Distributor<'a> {
                     total_direct[p][c] += direct;
                     total_spread[p][c] += spread[p][c];
                     let reflected = r * rho[p][c];
-                    unshot[p][c] = match (&guess, first_warm) {
-                        (Some(g), true) => emission[p][c] + reflected - g[p][c],
-                        _ => reflected,
-                    };
+                    // f(x + δ) = f(x) − δ + K·δ.
+                    residual_change[p][c] = reflected - send[p][c];
+                    unshot[p][c] = unshot[p][c] - send[p][c] + reflected;
                     bal.absorbed[c] += (r - reflected) as f64;
                     residual_total += unshot[p][c].abs() as f64;
+                }
+            }
+            if !warm_jump {
+                if residual_total < previous_residual {
+                    anderson.record(&send, &residual_change);
+                } else {
+                    anderson.reset();
                 }
             }
             bal.iterations += 1;
@@ -764,6 +801,6 @@ impl<'a> Distributor<'a> {
                 .collect();
             DirectionalRadiance { patches: x.patches.clone(), directions: x.n, radiance }
         });
-        Ok(Solution { radiance, received, balance: bal, delta_s, directional })
+        Ok(Solution { radiance, received, balance: bal, delta_s, directional, history: anderson })
     }
 }
