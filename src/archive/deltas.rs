@@ -9,7 +9,6 @@
 
 use bytemuck::cast_slice_mut;
 use rayon::prelude::*;
-use xxhash_rust::xxh3::xxh3_64;
 
 use super::ArchiveError;
 use super::layout::{DeltaIndexRecord, DeltaRecord};
@@ -28,25 +27,42 @@ pub struct Block {
     pub count: u64,
 }
 
-impl Block {
+/// Compresses blocks, reusing one zstd context and one output buffer, so
+/// that each block keeps just its compressed bytes.
+pub struct BlockCompressor {
+    zstd: zstd::bulk::Compressor<'static>,
+    buffer: Vec<u8>,
+}
+
+impl BlockCompressor {
+    /// A compressor at [`LEVEL`].
+    pub fn new() -> std::io::Result<Self> {
+        let mut zstd = zstd::bulk::Compressor::new(LEVEL)?;
+        zstd.include_contentsize(true)?;
+        Ok(Self { zstd, buffer: Vec::new() })
+    }
+
     /// Compresses `records` (sorted, as §5.13 requires of the whole frame).
-    pub fn compress(records: &[DeltaRecord]) -> std::io::Result<Self> {
+    pub fn compress(&mut self, records: &[DeltaRecord]) -> std::io::Result<Block> {
         if records.is_empty() {
-            return Ok(Self::default());
+            return Ok(Block::default());
         }
-        let stored = zstd::bulk::compress(bytemuck::cast_slice(records), LEVEL)?;
-        Ok(Self { stored, count: records.len() as u64 })
+        let raw: &[u8] = bytemuck::cast_slice(records);
+        self.buffer.clear();
+        self.buffer.reserve(zstd::zstd_safe::compress_bound(raw.len()));
+        self.zstd.compress_to_buffer(raw, &mut self.buffer)?;
+        Ok(Block { stored: self.buffer.clone(), count: records.len() as u64 })
     }
 }
 
 /// The `DIDX` and `DELT` sections of a sequence, ready to write: per frame,
-/// the concatenation of its blocks.
+/// its blocks, in order.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct EncodedDeltas {
     /// `DIDX`: one record per frame.
     pub index: Vec<DeltaIndexRecord>,
-    /// `DELT`: every frame's blocks, frame after frame.
-    pub payload: Vec<u8>,
+    /// Per frame, its blocks' stored bytes (empty blocks left out).
+    frames: Vec<Vec<Vec<u8>>>,
 }
 
 impl EncodedDeltas {
@@ -54,39 +70,50 @@ impl EncodedDeltas {
     /// frame `f` (a missing entry is an empty block); each frame's blocks
     /// are concatenated in `c` order, so the blocks of one frame must hold
     /// consecutive ranges of its sorted records.
-    pub fn from_blocks(frames: usize, blocks: &[Vec<Block>]) -> Self {
-        let mut index = Vec::with_capacity(frames);
-        let total: usize = blocks.iter().flatten().map(|b| b.stored.len()).sum();
-        let mut payload = Vec::with_capacity(total);
-        for f in 0..frames {
-            let offset = payload.len();
-            let mut count = 0;
-            for b in blocks.iter().filter_map(|c| c.get(f)) {
-                payload.extend_from_slice(&b.stored);
-                count += b.count;
+    pub fn from_blocks(frames: usize, blocks: Vec<Vec<Block>>) -> Self {
+        let mut per_frame: Vec<Vec<Vec<u8>>> = vec![Vec::new(); frames];
+        let mut counts = vec![0u64; frames];
+        for chunk in blocks {
+            for (f, b) in chunk.into_iter().enumerate().take(frames) {
+                counts[f] += b.count;
+                if !b.stored.is_empty() {
+                    per_frame[f].push(b.stored);
+                }
             }
-            index.push(DeltaIndexRecord {
-                offset: offset as u64,
-                stored_length: (payload.len() - offset) as u64,
-                count,
-                checksum: xxh3_64(&payload[offset..]),
-            });
         }
-        Self { index, payload }
+        let mut index = Vec::with_capacity(frames);
+        let mut offset = 0u64;
+        for (pieces, count) in per_frame.iter().zip(counts) {
+            let mut hasher = xxhash_rust::xxh3::Xxh3::new();
+            let mut len = 0u64;
+            for p in pieces {
+                hasher.update(p);
+                len += p.len() as u64;
+            }
+            index.push(DeltaIndexRecord { offset, stored_length: len, count, checksum: hasher.digest() });
+            offset += len;
+        }
+        Self { index, frames: per_frame }
     }
 
     /// Encodes whole frames of sorted records, one block per frame.
     pub fn from_frames(frames: &[Vec<DeltaRecord>]) -> std::io::Result<Self> {
-        let blocks = frames.iter().map(|r| Block::compress(r)).collect::<std::io::Result<Vec<_>>>()?;
-        Ok(Self::from_blocks(frames.len(), &[blocks]))
+        let mut z = BlockCompressor::new()?;
+        let blocks = frames.iter().map(|r| z.compress(r)).collect::<std::io::Result<Vec<_>>>()?;
+        Ok(Self::from_blocks(frames.len(), vec![blocks]))
+    }
+
+    /// The `DELT` payload, piece by piece.
+    pub fn pieces(&self) -> impl Iterator<Item = &[u8]> {
+        self.frames.iter().flatten().map(|p| &p[..])
     }
 
     /// Decodes frame `frame` (no range or order checks: see
     /// [`super::SequenceView::frame_delta`] for the reader's).
     pub fn frame(&self, frame: usize) -> Result<Vec<DeltaRecord>, ArchiveError> {
         let ix = self.index.get(frame).ok_or_else(|| ArchiveError::corrupt(format!("no delta for frame {frame}")))?;
-        let stored = &self.payload[ix.offset as usize..][..ix.stored_length as usize];
-        decode(stored, ix.count, frame as u32)
+        let stored = self.frames[frame].concat();
+        decode(&stored, ix.count, frame as u32)
     }
 }
 
@@ -150,14 +177,18 @@ mod tests {
     #[test]
     fn blocks_of_a_frame_decode_in_order() {
         let f1: Vec<DeltaRecord> = (0..1000).map(|i| record(i / 100, i, 1 + (i % 3) as i32)).collect();
+        let mut z = BlockCompressor::new().unwrap();
         let blocks = vec![
-            vec![Block::default(), Block::compress(&f1[..300]).unwrap()],
-            vec![Block::default(), Block::compress(&f1[300..]).unwrap()],
+            vec![Block::default(), z.compress(&f1[..300]).unwrap()],
+            vec![Block::default(), z.compress(&f1[300..]).unwrap()],
         ];
-        let e = EncodedDeltas::from_blocks(2, &blocks);
+        let e = EncodedDeltas::from_blocks(2, blocks);
         assert_eq!(e.index[0].count, 0);
         assert_eq!(e.index[0].stored_length, 0);
         assert_eq!(e.index[1].count, 1000);
+        assert_eq!(e.pieces().count(), 2, "two blocks in frame 1");
+        let whole: Vec<u8> = e.pieces().collect::<Vec<_>>().concat();
+        assert_eq!(e.index[1].checksum, xxhash_rust::xxh3::xxh3_64(&whole));
         assert_eq!(e.frame(1).unwrap(), f1);
         assert!(e.frame(0).unwrap().is_empty());
         // One block per frame gives the same records.
@@ -168,7 +199,7 @@ mod tests {
     fn wrong_counts_and_damaged_frames_are_errors() {
         let f1: Vec<DeltaRecord> = (0..500).map(|i| record(0, i, 1)).collect();
         let e = EncodedDeltas::from_frames(&[Vec::new(), f1]).unwrap();
-        let stored = &e.payload[..];
+        let stored = &e.pieces().collect::<Vec<_>>().concat()[..];
         for count in [0, 499, 501, u64::MAX] {
             let err = decode(stored, count, 1).unwrap_err().to_string();
             assert!(err.contains("DELT frame 1"), "{err}");

@@ -46,12 +46,26 @@ impl<W: Write + Seek> SectionWriter<W> {
         count: u64,
         record_size: u32,
     ) -> std::io::Result<()> {
+        self.pieces(tag, comp, &[stored], length, count, record_size)
+    }
+
+    /// Stores one section whose bytes are the concatenation of `pieces`.
+    fn pieces(
+        &mut self,
+        tag: Tag,
+        comp: u32,
+        pieces: &[&[u8]],
+        length: u64,
+        count: u64,
+        record_size: u32,
+    ) -> std::io::Result<()> {
+        let stored_length: u64 = pieces.iter().map(|p| p.len() as u64).sum();
         let align =
-            if stored.len() as u64 >= layout::LARGE_SECTION { layout::PAGE_ALIGN } else { layout::SECTION_ALIGN };
+            if stored_length >= layout::LARGE_SECTION { layout::PAGE_ALIGN } else { layout::SECTION_ALIGN };
         self.pad_to(align)?;
         let mut hasher = Xxh3::new();
         // Large columns are written in chunks so the hash streams with the write.
-        for chunk in stored.chunks(1 << 20) {
+        for chunk in pieces.iter().flat_map(|p| p.chunks(1 << 20)) {
             hasher.update(chunk);
             self.out.write_all(chunk)?;
         }
@@ -59,7 +73,7 @@ impl<W: Write + Seek> SectionWriter<W> {
             tag,
             compression: comp,
             offset: self.position,
-            stored_length: stored.len() as u64,
+            stored_length,
             length,
             count,
             record_size,
@@ -67,7 +81,7 @@ impl<W: Write + Seek> SectionWriter<W> {
             checksum: hasher.digest(),
             reserved: 0,
         });
-        self.position += stored.len() as u64;
+        self.position += stored_length;
         Ok(())
     }
 
@@ -158,7 +172,9 @@ fn write_all<W: Write + Seek>(out: W, c: &ArchiveContents) -> Result<W, ArchiveE
             }
             let d = &seq.deltas;
             w.column(tag::DELTA_INDEX, &d.index)?;
-            w.raw(tag::DELTAS, compression::NONE, &d.payload, d.payload.len() as u64, d.index.len() as u64, 0)?;
+            let pieces: Vec<&[u8]> = d.pieces().collect();
+            let length = pieces.iter().map(|p| p.len() as u64).sum();
+            w.pieces(tag::DELTAS, compression::NONE, &pieces, length, d.index.len() as u64, 0)?;
         }
         Ok(())
     };

@@ -201,7 +201,7 @@ pub fn instances(scene: &Scene) -> Vec<Instance> {
 fn sequence_sections(
     scene: &Scene,
     instances: &[Instance],
-    blocks: &[Vec<crate::archive::deltas::Block>],
+    blocks: Vec<Vec<crate::archive::deltas::Block>>,
 ) -> Option<SequenceContents> {
     let anim = scene.animation?;
     if !scene.is_animated() {
@@ -508,7 +508,7 @@ fn build_impl(
             surface_names: scene.surfaces.iter().map(|s| s.name.clone()).collect(),
             material_names: scene.materials.iter().map(|m| m.name.clone()).collect(),
         },
-        sequence: sequence_sections(scene, &instances, &traced_deltas),
+        sequence: sequence_sections(scene, &instances, traced_deltas),
         reflectance: reflectance_contents,
     };
     let mut patch_identity = Vec::with_capacity(prims.len());

@@ -11,7 +11,7 @@ use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
 
-use crate::archive::deltas::Block;
+use crate::archive::deltas::{Block, BlockCompressor};
 use crate::archive::layout::DeltaRecord;
 use crate::geodesic::{DirectionSet, DirectionSetKind};
 use crate::geometry::Primitive;
@@ -257,6 +257,7 @@ struct Scratch {
     next: Vec<DeltaRecord>,
     /// Per frame, the chunk's changes relative to frame 0, in pair order.
     chunk: Vec<Vec<DeltaRecord>>,
+    compressor: Option<BlockCompressor>,
 }
 
 /// Shared, read-only state of one bundle's walk along its rays.
@@ -561,16 +562,21 @@ pub fn trace_all(
                 stats.links += st.links;
                 bundles.push(b);
             }
-            let blocks = s
-                .chunk
-                .iter_mut()
-                .map(|records| {
-                    let b = Block::compress(records);
-                    records.clear();
-                    b
-                })
-                .collect::<std::io::Result<Vec<Block>>>()
-                .map_err(|e| format!("cannot compress the per-frame link changes: {e}"))?;
+            let compress = |s: &mut Scratch| -> std::io::Result<Vec<Block>> {
+                if s.compressor.is_none() {
+                    s.compressor = Some(BlockCompressor::new()?);
+                }
+                let z = s.compressor.as_mut().expect("just made");
+                s.chunk
+                    .iter_mut()
+                    .map(|records| {
+                        let b = z.compress(records);
+                        records.clear();
+                        b
+                    })
+                    .collect()
+            };
+            let blocks = compress(s).map_err(|e| format!("cannot compress the per-frame link changes: {e}"))?;
             Ok((bundles, blocks, stats))
         })
         .collect();
