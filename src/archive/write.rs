@@ -60,8 +60,7 @@ impl<W: Write + Seek> SectionWriter<W> {
         record_size: u32,
     ) -> std::io::Result<()> {
         let stored_length: u64 = pieces.iter().map(|p| p.len() as u64).sum();
-        let align =
-            if stored_length >= layout::LARGE_SECTION { layout::PAGE_ALIGN } else { layout::SECTION_ALIGN };
+        let align = if stored_length >= layout::LARGE_SECTION { layout::PAGE_ALIGN } else { layout::SECTION_ALIGN };
         self.pad_to(align)?;
         let mut hasher = Xxh3::new();
         // Large columns are written in chunks so the hash streams with the write.

@@ -13,7 +13,7 @@ use obvhs::bvh2::Bvh2;
 use obvhs::bvh2::builder::build_bvh2;
 use obvhs::ray::{Ray, RayHit};
 
-use super::{Primitive, SurfaceHit};
+use super::{Primitive, QuadFilter, SurfaceHit};
 
 /// A hit reported by [`PrimitiveBvh`]: original primitive index and surface hit.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -29,6 +29,8 @@ pub struct PrimitiveBvh {
     bvh: Bvh2,
     /// Primitives in BVH leaf order.
     ordered: Vec<Primitive>,
+    /// Their quad filters.
+    filters: Vec<QuadFilter>,
     /// Original index of each ordered primitive.
     original: Vec<u32>,
 }
@@ -48,8 +50,9 @@ impl PrimitiveBvh {
             .collect();
         let bvh = build_bvh2(&aabbs, BvhBuildParams::medium_build(), &mut Duration::default());
         let original = bvh.primitive_indices.clone();
-        let ordered = original.iter().map(|&i| primitives[i as usize]).collect();
-        Self { bvh, ordered, original }
+        let ordered: Vec<Primitive> = original.iter().map(|&i| primitives[i as usize]).collect();
+        let filters = ordered.iter().map(QuadFilter::new).collect();
+        Self { bvh, ordered, filters, original }
     }
 
     /// Calls `out` for every intersection of the full line through `origin`
@@ -59,7 +62,7 @@ impl PrimitiveBvh {
         let ray = Ray::new(origin.into(), dir.into(), 0.0, f32::INFINITY);
         self.bvh.ray_traverse_anyhit(ray, |r, id| {
             let prim = &self.ordered[id];
-            if let Some(hit) = prim.intersect(origin, dir, r.tmin, r.tmax) {
+            if let Some(hit) = prim.intersect_filtered(&self.filters[id], origin, dir, r.tmin, r.tmax) {
                 out(PrimitiveHit { primitive: self.original[id], hit });
             }
         });
@@ -71,12 +74,14 @@ impl PrimitiveBvh {
         let ray = Ray::new(origin.into(), dir.into(), t_min, f32::INFINITY);
         let mut best: Option<PrimitiveHit> = None;
         let mut rh = RayHit::none();
-        self.bvh.ray_traverse(ray, &mut rh, |r, id| match self.ordered[id].intersect(origin, dir, r.tmin, r.tmax) {
-            Some(hit) => {
-                best = Some(PrimitiveHit { primitive: self.original[id], hit });
-                hit.t
+        self.bvh.ray_traverse(ray, &mut rh, |r, id| {
+            match self.ordered[id].intersect_filtered(&self.filters[id], origin, dir, r.tmin, r.tmax) {
+                Some(hit) => {
+                    best = Some(PrimitiveHit { primitive: self.original[id], hit });
+                    hit.t
+                }
+                None => f32::INFINITY,
             }
-            None => f32::INFINITY,
         });
         best
     }

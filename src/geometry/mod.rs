@@ -124,6 +124,43 @@ impl Primitive {
         }
     }
 
+    /// [`Primitive::intersect`] with a quad's precomputed [`QuadFilter`]
+    /// (ignored for triangles): the same hits, fewer operations per miss.
+    #[inline]
+    pub fn intersect_filtered(
+        &self,
+        filter: &QuadFilter,
+        origin: Vec3,
+        dir: Vec3,
+        t_min: f32,
+        t_max: f32,
+    ) -> Option<SurfaceHit> {
+        if self.kind == PrimitiveKind::Triangle || !filter.usable {
+            return self.intersect(origin, dir, t_min, t_max);
+        }
+        // As intersect_quad, with the plane normal precomputed.
+        let n = filter.n;
+        let denom = dir.dot(n);
+        if denom == 0.0 || !denom.is_finite() {
+            return None;
+        }
+        let t = (self.p[0] - origin).dot(n) / denom;
+        if !(t > t_min && t < t_max) {
+            return None;
+        }
+        let x = origin + t * dir;
+        // Rounding of x is at most a few ulps of the magnitudes involved;
+        // 1e-6 of them is ~16 ulps. Plus 10⁻³ of the quad's own size.
+        let slack = 1e-6 * (origin.abs().max_element() + t.abs() + filter.extent);
+        let h = x - self.p[0];
+        let (u, v) = (h.dot(filter.du), h.dot(filter.dv));
+        let (mu, mv) = (1e-3 + slack * filter.du_len, 1e-3 + slack * filter.dv_len);
+        if u < filter.lo.x - mu || u > filter.hi.x + mu || v < filter.lo.y - mv || v > filter.hi.y + mv {
+            return None;
+        }
+        quad_uv(&self.p, n, x, t)
+    }
+
     /// Intersects the full line `origin + t·dir` for `t` in `(t_min, t_max)`,
     /// from either side. Returns `None` on a miss or a ray parallel to the plane.
     #[inline]
@@ -132,6 +169,59 @@ impl Primitive {
             PrimitiveKind::Triangle => intersect_triangle(self.p[0], self.p[1], self.p[2], origin, dir, t_min, t_max),
             PrimitiveKind::Quad => intersect_quad(&self.p, self.raw_normal(), origin, dir, t_min, t_max),
         }
+    }
+}
+
+/// What a quad's hit test can compute once: its plane normal and an affine
+/// frame `(p0; p1 − p0, p3 − p0)` with the box `[lo, hi]` that holds the
+/// whole quad in that frame. A crossing point outside the box (plus a margin
+/// well above rounding) cannot be a hit, and is rejected with two dot
+/// products instead of the bilinear inversion; points inside go through the
+/// same code as [`Primitive::intersect`], so hits are bit for bit the same.
+/// (In the fan room, 3.5 quads are tested per hit found: most tests miss.)
+#[derive(Debug, Clone, Copy, Default)]
+pub struct QuadFilter {
+    /// `(p2 − p0) × (p3 − p1)`, as `raw_normal`.
+    n: Vec3,
+    /// Dual basis: `(x − p0)·du` and `(x − p0)·dv` are the affine coordinates.
+    du: Vec3,
+    dv: Vec3,
+    lo: Vec2,
+    hi: Vec2,
+    /// `|du|`, `|dv|`: affine units per metre, to scale position rounding.
+    du_len: f32,
+    dv_len: f32,
+    /// Largest coordinate magnitude of the corners.
+    extent: f32,
+    /// False when the frame is too ill-conditioned to trust: test everything.
+    usable: bool,
+}
+
+impl QuadFilter {
+    /// The filter of a quad (unusable for triangles and slivers).
+    pub fn new(prim: &Primitive) -> Self {
+        if prim.kind != PrimitiveKind::Quad {
+            return Self::default();
+        }
+        let [p0, p1, p2, p3] = prim.p;
+        let (e, f) = (p1 - p0, p3 - p0);
+        let m = e.cross(f);
+        let du = f.cross(m) / e.dot(f.cross(m));
+        let dv = m.cross(e) / f.dot(m.cross(e));
+        let c = p2 - p0;
+        let (a, b) = (c.dot(du), c.dot(dv));
+        let lo = Vec2::new(a.min(0.0), b.min(0.0));
+        let hi = Vec2::new(a.max(1.0), b.max(1.0));
+        let diameter = (p2 - p0).length().max((p3 - p1).length()).max(e.length()).max(f.length());
+        let (du_len, dv_len) = (du.length(), dv.length());
+        let extent = prim.p.iter().fold(0.0f32, |m, q| m.max(q.abs().max_element()));
+        // Aspect ratios beyond 10³ (or non-finite frames) are not filtered.
+        let usable = [du, dv].iter().all(|v| v.is_finite())
+            && lo.is_finite()
+            && hi.is_finite()
+            && du_len * diameter < 1e3
+            && dv_len * diameter < 1e3;
+        Self { n: prim.raw_normal(), du, dv, lo, hi, du_len, dv_len, extent, usable }
     }
 }
 
@@ -172,6 +262,12 @@ fn intersect_quad(p: &[Vec3; 4], n: Vec3, o: Vec3, d: Vec3, t_min: f32, t_max: f
         return None;
     }
     let x = o + t * d;
+    quad_uv(p, n, x, t)
+}
+
+/// The hit at `x` on the quad's plane, if `x` lies inside the quad.
+#[inline]
+fn quad_uv(p: &[Vec3; 4], n: Vec3, x: Vec3, t: f32) -> Option<SurfaceHit> {
     // Project onto the plane's dominant 2D axes (drop the largest normal component).
     let an = n.abs();
     let (ax, ay) = if an.x >= an.y && an.x >= an.z {
@@ -236,6 +332,48 @@ fn inverse_bilinear(x: Vec2, a: Vec2, b: Vec2, c: Vec2, d: Vec2) -> Option<Vec2>
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    proptest::proptest! {
+        /// The filter rejects only misses: filtered and unfiltered tests
+        /// agree bit for bit, for convex planar quads of any shape, size and
+        /// position, and rays that cross them anywhere (edges included).
+        #[test]
+        fn quad_filter_changes_no_hit(
+            centre in proptest::array::uniform3(-100.0f32..100.0),
+            size in 1e-3f32..5.0,
+            stretch in 0.05f32..1.0,
+            skew in -0.9f32..0.9,
+            taper in -0.4f32..0.4,
+            angle in 0.0f32..std::f32::consts::TAU,
+            tilt in 0.0f32..std::f32::consts::PI,
+            at in proptest::array::uniform2(-0.1f32..1.1),
+            dir in proptest::array::uniform3(-1.0f32..1.0),
+            back in 0.1f32..50.0,
+        ) {
+            // A trapezoid-ish convex quad in the xy plane, then rotated.
+            let corners = [
+                Vec2::new(0.0, 0.0),
+                Vec2::new(1.0, 0.0),
+                Vec2::new(1.0 + skew + taper, stretch),
+                Vec2::new(skew - taper, stretch),
+            ];
+            let rot = glam::Quat::from_rotation_z(angle) * glam::Quat::from_rotation_x(tilt);
+            let c = Vec3::from(centre);
+            let p = corners.map(|q| c + rot * (Vec3::new(q.x, q.y, 0.0) * size));
+            let prim = Primitive::quad(p);
+            let d = Vec3::from(dir);
+            proptest::prop_assume!(d.length() > 0.1 && prim.area() > 0.0);
+            let d = d.normalize();
+            // A point on or near the quad, and a ray through it from `back` away.
+            let target = prim.point(Vec2::new(at[0].clamp(0.0, 1.0), at[1].clamp(0.0, 1.0)))
+                + rot * Vec3::new(at[0] - at[0].clamp(0.0, 1.0), at[1] - at[1].clamp(0.0, 1.0), 0.0) * size;
+            let origin = target - d * back;
+            let filter = QuadFilter::new(&prim);
+            let plain = prim.intersect(origin, d, 0.0, f32::INFINITY);
+            let filtered = prim.intersect_filtered(&filter, origin, d, 0.0, f32::INFINITY);
+            proptest::prop_assert_eq!(plain, filtered);
+        }
+    }
 
     #[test]
     fn quad_inverse_bilinear_round_trips_on_a_general_quad() {
