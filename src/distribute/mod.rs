@@ -664,12 +664,28 @@ impl<'a> Distributor<'a> {
             }
             last_mixed = !warm_jump && !converged && anderson.pairs() > 0;
             let previous_residual = residual_total;
-            for p in 0..n {
-                let s = share[p];
-                let escape = 1.0 - linked[p] * s as f64;
+            // Per-patch passes run in parallel blocks; their sums are added
+            // in block order, so the result does not depend on the threads.
+            let escaped: Vec<[f64; 3]> = shoot
+                .par_chunks_mut(BLOCK)
+                .enumerate()
+                .map(|(block, out)| {
+                    let mut sum = [0.0f64; 3];
+                    for (i, sh) in out.iter_mut().enumerate() {
+                        let p = block * BLOCK + i;
+                        let s = share[p];
+                        let escape = 1.0 - linked[p] * s as f64;
+                        for c in 0..3 {
+                            sh[c] = send[p][c] * s;
+                            sum[c] += send[p][c] as f64 * escape;
+                        }
+                    }
+                    sum
+                })
+                .collect();
+            for e in &escaped {
                 for c in 0..3 {
-                    shoot[p][c] = send[p][c] * s;
-                    bal.escaped[c] += send[p][c] as f64 * escape;
+                    bal.escaped[c] += e[c];
                 }
             }
             if let Some(x) = nd {
@@ -740,19 +756,39 @@ impl<'a> Distributor<'a> {
                     }
                 }
             }
-            for p in 0..n {
+            let sums: Vec<([f64; 3], f64)> = (
+                total_direct.par_chunks_mut(BLOCK),
+                total_spread.par_chunks_mut(BLOCK),
+                residual_change.par_chunks_mut(BLOCK),
+                unshot.par_chunks_mut(BLOCK),
+            )
+                .into_par_iter()
+                .enumerate()
+                .map(|(block, (td, ts, rc, un))| {
+                    let (mut absorbed, mut residual) = ([0.0f64; 3], 0.0f64);
+                    for i in 0..td.len() {
+                        let p = block * BLOCK + i;
+                        for c in 0..3 {
+                            let direct = recv[p * nb][c];
+                            let r = direct + spread[p][c];
+                            td[i][c] += direct;
+                            ts[i][c] += spread[p][c];
+                            let reflected = r * rho[p][c];
+                            // f(x + δ) = f(x) − δ + K·δ.
+                            rc[i][c] = reflected - send[p][c];
+                            un[i][c] = un[i][c] - send[p][c] + reflected;
+                            absorbed[c] += (r - reflected) as f64;
+                            residual += un[i][c].abs() as f64;
+                        }
+                    }
+                    (absorbed, residual)
+                })
+                .collect();
+            for (a, r) in &sums {
                 for c in 0..3 {
-                    let direct = recv[p * nb][c];
-                    let r = direct + spread[p][c];
-                    total_direct[p][c] += direct;
-                    total_spread[p][c] += spread[p][c];
-                    let reflected = r * rho[p][c];
-                    // f(x + δ) = f(x) − δ + K·δ.
-                    residual_change[p][c] = reflected - send[p][c];
-                    unshot[p][c] = unshot[p][c] - send[p][c] + reflected;
-                    bal.absorbed[c] += (r - reflected) as f64;
-                    residual_total += unshot[p][c].abs() as f64;
+                    bal.absorbed[c] += a[c];
                 }
+                residual_total += r;
             }
             if !warm_jump {
                 if residual_total < previous_residual {
