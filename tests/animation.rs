@@ -238,32 +238,35 @@ fn sequence_archive_bytes_do_not_depend_on_thread_count() {
 
 #[test]
 fn version_4_sequence_archives_with_record_checksums_still_read() {
-    // See: format-spec/archive.md §5.13. Before version 5, `DIDX.checksum`
-    // covered the decompressed records; a version 5 reader must accept such
-    // files and still catch a wrong checksum in them.
+    // See: format-spec/archive.md §5.13. Before version 5, a frame was one
+    // zstd frame of plain records and `DIDX.checksum` covered the records; a
+    // version 5 reader must read such files and still catch a wrong checksum.
     use illumnet::archive::{self, Archive, tag_name};
     use xxhash_rust::xxh3::xxh3_64;
     let scene = adversarial();
     let hints = BuildHints { patch_size: Some(0.4), frequency: Some(3), ray_spacing: Some(0.08), buckets: Some(1) };
     let seq = build::build_sequence(&scene, &BuildSettings::resolve(&scene, hints), &NoProgress).unwrap();
-    let bytes = archive::write_to_vec(&seq.contents).unwrap();
     let deltas = &seq.contents.sequence.as_ref().unwrap().deltas;
+    let frames: Vec<_> = (0..deltas.index.len()).map(|f| deltas.frame(f).unwrap()).collect();
+    // The same contents with the deltas laid out as version 4 wrote them.
+    let mut old_contents = seq.contents.clone();
+    old_contents.sequence.as_mut().unwrap().deltas = archive::deltas::EncodedDeltas::version_4(&frames).unwrap();
+    let bytes = archive::write_to_vec(&old_contents).unwrap();
     let rewrite = |spoil: bool| {
         let mut b = bytes.clone();
         let arch = Archive::from_bytes(&bytes).unwrap();
         let table = arch.header().table_offset as usize;
-        let (i, e) = arch.sections().iter().enumerate().find(|(_, e)| tag_name(e.tag) == "DIDX").unwrap();
-        for f in 0..deltas.index.len() {
-            let records = deltas.frame(f).unwrap();
-            let sum = xxh3_64(bytemuck::cast_slice(&records)) ^ spoil as u64;
-            let at = e.offset as usize + 32 * f + 24;
-            b[at..at + 8].copy_from_slice(&sum.to_le_bytes());
+        if spoil {
+            // A wrong record checksum (the section checksums still agree).
+            let (i, e) = arch.sections().iter().enumerate().find(|(_, e)| tag_name(e.tag) == "DIDX").unwrap();
+            let f = frames.iter().position(|r| !r.is_empty()).unwrap();
+            b[e.offset as usize + 32 * f + 24] ^= 1;
+            let section = xxh3_64(&b[e.offset as usize..(e.offset + e.stored_length) as usize]);
+            b[table + 64 * i + 48..][..8].copy_from_slice(&section.to_le_bytes());
+            let n = arch.sections().len();
+            let table_sum = xxh3_64(&b[table..table + 64 * n]);
+            b[48..56].copy_from_slice(&table_sum.to_le_bytes());
         }
-        let section = xxh3_64(&b[e.offset as usize..(e.offset + e.stored_length) as usize]);
-        b[table + 64 * i + 48..][..8].copy_from_slice(&section.to_le_bytes());
-        let n = arch.sections().len();
-        let table_sum = xxh3_64(&b[table..table + 64 * n]);
-        b[48..56].copy_from_slice(&table_sum.to_le_bytes());
         b[8..12].copy_from_slice(&4u32.to_le_bytes()); // version_write
         b[12..16].copy_from_slice(&3u32.to_le_bytes()); // version_read
         let header_sum = xxh3_64(&b[..120]);
@@ -276,9 +279,9 @@ fn version_4_sequence_archives_with_record_checksums_still_read() {
     let changed = (0..scene.frame_count()).filter(|&f| deltas.index[f as usize].count > 0).collect::<Vec<_>>();
     assert!(!changed.is_empty());
     for &f in &changed {
-        assert_eq!(s.frame_delta(f).unwrap(), deltas.frame(f as usize).unwrap(), "frame {f}");
+        assert_eq!(s.frame_delta(f).unwrap(), frames[f as usize], "frame {f}");
     }
-    // The same file read as version 5 would check the stored bytes: wrong.
+    // A record checksum that does not match is caught.
     let spoiled = rewrite(true);
     let arch = Archive::from_bytes(&spoiled).unwrap();
     let err = arch.view().sequence.unwrap().frame_delta(changed[0]).unwrap_err().to_string();

@@ -31,6 +31,7 @@ pub struct Block {
 /// that each block keeps just its compressed bytes.
 pub struct BlockCompressor {
     zstd: zstd::bulk::Compressor<'static>,
+    columns: Vec<u8>,
     buffer: Vec<u8>,
 }
 
@@ -39,7 +40,7 @@ impl BlockCompressor {
     pub fn new() -> std::io::Result<Self> {
         let mut zstd = zstd::bulk::Compressor::new(LEVEL)?;
         zstd.include_contentsize(true)?;
-        Ok(Self { zstd, buffer: Vec::new() })
+        Ok(Self { zstd, columns: Vec::new(), buffer: Vec::new() })
     }
 
     /// Compresses `records` (sorted, as §5.13 requires of the whole frame).
@@ -47,10 +48,10 @@ impl BlockCompressor {
         if records.is_empty() {
             return Ok(Block::default());
         }
-        let raw: &[u8] = bytemuck::cast_slice(records);
+        encode_columns(records, &mut self.columns);
         self.buffer.clear();
-        self.buffer.reserve(zstd::zstd_safe::compress_bound(raw.len()));
-        self.zstd.compress_to_buffer(raw, &mut self.buffer)?;
+        self.buffer.reserve(zstd::zstd_safe::compress_bound(self.columns.len()));
+        self.zstd.compress_to_buffer(&self.columns[..], &mut self.buffer)?;
         Ok(Block { stored: self.buffer.clone(), count: records.len() as u64 })
     }
 }
@@ -103,6 +104,29 @@ impl EncodedDeltas {
         Ok(Self::from_blocks(frames.len(), vec![blocks]))
     }
 
+    /// Whole frames in the layout of files written before version 5: one
+    /// zstd frame of plain 20-byte records per frame, `DIDX.checksum` of the
+    /// records. For compatibility tests; writers produce version 5 blocks.
+    pub fn version_4(frames: &[Vec<DeltaRecord>]) -> std::io::Result<Self> {
+        let mut index = Vec::with_capacity(frames.len());
+        let mut stored = Vec::with_capacity(frames.len());
+        let mut offset = 0u64;
+        for records in frames {
+            let raw: &[u8] = bytemuck::cast_slice(records);
+            let z = if records.is_empty() { Vec::new() } else { zstd::bulk::compress(raw, LEVEL)? };
+            let checksum = xxhash_rust::xxh3::xxh3_64(raw);
+            index.push(DeltaIndexRecord {
+                offset,
+                stored_length: z.len() as u64,
+                count: records.len() as u64,
+                checksum,
+            });
+            offset += z.len() as u64;
+            stored.push(if z.is_empty() { Vec::new() } else { vec![z] });
+        }
+        Ok(Self { index, frames: stored })
+    }
+
     /// The `DELT` payload, piece by piece.
     pub fn pieces(&self) -> impl Iterator<Item = &[u8]> {
         self.frames.iter().flatten().map(|p| &p[..])
@@ -113,7 +137,7 @@ impl EncodedDeltas {
     pub fn frame(&self, frame: usize) -> Result<Vec<DeltaRecord>, ArchiveError> {
         let ix = self.index.get(frame).ok_or_else(|| ArchiveError::corrupt(format!("no delta for frame {frame}")))?;
         let stored = self.frames[frame].concat();
-        decode(&stored, ix.count, frame as u32)
+        decode(&stored, ix.count, frame as u32, true)
     }
 }
 
@@ -121,26 +145,78 @@ fn bad(frame: u32, what: String) -> ArchiveError {
     ArchiveError::corrupt(format!("DELT frame {frame}: {what}"))
 }
 
+/// Bytes per record in a block (§5.13): columns `pair`, `a`, `b`, `count`
+/// (4 bytes each) and the two buckets (1 byte each).
+pub const BLOCK_RECORD_BYTES: usize = 18;
+
+/// Writes `records` as a block's columns (§5.13): `pair` as the difference
+/// from the previous record's, `a` as the difference from the previous `a`
+/// within one pair, `b` as the difference from the previous `b` within one
+/// `(pair, a)`, else absolute; `count` and the buckets as they are. Sorted
+/// records make most differences small, which zstd stores in a few bits.
+fn encode_columns(records: &[DeltaRecord], out: &mut Vec<u8>) {
+    let n = records.len();
+    out.clear();
+    out.resize(n * BLOCK_RECORD_BYTES, 0);
+    let (pair, rest) = out.split_at_mut(4 * n);
+    let (a, rest) = rest.split_at_mut(4 * n);
+    let (b, rest) = rest.split_at_mut(4 * n);
+    let (count, rest) = rest.split_at_mut(4 * n);
+    let (bucket_a, bucket_b) = rest.split_at_mut(n);
+    let mut prev = DeltaRecord::default();
+    for (i, r) in records.iter().enumerate() {
+        let same_pair = r.pair == prev.pair;
+        let da = if same_pair { r.a.wrapping_sub(prev.a) } else { r.a };
+        let db = if same_pair && r.a == prev.a { r.b.wrapping_sub(prev.b) } else { r.b };
+        pair[4 * i..4 * i + 4].copy_from_slice(&r.pair.wrapping_sub(prev.pair).to_le_bytes());
+        a[4 * i..4 * i + 4].copy_from_slice(&da.to_le_bytes());
+        b[4 * i..4 * i + 4].copy_from_slice(&db.to_le_bytes());
+        count[4 * i..4 * i + 4].copy_from_slice(&r.count.to_le_bytes());
+        bucket_a[i] = r.bucket_a;
+        bucket_b[i] = r.bucket_b;
+        prev = *r;
+    }
+}
+
+/// The inverse of [`encode_columns`] (`bytes.len() = out.len() × 18`).
+fn decode_columns(bytes: &[u8], out: &mut [DeltaRecord]) {
+    let n = out.len();
+    let words = |col: usize| {
+        bytes[col * 4 * n..(col + 1) * 4 * n].chunks_exact(4).map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+    };
+    let (bucket_a, bucket_b) = bytes[16 * n..18 * n].split_at(n);
+    let mut prev = DeltaRecord::default();
+    let columns = words(0).zip(words(1)).zip(words(2)).zip(words(3)).zip(bucket_a.iter().zip(bucket_b));
+    for (r, ((((dp, da), db), count), (&ka, &kb))) in out.iter_mut().zip(columns) {
+        let pair = prev.pair.wrapping_add(dp);
+        let a = if dp == 0 { prev.a.wrapping_add(da) } else { da };
+        let b = if dp == 0 && a == prev.a { prev.b.wrapping_add(db) } else { db };
+        *r = DeltaRecord { pair, a, b, count: count as i32, bucket_a: ka, bucket_b: kb, reserved: 0 };
+        prev = *r;
+    }
+}
+
 /// Decompresses a frame's stored bytes, a sequence of zstd frames, into
 /// `count` records. The frames' declared content sizes are checked against
 /// `count` before anything is allocated; blocks decompress in parallel.
-pub(crate) fn decode(stored: &[u8], count: u64, frame: u32) -> Result<Vec<DeltaRecord>, ArchiveError> {
-    const SIZE: u64 = size_of::<DeltaRecord>() as u64;
+/// `columns`: blocks hold columns (version 5); before, plain 20-byte records.
+pub(crate) fn decode(stored: &[u8], count: u64, frame: u32, columns: bool) -> Result<Vec<DeltaRecord>, ArchiveError> {
+    let size = if columns { BLOCK_RECORD_BYTES } else { size_of::<DeltaRecord>() } as u64;
     // Split into zstd frames, each with its declared output range.
     let mut parts: Vec<(&[u8], usize, usize)> = Vec::new();
     let (mut rest, mut records) = (stored, 0u64);
     while !rest.is_empty() {
         let len = zstd::zstd_safe::find_frame_compressed_size(rest)
             .map_err(|_| bad(frame, "not a sequence of whole zstd frames".into()))?;
-        let size = match zstd::zstd_safe::get_frame_content_size(rest) {
-            Ok(Some(n)) if n % SIZE == 0 && n > 0 => n / SIZE,
+        let n = match zstd::zstd_safe::get_frame_content_size(rest) {
+            Ok(Some(bytes)) if bytes % size == 0 && bytes > 0 => bytes / size,
             _ => return Err(bad(frame, "a zstd frame does not declare a whole number of records".into())),
         };
         records = records
-            .checked_add(size)
+            .checked_add(n)
             .filter(|&r| r <= count)
             .ok_or_else(|| bad(frame, format!("zstd frames declare more than the {count} records DIDX states")))?;
-        parts.push((&rest[..len], (records - size) as usize, records as usize));
+        parts.push((&rest[..len], (records - n) as usize, records as usize));
         rest = &rest[len..];
     }
     if records != count {
@@ -156,12 +232,23 @@ pub(crate) fn decode(stored: &[u8], count: u64, frame: u32) -> Result<Vec<DeltaR
         tail = t;
     }
     parts.par_iter().zip(slices).try_for_each(|(&(src, _, _), dst)| {
-        let bytes: &mut [u8] = cast_slice_mut(dst);
+        let mut scratch = Vec::new();
+        let bytes: &mut [u8] = if columns {
+            scratch.resize(dst.len() * BLOCK_RECORD_BYTES, 0);
+            &mut scratch
+        } else {
+            cast_slice_mut(dst)
+        };
+        let expected = bytes.len();
         match zstd::bulk::decompress_to_buffer(src, bytes) {
-            Ok(n) if n == bytes.len() => Ok(()),
-            Ok(_) => Err(bad(frame, "a zstd frame decompresses to fewer bytes than it declares".into())),
-            Err(e) => Err(bad(frame, format!("does not decompress: {e}"))),
+            Ok(n) if n == expected => {}
+            Ok(_) => return Err(bad(frame, "a zstd frame decompresses to fewer bytes than it declares".into())),
+            Err(e) => return Err(bad(frame, format!("does not decompress: {e}"))),
         }
+        if columns {
+            decode_columns(&scratch, dst);
+        }
+        Ok(())
     })?;
     Ok(out)
 }
@@ -201,12 +288,14 @@ mod tests {
         let e = EncodedDeltas::from_frames(&[Vec::new(), f1]).unwrap();
         let stored = &e.pieces().collect::<Vec<_>>().concat()[..];
         for count in [0, 499, 501, u64::MAX] {
-            let err = decode(stored, count, 1).unwrap_err().to_string();
+            let err = decode(stored, count, 1, true).unwrap_err().to_string();
             assert!(err.contains("DELT frame 1"), "{err}");
         }
         // Truncated: not whole zstd frames.
-        assert!(decode(&stored[..stored.len() - 3], 500, 1).is_err());
+        assert!(decode(&stored[..stored.len() - 3], 500, 1, true).is_err());
         // Garbage.
-        assert!(decode(&[0x55; 64], 4, 1).is_err());
+        assert!(decode(&[0x55; 64], 4, 1, true).is_err());
+        // Columns read as version 4 records: sizes do not divide.
+        assert!(decode(stored, 500, 1, false).is_err());
     }
 }

@@ -22,9 +22,10 @@ pub const VERSION_READ_RAY_SPACE: u32 = 2;
 /// would reject the per-frame checksums of version 5 (taken over the stored
 /// bytes) and frames of several zstd frames.
 pub const VERSION_READ_SEQUENCE: u32 = 5;
-/// Files written before this version checksum each frame's decompressed
-/// delta records rather than its stored bytes (§5.13).
-pub const VERSION_STORED_DELTA_CHECKSUMS: u32 = 5;
+/// Files written before this version store each frame's delta as plain
+/// records in one zstd frame, checksummed after decompression; from it on,
+/// as blocks of columns, checksummed as stored (§5.13).
+pub const VERSION_DELTA_BLOCKS: u32 = 5;
 /// `version_read` of archives with non-diffuse materials (reflectance
 /// sections, §5.14), which older readers would render as black.
 pub const VERSION_READ_REFLECTANCE: u32 = 4;
@@ -375,17 +376,19 @@ pub struct InstanceRecord {
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Default, Pod, Zeroable)]
 pub struct DeltaIndexRecord {
-    /// Offset of the frame's zstd frame within the `DELT` payload.
+    /// Offset of the frame's blocks (zstd frames) within the `DELT` payload.
     pub offset: u64,
-    /// Its compressed length (0 when the frame has no changes).
+    /// Their stored length (0 when the frame has no changes).
     pub stored_length: u64,
-    /// Number of [`DeltaRecord`]s it decompresses to.
+    /// Number of [`DeltaRecord`]s they decode to.
     pub count: u64,
-    /// XXH3-64 of the decompressed records.
+    /// XXH3-64 of the stored bytes (before version 5: of the decoded records).
     pub checksum: u64,
 }
 
-/// One change of the active link multiset relative to frame 0 (§5.13).
+/// One change of the active link multiset relative to frame 0 (§5.13): the
+/// decoded form (version 5 stores blocks of difference-coded columns; version
+/// 4 stored these 20-byte records as they are).
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Pod, Zeroable)]
 pub struct DeltaRecord {

@@ -152,9 +152,10 @@ pub struct SequenceView<'a> {
     patch_count: u32,
     pair_count: u32,
     max_bucket: u8,
-    /// `DIDX.checksum` covers the stored bytes (version 5 and later) rather
-    /// than the decompressed records.
-    stored_checksums: bool,
+    /// Version 5 and later: `DIDX.checksum` covers the stored bytes and
+    /// blocks hold columns; before, the checksum covered the decompressed
+    /// records, stored as they are.
+    version_5: bool,
 }
 
 impl SequenceView<'_> {
@@ -178,11 +179,11 @@ impl SequenceView<'_> {
             return Ok(Vec::new());
         }
         let stored = &self.payload[ix.offset as usize..(ix.offset + ix.stored_length) as usize];
-        if self.stored_checksums && xxh3_64(stored) != ix.checksum {
+        if self.version_5 && xxh3_64(stored) != ix.checksum {
             return Err(bad(format!("DELT frame {frame}: checksum mismatch")));
         }
-        let records = super::deltas::decode(stored, ix.count, frame)?;
-        if !self.stored_checksums && xxh3_64(bytemuck::cast_slice(&records)) != ix.checksum {
+        let records = super::deltas::decode(stored, ix.count, frame, self.version_5)?;
+        if !self.version_5 && xxh3_64(bytemuck::cast_slice(&records)) != ix.checksum {
             return Err(bad(format!("DELT frame {frame}: checksum mismatch after decompression")));
         }
         let key = |d: &DeltaRecord| (d.pair, d.a, d.b, d.bucket_a, d.bucket_b);
@@ -421,7 +422,7 @@ impl Archive {
                         patch_count: b.patch_count,
                         pair_count: b.direction_count / 2,
                         max_bucket: b.max_bucket.min(255) as u8,
-                        stored_checksums: self.header.version_write >= layout::VERSION_STORED_DELTA_CHECKSUMS,
+                        version_5: self.header.version_write >= layout::VERSION_DELTA_BLOCKS,
                     })
                 }
             },
