@@ -184,12 +184,13 @@ fn ring_size(b: u32) -> f64 {
 /// does not exceed the beam's footprint on the receiving patch. A ray stands
 /// for a beam of cross-section `1/density` spreading over the direction's
 /// solid angle `Ω`, so at distance `r` it covers about `(√(1/density) + r√Ω)²`,
-/// divided by `|cos θ|` on the receiver.
-pub fn bucket(layout: &BundleLayout, distance: f32, cos_receiver: f32, area_receiver: f32, max_bucket: u32) -> u8 {
+/// divided by `|cos θ|` on the receiver; `width` is that beam width at the
+/// receiver.
+#[inline]
+fn bucket_of_beam(width: f64, cos_receiver: f32, area_receiver: f32, max_bucket: u32) -> u8 {
     if max_bucket == 0 || area_receiver <= 0.0 {
         return 0;
     }
-    let width = (1.0 / layout.density).sqrt() + distance as f64 * layout.solid_angle.sqrt();
     let footprint = width * width / (cos_receiver.abs() as f64).max(1e-3);
     let patches = footprint / area_receiver as f64;
     let mut b = 0;
@@ -260,16 +261,52 @@ struct Scratch {
     compressor: Option<BlockCompressor>,
 }
 
+/// A [`Scratch`] borrowed from a pool, returned when dropped.
+struct ScratchLease<'p> {
+    pool: &'p std::sync::Mutex<Vec<Scratch>>,
+    scratch: Option<Scratch>,
+}
+
+impl<'p> ScratchLease<'p> {
+    fn take(pool: &'p std::sync::Mutex<Vec<Scratch>>) -> Self {
+        let scratch = pool.lock().map(|mut p| p.pop()).unwrap_or_default().unwrap_or_default();
+        Self { pool, scratch: Some(scratch) }
+    }
+}
+
+impl std::ops::Deref for ScratchLease<'_> {
+    type Target = Scratch;
+    fn deref(&self) -> &Scratch {
+        self.scratch.as_ref().expect("held until dropped")
+    }
+}
+
+impl std::ops::DerefMut for ScratchLease<'_> {
+    fn deref_mut(&mut self) -> &mut Scratch {
+        self.scratch.as_mut().expect("held until dropped")
+    }
+}
+
+impl Drop for ScratchLease<'_> {
+    fn drop(&mut self) {
+        if let (Ok(mut p), Some(s)) = (self.pool.lock(), self.scratch.take()) {
+            p.push(s);
+        }
+    }
+}
+
 /// Shared, read-only state of one bundle's walk along its rays.
 struct Walk<'a> {
     input: &'a TraceInput<'a>,
     patches: &'a Patches,
     normals: &'a [Vec3],
     hit_counts: &'a [AtomicU64],
-    layout: &'a BundleLayout,
     dir: Vec3,
     eps_t: f32,
     max_bucket: u32,
+    /// `√(1/density)` and `√Ω` of the layout (see [`bucket_of_beam`]).
+    beam_width: f64,
+    sqrt_solid_angle: f64,
     /// The bundle's direction pair, and the number of pairs.
     pair: u32,
     pairs: u32,
@@ -332,8 +369,9 @@ impl Walk<'_> {
                 // Buckets: each end's footprint from its own incidence.
                 let r = h.t - pt;
                 let area = &self.patches.area;
-                let ba = bucket(self.layout, r, pcos, area[prev_patch as usize], self.max_bucket);
-                let bb = bucket(self.layout, r, cos, area[patch as usize], self.max_bucket);
+                let width = self.beam_width + r as f64 * self.sqrt_solid_angle;
+                let ba = bucket_of_beam(width, pcos, area[prev_patch as usize], self.max_bucket);
+                let bb = bucket_of_beam(width, cos, area[patch as usize], self.max_bucket);
                 links.push((((prev_patch as u64) << 32) | patch as u64, ba, bb));
             }
             prev = Some((patch, h.t, h.primitive, forward, cos));
@@ -493,10 +531,11 @@ pub fn trace_all(
             patches,
             normals: &normals,
             hit_counts: &hit_counts,
-            layout: lay,
             dir: d,
             eps_t,
             max_bucket,
+            beam_width: (1.0 / lay.density).sqrt(),
+            sqrt_solid_angle: lay.solid_angle.sqrt(),
             pair: k,
             pairs,
             nd_index,
@@ -545,12 +584,18 @@ pub fn trace_all(
         progress.advance(1);
         (bundle, stats)
     };
+    let pool = std::sync::Mutex::new(Vec::new());
     progress.start("tracing direction bundles", pairs as u64);
     // Per chunk: its bundles, its block of every frame's changes, totals.
     type Chunk = (Vec<Bundle>, Vec<Block>, BundleStats);
     let results: Vec<Result<Chunk, String>> = (0..chunks)
         .into_par_iter()
-        .map_init(Scratch::default, |s, c| {
+        .map(|c| {
+            // Scratch space comes from a pool: rayon may split the work into
+            // as many tasks as chunks, and fresh buffers per task would be
+            // grown (and their pages faulted in) again and again.
+            let mut s = ScratchLease::take(&pool);
+            let s = &mut *s;
             s.changes.resize_with(frames, Vec::new);
             s.chunk.resize_with(frames, Vec::new);
             let mut stats = BundleStats::default();
