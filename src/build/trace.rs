@@ -564,7 +564,7 @@ pub fn trace_all(
                 }
                 let key = input.sort_key;
                 s.hits.sort_unstable_by(|x, y| {
-                    x.t.total_cmp(&y.t).then(key[x.primitive as usize].cmp(&key[y.primitive as usize]))
+                    x.t.total_cmp(&y.t).then_with(|| key[x.primitive as usize].cmp(&key[y.primitive as usize]))
                 });
                 stats.hits += walk.ray(k, s);
             }
