@@ -13,6 +13,8 @@
 //! run in registers (accumulating into a bucket slot chosen per end measured
 //! 2.5× slower: a store-to-load dependency per end).
 
+use rayon::prelude::*;
+
 use super::trace::Bundle;
 
 /// The CSR link-end table.
@@ -56,22 +58,53 @@ pub fn assemble(bundles: &[Bundle], patch_count: usize, max_bucket: u32) -> Link
     let mut weight = vec![0f32; n];
     let mut direction = vec![0u32; n];
     let mut bucket = vec![0u8; n];
-    for bundle in bundles {
-        for i in 0..bundle.a.len() {
-            let w = bundle.w[i] as f32;
-            for (me, them, k, dir) in [
-                (bundle.a[i], bundle.b[i], bundle.bucket_a[i], 2 * bundle.pair),
-                (bundle.b[i], bundle.a[i], bundle.bucket_b[i], 2 * bundle.pair + 1),
-            ] {
-                let slot = &mut cursor[me as usize * nb + k as usize];
-                let e = *slot as usize;
-                other[e] = them;
-                weight[e] = w;
-                direction[e] = dir;
-                bucket[e] = k;
-                *slot += 1;
+    // Scatter in parallel over ranges of owner patches with about equal
+    // numbers of ends: each task scans every bundle and writes only its own
+    // owners' ends, so every end lands where the sequential order puts it.
+    // (One sequential scatter into 160 MB of columns ran at TLB-miss speed.)
+    let tasks = (rayon::current_num_threads() * 2).clamp(1, 16);
+    let mut cuts = vec![0usize];
+    for t in 1..tasks {
+        let target = (n as u64 * t as u64 / tasks as u64) as u64;
+        let p = offsets.partition_point(|&o| o < target).min(patch_count);
+        cuts.push(p.max(*cuts.last().expect("non-empty")));
+    }
+    cuts.push(patch_count);
+    let mut parts = Vec::with_capacity(tasks);
+    let (mut o, mut w, mut d, mut k) = (&mut other[..], &mut weight[..], &mut direction[..], &mut bucket[..]);
+    for t in 0..tasks {
+        let (lo, hi) = (cuts[t], cuts[t + 1]);
+        let len = (offsets[hi] - offsets[lo]) as usize;
+        let (o1, o2) = std::mem::take(&mut o).split_at_mut(len);
+        let (w1, w2) = std::mem::take(&mut w).split_at_mut(len);
+        let (d1, d2) = std::mem::take(&mut d).split_at_mut(len);
+        let (k1, k2) = std::mem::take(&mut k).split_at_mut(len);
+        parts.push((lo, hi, o1, w1, d1, k1));
+        (o, w, d, k) = (o2, w2, d2, k2);
+    }
+    parts.into_par_iter().for_each(|(lo, hi, other, weight, direction, bucket)| {
+        let base = offsets[lo];
+        let mut cursor: Vec<u64> = cursor[lo * nb..hi * nb].to_vec();
+        for bundle in bundles {
+            for i in 0..bundle.a.len() {
+                for (me, them, k, dir) in [
+                    (bundle.a[i], bundle.b[i], bundle.bucket_a[i], 2 * bundle.pair),
+                    (bundle.b[i], bundle.a[i], bundle.bucket_b[i], 2 * bundle.pair + 1),
+                ] {
+                    let me = me as usize;
+                    if me < lo || me >= hi {
+                        continue;
+                    }
+                    let slot = &mut cursor[(me - lo) * nb + k as usize];
+                    let e = (*slot - base) as usize;
+                    other[e] = them;
+                    weight[e] = bundle.w[i] as f32;
+                    direction[e] = dir;
+                    bucket[e] = k;
+                    *slot += 1;
+                }
             }
         }
-    }
+    });
     LinkTable { offsets, other, weight, direction, bucket }
 }
