@@ -376,6 +376,10 @@ fn glossy_movers_radiance_from_the_sequence_equals_from_scratch() {
         let sol = distribute::distribute_frame_from(&v, k, &opts, previous.as_ref(), &NoProgress).unwrap();
         assert!(sol.balance.imbalance().abs() < 1e-5, "frame {k}: {:?}", sol.balance);
         let present = v.present_primitives(k);
+        // Absent patches take no part, glossy senders notwithstanding.
+        for p in (0..v.patch_count()).filter(|&p| !present[v.patch_primitive[p] as usize]) {
+            assert_eq!(sol.received[p], [0.0; 3], "frame {k}: absent patch {p} received light");
+        }
         let still = from_scratch(&scene, &seq, &settings, k);
         let still_arch = Archive::from_bytes(&archive::write_to_vec(&still.contents).unwrap()).unwrap();
         let want = distribute::distribute(&still_arch.view(), &opts, &NoProgress);

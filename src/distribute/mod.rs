@@ -48,8 +48,8 @@ pub struct DistributeOptions {
     /// (§3.4), when the archive has buckets (default on).
     pub buckets: bool,
     /// Secant pairs kept for Anderson acceleration (`anderson.rs`; default
-    /// 5, at most [`MAX_ANDERSON_DEPTH`]); 0 iterates plainly. Archives with non-diffuse patches always
-    /// iterate plainly.
+    /// 5, at most [`MAX_ANDERSON_DEPTH`]); 0 iterates plainly. Archives
+    /// with non-diffuse patches always iterate plainly.
     pub anderson_depth: usize,
 }
 
@@ -246,6 +246,19 @@ fn gather_buckets(
             }
         }
     });
+}
+
+/// Zeroes what patches absent from the frame received: the correction list
+/// of non-diffuse senders holds frame 0's ends, which may reach them (the
+/// diffuse gathers skip absent patches already).
+fn silence_absent(present: Option<&[bool]>, buckets: usize, recv: &mut [[f32; 4]]) {
+    if let Some(present) = present {
+        for (p, r) in recv.chunks_exact_mut(buckets).enumerate() {
+            if !present[p] {
+                r.fill([0.0; 4]);
+            }
+        }
+    }
 }
 
 /// Runs the energy balance on an archive's links.
@@ -725,6 +738,7 @@ impl<'a> Distributor<'a> {
                     }
                     if let Some(x) = nd {
                         x.gather_corrections(nb, true, &phi, &mut recv);
+                        silence_absent(present_patch.as_deref(), nb, &mut recv);
                     }
                     rings.spread(&recv, nb, &mut spread);
                 }
@@ -735,6 +749,7 @@ impl<'a> Distributor<'a> {
                     }
                     if let Some(x) = nd {
                         x.gather_corrections(1, false, &phi, &mut recv);
+                        silence_absent(present_patch.as_deref(), 1, &mut recv);
                     }
                     spread.fill([0.0; 4]);
                 }
