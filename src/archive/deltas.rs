@@ -212,6 +212,12 @@ pub(crate) fn decode(stored: &[u8], count: u64, frame: u32, columns: bool) -> Re
             Ok(Some(bytes)) if bytes % size == 0 && bytes > 0 => bytes / size,
             _ => return Err(bad(frame, "a zstd frame does not declare a whole number of records".into())),
         };
+        // No zstd frame expands by more than 2¹⁵ (a 4-byte RLE block holds
+        // at most 128 KiB): a larger declared size is a forged header, and
+        // would be allocated before anything is decompressed.
+        if n.saturating_mul(size) > (len as u64).saturating_mul(1 << 16) {
+            return Err(bad(frame, "a zstd frame declares more than it could hold".into()));
+        }
         records = records
             .checked_add(n)
             .filter(|&r| r <= count)
@@ -222,7 +228,12 @@ pub(crate) fn decode(stored: &[u8], count: u64, frame: u32, columns: bool) -> Re
     if records != count {
         return Err(bad(frame, format!("zstd frames declare {records} records, DIDX states {count}")));
     }
-    let mut out = vec![DeltaRecord::default(); count as usize];
+    if !columns && parts.len() > 1 {
+        return Err(bad(frame, "a version 4 frame must be one zstd frame".into()));
+    }
+    let mut out = Vec::new();
+    out.try_reserve_exact(count as usize).map_err(|_| bad(frame, format!("{count} records do not fit in memory")))?;
+    out.resize(count as usize, DeltaRecord::default());
     // Hand each part its own slice of the output.
     let mut slices = Vec::with_capacity(parts.len());
     let mut tail = &mut out[..];
@@ -234,6 +245,9 @@ pub(crate) fn decode(stored: &[u8], count: u64, frame: u32, columns: bool) -> Re
     parts.par_iter().zip(slices).try_for_each(|(&(src, _, _), dst)| {
         let mut scratch = Vec::new();
         let bytes: &mut [u8] = if columns {
+            scratch
+                .try_reserve_exact(dst.len() * BLOCK_RECORD_BYTES)
+                .map_err(|_| bad(frame, "a block does not fit in memory".into()))?;
             scratch.resize(dst.len() * BLOCK_RECORD_BYTES, 0);
             &mut scratch
         } else {
@@ -295,6 +309,13 @@ mod tests {
         assert!(decode(&stored[..stored.len() - 3], 500, 1, true).is_err());
         // Garbage.
         assert!(decode(&[0x55; 64], 4, 1, true).is_err());
+        // A forged frame header declaring 18 GB in 17 stored bytes is an
+        // error before anything is allocated.
+        let mut forged = vec![0x28, 0xB5, 0x2F, 0xFD, 0xE0];
+        forged.extend_from_slice(&(18_000_000_000u64).to_le_bytes());
+        forged.extend_from_slice(&[0x0B, 0x00, 0x00, 0x00]); // last block, RLE, 1 byte
+        let err = decode(&forged, 1_000_000_000, 1, true).unwrap_err().to_string();
+        assert!(err.contains("more than it could hold"), "{err}");
         // Columns read as version 4 records: sizes do not divide.
         assert!(decode(stored, 500, 1, false).is_err());
     }

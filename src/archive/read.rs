@@ -783,9 +783,10 @@ fn validate_contents(v: &InetView<'_>, meta: &ArchiveMeta) -> Result<(), Archive
         for (f, ix) in s.index.iter().enumerate() {
             let end = ix.offset.checked_add(ix.stored_length);
             check(end.is_some_and(|e| e <= s.payload.len() as u64), || format!("DIDX[{f}]: outside DELT"))?;
-            check(ix.count <= u32::MAX as u64 && (f > 0 || (ix.count == 0 && ix.stored_length == 0)), || {
-                format!("DIDX[{f}]: bad count")
-            })?;
+            check(
+                ix.count <= u32::MAX as u64 && (ix.count == 0) == (ix.stored_length == 0) && (f > 0 || ix.count == 0),
+                || format!("DIDX[{f}]: bad count"),
+            )?;
         }
     }
     Ok(())

@@ -144,7 +144,8 @@ pub type LinkIdentity = (u32, (u32, u32, u32), (u32, u32, u32), u8, u8);
 impl Sequence {
     /// The multiset of links active at `frame`: frame 0's links plus the
     /// frame's changes (decoded from the archive contents), keyed by patch
-    /// identity, with ray counts. `None` when the links were not kept.
+    /// identity, with ray counts. `None` when the links were not kept or
+    /// the frame is outside the sequence.
     pub fn active_links(&self, frame: u32) -> Option<std::collections::BTreeMap<LinkIdentity, i64>> {
         let id = |p: u32| self.patch_identity[p as usize];
         let mut m = std::collections::BTreeMap::new();
@@ -152,7 +153,7 @@ impl Sequence {
             *m.entry((l.pair, id(l.a), id(l.b), l.bucket_a, l.bucket_b)).or_insert(0) += l.weight as i64;
         }
         if let Some(seq) = &self.contents.sequence {
-            let deltas = seq.deltas.frame(frame as usize).expect("deltas encoded by this build decode");
+            let deltas = seq.deltas.frame(frame as usize).ok()?;
             for d in deltas {
                 *m.entry((d.pair, id(d.a), id(d.b), d.bucket_a, d.bucket_b)).or_insert(0) += d.count as i64;
             }

@@ -242,7 +242,7 @@ pub struct TraceInput<'a> {
 /// must not depend on the number of threads.
 const CHUNKS: u32 = 64;
 
-/// Per-thread scratch space.
+/// Scratch space of one chunk of pairs (reused through a pool).
 #[derive(Default)]
 struct Scratch {
     hits: Vec<RayHitRecord>,

@@ -100,12 +100,12 @@ impl Anderson {
                         for j in i..m {
                             let dj = self.pairs[j].1[p];
                             for c in 0..4 {
-                                acc[t][c] += (di[c] * dj[c]) as f64;
+                                acc[t][c] += di[c] as f64 * dj[c] as f64;
                             }
                             t += 1;
                         }
                         for c in 0..4 {
-                            acc[t][c] += (di[c] * f[p][c]) as f64;
+                            acc[t][c] += di[c] as f64 * f[p][c] as f64;
                         }
                         t += 1;
                     }

@@ -12,6 +12,9 @@
 //! (diffuse: outgoing radiance `ρE/π`) as its new unshot power and absorbs
 //! the rest. Iterations stop when the unshot power falls below `tolerance`
 //! times the emitted power. (A Jacobi iteration of progressive radiosity.)
+//! With Anderson acceleration (`anderson.rs`) an iteration sends a mix of
+//! the unshot power and earlier steps instead; the unshot power is still
+//! tracked exactly, and still decides when to stop.
 //!
 //! Radiance for display is `L = L_e + ρ·Φ_in/(π·A_eff)` with
 //! `A_eff = A_p·H_p/E[H_p]`, the area the rays "saw".
@@ -675,6 +678,15 @@ impl<'a> Distributor<'a> {
                 _ if converged => send.copy_from_slice(&unshot),
                 _ => anderson.step(&unshot, &mut send),
             }
+            // A mixed step may hand absent patches (present in an earlier
+            // frame of the history) something to send: they send nothing.
+            if let Some(present) = &present_patch {
+                for (s, &here) in send.iter_mut().zip(present) {
+                    if !here {
+                        *s = [0.0; 4];
+                    }
+                }
+            }
             last_mixed = !warm_jump && !converged && anderson.pairs() > 0;
             let previous_residual = residual_total;
             // Per-patch passes run in parallel blocks; their sums are added
@@ -758,6 +770,15 @@ impl<'a> Distributor<'a> {
             if let Some(x) = nd {
                 let totals = x.step(v, &shoot, &phi, &overlay_ends, &mut phi_next);
                 std::mem::swap(&mut phi, &mut phi_next);
+                // Absent non-diffuse patches keep nothing to send (frame 0's
+                // ends and the overlay's cancel only up to rounding).
+                if let Some(present) = &present_patch {
+                    for (k, &q) in x.patches.iter().enumerate() {
+                        if !present[q as usize] {
+                            phi[k * x.n..(k + 1) * x.n].fill([0.0; 4]);
+                        }
+                    }
+                }
                 for (t, p) in dir_total.iter_mut().zip(&phi) {
                     for c in 0..4 {
                         t[c] += p[c];
