@@ -251,9 +251,10 @@ fn gather_buckets(
     });
 }
 
-/// Zeroes what patches absent from the frame received: the correction list
-/// of non-diffuse senders holds frame 0's ends, which may reach them (the
-/// diffuse gathers skip absent patches already).
+/// Zeroes the rows (`buckets` entries per patch) of patches absent from the
+/// frame: what they received through the correction list of non-diffuse
+/// senders, which holds frame 0's ends (the diffuse gathers skip absent
+/// patches already), and what a mixed step would have them send.
 fn silence_absent(present: Option<&[bool]>, buckets: usize, recv: &mut [[f32; 4]]) {
     if let Some(present) = present {
         for (p, r) in recv.chunks_exact_mut(buckets).enumerate() {
@@ -680,13 +681,7 @@ impl<'a> Distributor<'a> {
             }
             // A mixed step may hand absent patches (present in an earlier
             // frame of the history) something to send: they send nothing.
-            if let Some(present) = &present_patch {
-                for (s, &here) in send.iter_mut().zip(present) {
-                    if !here {
-                        *s = [0.0; 4];
-                    }
-                }
-            }
+            silence_absent(present_patch.as_deref(), 1, &mut send);
             last_mixed = !warm_jump && !converged && anderson.pairs() > 0;
             let previous_residual = residual_total;
             // Per-patch passes run in parallel blocks; their sums are added
