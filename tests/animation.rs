@@ -67,6 +67,20 @@ fn adversarial() -> Scene {
     Scene::from_toml(ADVERSARIAL, std::path::Path::new("adversarial.toml"), std::path::Path::new(".")).unwrap()
 }
 
+/// The adversarial scene with its movers glossy (one anisotropic, one with
+/// per-band Fresnel) over a still glossy panel.
+fn glossy_adversarial() -> Scene {
+    let text = ADVERSARIAL.replace(
+        "[[surface]]\nname = \"mover_a\"\nmaterial = \"grey\"",
+        "[[material]]\nname = \"gloss\"\ntype = \"broad_specular\"\nreflectance = [0.3, 0.2, 0.1]\nspecular = [0.5, 0.5, 0.5]\nalpha = 0.3\n\n[[material]]\nname = \"metal\"\ntype = \"rough_conductor\"\nspecular = [0.9, 0.9, 0.9]\nalpha_u = 0.2\nalpha_v = 0.5\nior = [1.4, 1.6, 1.8]\n\n[[surface]]\nname = \"mover_a\"\nmaterial = \"gloss\"",
+    )
+    .replace("name = \"mover_b\"\nmaterial = \"grey\"", "name = \"mover_b\"\nmaterial = \"metal\"\ngrain = [1, 0, 1]")
+    // A still glossy panel under the movers: glossy patches present in
+    // every frame with frame 0 links to instances that leave.
+    + "\n[[surface]]\nname = \"panel\"\nmaterial = \"gloss\"\nquad = [[0.1, 0.01, 0.1], [0.1, 0.01, 1.9], [1.9, 0.01, 1.9], [1.9, 0.01, 0.1]]\n";
+    Scene::from_toml(&text, std::path::Path::new("glossy.toml"), std::path::Path::new(".")).unwrap()
+}
+
 /// The sequence build of `scene` at `hints`, keeping its links, and its settings.
 fn sequence(scene: &Scene, hints: BuildHints) -> (build::Sequence, BuildSettings) {
     let settings = BuildSettings::resolve(scene, hints);
@@ -157,7 +171,7 @@ fn frame_radiance_from_the_sequence_archive_equals_from_scratch() {
     let (seq, settings) = sequence(&scene, hints);
     let bytes = archive::write_to_vec(&seq.contents).unwrap();
     let arch = Archive::from_bytes(&bytes).unwrap();
-    assert_eq!(arch.header().version_read, 5, "sequence archives need a reader of version 5");
+    assert_eq!(arch.header().version_read, 6, "sequence archives need a reader of version 6");
     let v = arch.view();
     let opts = DistributeOptions { tolerance: 1e-7, ..Default::default() };
     let mut worst = 0.0f64;
@@ -353,19 +367,14 @@ fn glossy_movers_radiance_from_the_sequence_equals_from_scratch() {
     // senders must give each frame the light of a from-scratch build.
     use illumnet::archive::{self, Archive};
     use illumnet::distribute::{self, DistributeOptions};
-    let text = ADVERSARIAL.replace(
-        "[[surface]]\nname = \"mover_a\"\nmaterial = \"grey\"",
-        "[[material]]\nname = \"gloss\"\ntype = \"broad_specular\"\nreflectance = [0.3, 0.2, 0.1]\nspecular = [0.5, 0.5, 0.5]\nalpha = 0.3\n\n[[material]]\nname = \"metal\"\ntype = \"rough_conductor\"\nspecular = [0.9, 0.9, 0.9]\nalpha_u = 0.2\nalpha_v = 0.5\nior = [1.4, 1.6, 1.8]\n\n[[surface]]\nname = \"mover_a\"\nmaterial = \"gloss\"",
-    )
-    .replace("name = \"mover_b\"\nmaterial = \"grey\"", "name = \"mover_b\"\nmaterial = \"metal\"\ngrain = [1, 0, 1]");
-    let scene = Scene::from_toml(&text, std::path::Path::new("glossy.toml"), std::path::Path::new(".")).unwrap();
+    let scene = glossy_adversarial();
     let hints = BuildHints { patch_size: Some(0.25), frequency: Some(4), ray_spacing: Some(0.04), buckets: Some(1) };
     let mut settings = BuildSettings::resolve(&scene, hints);
     settings.prototype_library = None;
     let seq = build::build_sequence_with_links(&scene, &settings, &NoProgress).unwrap();
     let arch = Archive::from_bytes(&archive::write_to_vec(&seq.contents).unwrap()).unwrap();
     let v = arch.view();
-    assert_eq!(arch.header().version_read, 5, "sequence (5) takes precedence over reflectance (4)");
+    assert_eq!(arch.header().version_read, 6, "sequence (6) takes precedence over reflectance (4)");
     let r = v.reflectance.unwrap();
     assert!(r.orientations.len() > 6, "moving glossy boxes have one orientation per face and turn");
     let opts = DistributeOptions { tolerance: 1e-7, ..Default::default() };
@@ -445,5 +454,79 @@ fn cached_visibility_renders_the_same_images_and_retraces_only_near_movers() {
         } else {
             assert!(cached.retraced < total, "frame {k}: all {total} samples retraced");
         }
+    }
+}
+
+#[test]
+fn explicit_removals_of_links_to_absent_patches_give_the_same_light() {
+    // See: format-spec/archive.md §5.13, step 2. Version 6 writers omit the
+    // records that remove frame 0's links to patches absent from a frame;
+    // files before version 6 list them. Both must give the same links, so
+    // the same light, diffuse and glossy (whose escaped power is counted
+    // per direction).
+    use illumnet::archive::layout::DeltaRecord;
+    use illumnet::archive::{self, Archive};
+    use illumnet::distribute::{self, DistributeOptions};
+    for scene in [adversarial(), glossy_adversarial()] {
+        let hints = BuildHints { patch_size: Some(0.3), frequency: Some(4), ray_spacing: Some(0.05), buckets: Some(1) };
+        let mut settings = BuildSettings::resolve(&scene, hints);
+        settings.prototype_library = None;
+        let seq = build::build_sequence_with_links(&scene, &settings, &NoProgress).unwrap();
+        let deltas = &seq.contents.sequence.as_ref().unwrap().deltas;
+        let present_at = |k: u32| {
+            let mut present = Vec::new();
+            for i in &seq.instances {
+                present.extend(std::iter::repeat_n(i.frames.0 <= k && k <= i.frames.1, i.primitives.len()));
+            }
+            seq.contents.patch_primitive.iter().map(|&p| present[p as usize]).collect::<Vec<bool>>()
+        };
+        let (mut omitted, mut listed) = (0, 0);
+        let explicit: Vec<Vec<DeltaRecord>> = (0..scene.frame_count())
+            .map(|k| {
+                let present = present_at(k);
+                let mut records = deltas.frame(k as usize).unwrap();
+                assert!(records.iter().all(|d| present[d.a as usize] && present[d.b as usize]), "frame {k}");
+                listed += records.len();
+                for l in seq.base.as_ref().unwrap() {
+                    if !(present[l.a as usize] && present[l.b as usize]) {
+                        records.push(DeltaRecord {
+                            pair: l.pair,
+                            a: l.a,
+                            b: l.b,
+                            count: -(l.weight as i32),
+                            bucket_a: l.bucket_a,
+                            bucket_b: l.bucket_b,
+                            reserved: 0,
+                        });
+                        omitted += 1;
+                    }
+                }
+                records.sort_by_key(|d| (d.pair, d.a, d.b, d.bucket_a, d.bucket_b));
+                records
+            })
+            .collect();
+        assert!(omitted > listed / 10, "the movers' frame 0 links must matter: {omitted} omitted, {listed} listed");
+        let mut with_removals = seq.contents.clone();
+        with_removals.sequence.as_mut().unwrap().deltas =
+            archive::deltas::EncodedDeltas::from_frames(&explicit).unwrap();
+        let (a, b) = (archive::write_to_vec(&seq.contents).unwrap(), archive::write_to_vec(&with_removals).unwrap());
+        let (a, b) = (Archive::from_bytes(&a).unwrap(), Archive::from_bytes(&b).unwrap());
+        let opts = DistributeOptions { tolerance: 1e-7, ..Default::default() };
+        let mut worst = 0.0f64;
+        for k in 0..scene.frame_count() {
+            let x = distribute::distribute_frame(&a.view(), k, &opts, &NoProgress).unwrap();
+            let y = distribute::distribute_frame(&b.view(), k, &opts, &NoProgress).unwrap();
+            assert!(x.balance.imbalance().abs() < 1e-5 && y.balance.imbalance().abs() < 1e-5, "frame {k}");
+            for c in 0..3 {
+                let (ex, ey) = (x.balance.escaped[c], y.balance.escaped[c]);
+                assert!((ex - ey).abs() <= 1e-6 * x.balance.emitted[c], "frame {k}: escaped {ex} vs {ey}");
+            }
+            for (p, q) in x.radiance.iter().zip(&y.radiance) {
+                for c in 0..3 {
+                    worst = worst.max((p[c] - q[c]).abs() as f64 / (p[c].abs() as f64).max(1e-3));
+                }
+            }
+        }
+        assert!(worst < 1e-5, "radiance with and without explicit removals differs by {worst}");
     }
 }

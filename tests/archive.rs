@@ -85,11 +85,11 @@ fn truncated_and_garbage_files_are_errors() {
 #[test]
 fn newer_reader_version_is_refused_with_a_clear_message() {
     let mut bytes = archive::write_to_vec(&small_contents()).unwrap();
-    bytes[12..16].copy_from_slice(&6u32.to_le_bytes()); // version_read
+    bytes[12..16].copy_from_slice(&7u32.to_le_bytes()); // version_read
     let sum = xxhash_rust::xxh3::xxh3_64(&bytes[..120]);
     bytes[120..128].copy_from_slice(&sum.to_le_bytes());
     let err = Archive::from_bytes(&bytes).err().unwrap();
-    assert!(matches!(err, ArchiveError::UnsupportedVersion { needs: 6, supports: 5 }), "{err}");
+    assert!(matches!(err, ArchiveError::UnsupportedVersion { needs: 7, supports: 6 }), "{err}");
 }
 
 #[test]
@@ -109,7 +109,7 @@ fn versions_follow_the_compatibility_rule() {
     // Geodesic archives only add optional sections over version 1: readable by 1.
     let bytes = archive::write_to_vec(&small_contents()).unwrap();
     let a = Archive::from_bytes(&bytes).unwrap();
-    assert_eq!((a.header().version_write, a.header().version_read), (5, 1));
+    assert_eq!((a.header().version_write, a.header().version_read), (6, 1));
     assert!(a.view().link_bucket.is_some());
     // Ray-space baseline archives would be misread by version 1 readers.
     let scene = Scene::cornell_box();
@@ -118,7 +118,7 @@ fn versions_follow_the_compatibility_rule() {
     settings.direction_set = illumnet::geodesic::DirectionSetKind::RaySpace;
     let contents = build::build(&scene, &settings, &NoProgress).unwrap().0;
     let a = Archive::from_bytes(&archive::write_to_vec(&contents).unwrap()).unwrap();
-    assert_eq!((a.header().version_write, a.header().version_read), (5, 2));
+    assert_eq!((a.header().version_write, a.header().version_read), (6, 2));
     // f = 4 gives 162 geodesic directions; m = round(√(162/6)) = 5 gives 150.
     assert_eq!(a.view().directions.len(), 6 * 5 * 5);
 }

@@ -1,4 +1,4 @@
-//! On-disk records of the archive format (version 4).
+//! On-disk records of the archive format (version 6).
 //!
 //! Every type here is `#[repr(C)]`, made of little-endian `u32`/`u64`/`f32`
 //! fields with no implicit padding, and is read zero-copy with `bytemuck`
@@ -10,7 +10,7 @@ use bytemuck::{Pod, Zeroable};
 /// File magic, bytes 0..8 (§3).
 pub const MAGIC: [u8; 8] = *b"ILLUMNET";
 /// The format version this code writes (§3, `version_write`).
-pub const VERSION_WRITE: u32 = 5;
+pub const VERSION_WRITE: u32 = 6;
 /// The oldest reader version able to read a geodesic archive this code
 /// writes (§3, `version_read`): version 2 only added optional content.
 pub const VERSION_READ: u32 = 1;
@@ -20,8 +20,10 @@ pub const VERSION_READ_RAY_SPACE: u32 = 2;
 /// `version_read` of sequence archives (animation sections, §5.13): version
 /// 3 readers would render every temporal instance at once, version 4 readers
 /// would reject the per-frame checksums of version 5 (taken over the stored
-/// bytes) and frames of several zstd frames.
-pub const VERSION_READ_SEQUENCE: u32 = 5;
+/// bytes) and frames of several zstd frames, and version 5 readers would keep
+/// frame 0's links to instances that have left (version 6 writers omit
+/// their removal).
+pub const VERSION_READ_SEQUENCE: u32 = 6;
 /// Files written before this version store each frame's delta as plain
 /// records in one zstd frame, checksummed after decompression; from it on,
 /// as blocks of columns, checksummed as stored (§5.13).
@@ -30,7 +32,7 @@ pub const VERSION_DELTA_BLOCKS: u32 = 5;
 /// sections, §5.14), which older readers would render as black.
 pub const VERSION_READ_REFLECTANCE: u32 = 4;
 /// The highest `version_read` this code can read (§6).
-pub const READER_VERSION: u32 = 5;
+pub const READER_VERSION: u32 = 6;
 /// Header size in bytes (§3).
 pub const HEADER_SIZE: usize = 128;
 /// Section table entry size in bytes (§4).

@@ -143,23 +143,43 @@ pub type LinkIdentity = (u32, (u32, u32, u32), (u32, u32, u32), u8, u8);
 
 impl Sequence {
     /// The multiset of links active at `frame`: frame 0's links plus the
-    /// frame's changes (decoded from the archive contents), keyed by patch
+    /// frame's changes (decoded from the archive contents), less the links
+    /// with an end at a patch absent from the frame (§5.13), keyed by patch
     /// identity, with ray counts. `None` when the links were not kept or
     /// the frame is outside the sequence.
     pub fn active_links(&self, frame: u32) -> Option<std::collections::BTreeMap<LinkIdentity, i64>> {
-        let id = |p: u32| self.patch_identity[p as usize];
-        let mut m = std::collections::BTreeMap::new();
+        if frame >= self.frames {
+            return None;
+        }
+        let present = self.present_patches(frame);
+        let mut by_patch = std::collections::BTreeMap::new();
         for l in self.base.as_ref()? {
-            *m.entry((l.pair, id(l.a), id(l.b), l.bucket_a, l.bucket_b)).or_insert(0) += l.weight as i64;
+            *by_patch.entry((l.pair, l.a, l.b, l.bucket_a, l.bucket_b)).or_insert(0i64) += l.weight as i64;
         }
         if let Some(seq) = &self.contents.sequence {
             let deltas = seq.deltas.frame(frame as usize).ok()?;
             for d in deltas {
-                *m.entry((d.pair, id(d.a), id(d.b), d.bucket_a, d.bucket_b)).or_insert(0) += d.count as i64;
+                *by_patch.entry((d.pair, d.a, d.b, d.bucket_a, d.bucket_b)).or_insert(0) += d.count as i64;
             }
         }
-        m.retain(|_, n| *n != 0);
+        let id = |p: u32| self.patch_identity[p as usize];
+        let mut m = std::collections::BTreeMap::new();
+        for ((pair, a, b, ba, bb), n) in by_patch {
+            if n != 0 && present[a as usize] && present[b as usize] {
+                *m.entry((pair, id(a), id(b), ba, bb)).or_insert(0) += n;
+            }
+        }
         Some(m)
+    }
+
+    /// Per patch, whether it is present at `frame`.
+    fn present_patches(&self, frame: u32) -> Vec<bool> {
+        let mut primitive_present = Vec::new();
+        for i in &self.instances {
+            let here = i.frames.0 <= frame && frame <= i.frames.1;
+            primitive_present.extend(std::iter::repeat_n(here, i.primitives.len()));
+        }
+        self.contents.patch_primitive.iter().map(|&prim| primitive_present[prim as usize]).collect()
     }
 }
 

@@ -520,6 +520,9 @@ pub fn trace_all(
     let nd_hits: Vec<AtomicU32> = (0..nd_count * pairs as usize).map(|_| AtomicU32::new(0)).collect();
     let eps_t = (hi - lo).length() * 1e-6;
     let frames = input.frames as usize;
+    // Frames each patch is present in: links touching a patch absent from a
+    // frame are left out of its changes (the format removes them anyway).
+    let patch_active: Vec<(u32, u32)> = patches.primitive.iter().map(|&p| input.active[p as usize]).collect();
     let per_chunk = pairs.div_ceil(CHUNKS).max(1);
     let chunks = pairs.div_ceil(per_chunk);
     let trace_pair = |s: &mut Scratch, k: u32| -> (Bundle, BundleStats) {
@@ -580,7 +583,7 @@ pub fn trace_all(
             bundle.bucket_a.push(ba);
             bundle.bucket_b.push(bb);
         }
-        accumulate_changes(s);
+        accumulate_changes(s, &patch_active);
         progress.advance(1);
         (bundle, stats)
     };
@@ -648,8 +651,11 @@ pub fn trace_all(
 /// Turns the current pair's per-ray changes (`s.changes`, per frame) into
 /// its changes relative to frame 0 at every frame, appended to `s.chunk`:
 /// frame `f`'s list is frame `f − 1`'s merged with the changes at `f`.
-/// Pairs whose links never change append nothing.
-fn accumulate_changes(s: &mut Scratch) {
+/// Records of links with an end at a patch absent from frame `f` are not
+/// appended: the format removes such links from every frame (§5.13), so
+/// frame 0's links of instances that have left need no records (they were
+/// 35–40% of the fan room's). Pairs whose links never change append nothing.
+fn accumulate_changes(s: &mut Scratch, patch_active: &[(u32, u32)]) {
     s.cumulative.clear();
     for f in 1..s.changes.len() {
         let changes = &mut s.changes[f];
@@ -704,7 +710,12 @@ fn accumulate_changes(s: &mut Scratch) {
         }
         changes.clear();
         std::mem::swap(&mut s.cumulative, &mut s.next);
-        s.chunk[f].extend_from_slice(&s.cumulative);
+        let frame = f as u32;
+        let present = |p: u32| {
+            let (lo, hi) = patch_active[p as usize];
+            lo <= frame && frame <= hi
+        };
+        s.chunk[f].extend(s.cumulative.iter().filter(|d| present(d.a) && present(d.b)));
     }
 }
 

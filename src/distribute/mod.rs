@@ -351,13 +351,19 @@ impl Overlay {
         present: &[bool],
         nondiffuse: bool,
     ) -> Self {
+        // Links with an end at an absent patch are not links of the frame
+        // (§5.13): files before version 6 list frame 0's such links as
+        // removals, later files leave them out; both are skipped here, and
+        // frame 0's links to patches absent from the frame are taken off
+        // the linked weights by `Distributor::absent_ends`.
+        let both = |me: u32, them: u32| present[me as usize] && present[them as usize];
         let mut linked = vec![0.0f64; n];
-        for d in records {
+        for d in records.iter().filter(|d| both(d.a, d.b)) {
             linked[d.a as usize] += d.count as f64;
             linked[d.b as usize] += d.count as f64;
         }
-        let gather = Ends::new(n, buckets, records, |me, them| present[me as usize] && present[them as usize]);
-        let all = nondiffuse.then(|| Ends::new(n, 1, records, |_, _| true));
+        let gather = Ends::new(n, buckets, records, both);
+        let all = nondiffuse.then(|| Ends::new(n, 1, records, both));
         Self { all, gather, linked }
     }
 
@@ -461,6 +467,10 @@ pub struct Distributor<'a> {
     patch_surface: Vec<u32>,
     emission_fixed: Vec<bool>,
     nd: Option<nondiffuse::NonDiffuse<'a>>,
+    /// Patches of instances present at frame 0 but not in every frame,
+    /// with the last frame they are present in: their frame 0 link ends
+    /// are not links of the later frames.
+    leaving: Vec<(u32, u32)>,
 }
 
 impl<'a> Distributor<'a> {
@@ -516,6 +526,22 @@ impl<'a> Distributor<'a> {
             )));
         }
         let nd = nondiffuse::NonDiffuse::new(v, &lighting.specular);
+        let leaving = match &v.sequence {
+            Some(s) => {
+                let mut last = vec![u32::MAX; v.primitives.len()];
+                for i in s.instances.iter().filter(|i| i.frame_first == 0 && i.frame_last + 1 < s.frames()) {
+                    let first = i.first_primitive as usize;
+                    last[first..first + i.primitive_count as usize].fill(i.frame_last);
+                }
+                (0..n as u32)
+                    .filter_map(|p| {
+                        let l = last[v.patch_primitive[p as usize] as usize];
+                        (l != u32::MAX && !v.link_ends(p as usize).0.is_empty()).then_some((p, l))
+                    })
+                    .collect()
+            }
+            None => Vec::new(),
+        };
         Ok(Self {
             v: *v,
             opts: *opts,
@@ -530,7 +556,23 @@ impl<'a> Distributor<'a> {
             patch_surface,
             emission_fixed,
             nd,
+            leaving,
         })
+    }
+
+    /// Calls `out(q, w, d)` for every frame 0 link end of a patch `q` whose
+    /// other patch is absent from `frame`: `w` rays leaving `q` along
+    /// direction `d` that no longer link (§5.13: a link with an end at an
+    /// absent patch is not a link of the frame).
+    fn absent_ends(&self, frame: u32, mut out: impl FnMut(usize, f32, u32)) {
+        for &(t, last) in &self.leaving {
+            if frame > last {
+                let (other, weight, direction) = self.v.link_ends(t as usize);
+                for ((&q, &w), &d) in other.iter().zip(weight).zip(direction) {
+                    out(q as usize, w, d ^ 1);
+                }
+            }
+        }
     }
 
     /// Distributes light for `frame` (0 for a still), warm-started from
@@ -584,6 +626,7 @@ impl<'a> Distributor<'a> {
             for (l, d) in linked.iter_mut().zip(&o.linked) {
                 *l += d;
             }
+            self.absent_ends(frame, |q, w, _| linked[q] -= w as f64);
         }
         let delta_s = if overlay.is_some() { t_delta.elapsed().as_secs_f64() } else { 0.0 };
         let mut unshot: Vec<[f32; 4]> = (0..n)
@@ -652,6 +695,12 @@ impl<'a> Distributor<'a> {
                         l[k * x.n + o.direction[e] as usize] += o.weight[e];
                     }
                 }
+                self.absent_ends(frame, |q, w, d| {
+                    let k = x.nd_of[q];
+                    if k != u32::MAX {
+                        l[x.slot(k, d)] -= w;
+                    }
+                });
                 std::borrow::Cow::Owned(l)
             }
             (Some(x), None) => std::borrow::Cow::Borrowed(&x.linked[..]),
