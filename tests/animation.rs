@@ -530,3 +530,42 @@ fn explicit_removals_of_links_to_absent_patches_give_the_same_light() {
         assert!(worst < 1e-5, "radiance with and without explicit removals differs by {worst}");
     }
 }
+
+#[test]
+fn warm_frames_of_one_distributor_start_with_a_sparse_gather_and_reach_the_cold_light() {
+    // See: distribute::Distributor::frame. Frames warm-started from the
+    // same distributor's previous frame gather only the two frames' overlay
+    // ends in their first step (G_f(X) = G_e(S) + overlay_f(X) −
+    // overlay_e(S)); frames where a patch with frame 0 links leaves (1 and
+    // 3 here) take the full gather. Either way the light must be the cold
+    // start's.
+    use illumnet::archive::{self, Archive};
+    use illumnet::distribute::{DistributeOptions, Distributor, Lighting};
+    let scene = adversarial();
+    let hints = BuildHints { patch_size: Some(0.25), frequency: Some(4), ray_spacing: Some(0.04), buckets: Some(1) };
+    let seq = build::build_sequence(&scene, &BuildSettings::resolve(&scene, hints), &NoProgress).unwrap();
+    let arch = Archive::from_bytes(&archive::write_to_vec(&seq.contents).unwrap()).unwrap();
+    let v = arch.view();
+    let opts = DistributeOptions { tolerance: 1e-5, ..Default::default() };
+    let d = Distributor::new(&v, &opts, &Lighting::from_view(&v)).unwrap();
+    let mut previous = d.frame(0, None, &NoProgress).unwrap();
+    let (mut sparse, mut worst) = (Vec::new(), 0.0f64);
+    for k in 1..scene.frame_count() {
+        let warm = d.frame(k, Some(&previous), &NoProgress).unwrap();
+        let cold = d.frame(k, None, &NoProgress).unwrap();
+        assert!(warm.balance.imbalance().abs() < 1e-5, "frame {k}: {:?}", warm.balance);
+        let full = cold.balance.ends_gathered / cold.balance.iterations as u64;
+        if warm.balance.ends_gathered < warm.balance.iterations as u64 * full {
+            sparse.push(k);
+        }
+        for (a, b) in cold.radiance.iter().zip(&warm.radiance) {
+            for c in 0..3 {
+                worst = worst.max((a[c] - b[c]).abs() as f64 / (a[c].abs() as f64).max(1e-2));
+            }
+        }
+        previous = warm;
+    }
+    eprintln!("sparse first steps at frames {sparse:?}; worst warm/cold difference {worst:.1e}");
+    assert_eq!(sparse, vec![2, 4, 5, 6], "frames 1 and 3 lose frame 0 instances, the others need no full gather");
+    assert!(worst < 1e-3, "warm and cold solutions differ by {worst}");
+}

@@ -75,6 +75,9 @@ pub struct EnergyBalance {
     pub residual: [f64; 3],
     /// Iterations run.
     pub iterations: u32,
+    /// Link ends gathered over the iterations (a warm start's first step
+    /// may gather only the ends two frames' overlays hold).
+    pub ends_gathered: u64,
     /// Whether the tolerance was reached.
     pub converged: bool,
 }
@@ -106,6 +109,33 @@ pub struct Solution {
     /// The acceleration's secant history, which the next frame of a
     /// sequence starts from when warm-started from this solution.
     history: anderson::Anderson,
+    /// What a frame warm-started from this solution reuses to find the
+    /// light its first step delivers without a full gather.
+    carry: Option<std::sync::Arc<Carry>>,
+}
+
+/// A frame's totals kept for the next frame's warm start (diffuse archives):
+/// everything sent and received over its iterations, its overlay and
+/// emission. Because the balance is linear, `received = G(sent)` for the
+/// frame's link operator G, so the next frame's operator applied to (nearly)
+/// the same power differs from `received` only through the two frames'
+/// overlays (see [`Distributor::frame`]).
+#[derive(Debug, PartialEq)]
+struct Carry {
+    /// The [`Distributor`] that made it (sums from another archive, options
+    /// or link set are not reused).
+    distributor: u64,
+    /// Frame.
+    frame: u32,
+    /// Σ power sent over the iterations, per patch.
+    sent: Vec<[f32; 4]>,
+    /// Σ power received over the iterations, per patch and bucket (before
+    /// spreading).
+    received: Vec<[f32; 4]>,
+    /// Power emitted per patch (the frame's emission).
+    emitted: Vec<[f32; 4]>,
+    /// The frame's overlay of present ends (None for frame 0 of a still).
+    overlay: Option<std::sync::Arc<Ends>>,
 }
 
 /// Radiance leaving non-diffuse patches along each direction of the set,
@@ -293,6 +323,27 @@ fn gather_buckets(
     });
 }
 
+/// Adds `sign · Σ w·shoot[other]` over the ends of `ends` to each owner's
+/// bucket slot of `recv` (a sparse gather: owners without ends cost one
+/// offset comparison per bucket).
+fn add_ends(ends: &Ends, buckets: usize, shoot: &[[f32; 4]], sign: f32, recv: &mut [[f32; 4]]) {
+    recv.par_chunks_mut(BLOCK * buckets).enumerate().for_each(|(block, out)| {
+        let first = block * BLOCK;
+        for (i, r) in out.chunks_exact_mut(buckets).enumerate() {
+            let q = first + i;
+            for (k, slot) in r.iter_mut().enumerate() {
+                let run = ends.run(q, buckets, k);
+                if !run.is_empty() {
+                    let acc = weighted_sum(&ends.other[run.clone()], &ends.weight[run], shoot);
+                    for c in 0..4 {
+                        slot[c] += sign * acc[c];
+                    }
+                }
+            }
+        }
+    });
+}
+
 /// Zeroes the rows (`buckets` entries per patch) of patches absent from the
 /// frame: what they received through the correction list of non-diffuse
 /// senders, which holds frame 0's ends (the diffuse gathers skip absent
@@ -314,7 +365,7 @@ pub fn distribute(v: &InetView<'_>, opts: &DistributeOptions, progress: &dyn Pro
 
 /// Link ends as CSR by owner patch, each owner's ends split into one run
 /// per bucket (`offsets[q·B + k]..offsets[q·B + k + 1]`, B buckets).
-#[derive(Default)]
+#[derive(Debug, Default, PartialEq)]
 struct Ends {
     offsets: Vec<u32>,
     other: Vec<u32>,
@@ -380,7 +431,7 @@ struct Overlay {
     /// left out: absent patches receive nothing and so send nothing,
     /// where adding frame 0's ends and subtracting them again would leave
     /// rounding residue.
-    gather: Ends,
+    gather: std::sync::Arc<Ends>,
     /// Per patch, the change of its summed link weight.
     linked: Vec<f64>,
 }
@@ -404,7 +455,7 @@ impl Overlay {
             linked[d.a as usize] += d.count as f64;
             linked[d.b as usize] += d.count as f64;
         }
-        let gather = Ends::new(n, buckets, records, both);
+        let gather = std::sync::Arc::new(Ends::new(n, buckets, records, both));
         let all = nondiffuse.then(|| Ends::new(n, 1, records, both));
         Self { all, gather, linked }
     }
@@ -496,6 +547,8 @@ pub fn distribute_lit(
 /// per-patch reflectance, emission and link shares, and the bucket rings,
 /// computed once and reused for every frame of a sequence.
 pub struct Distributor<'a> {
+    /// Distinct for every distributor made in the process (see [`Carry`]).
+    id: u64,
     v: InetView<'a>,
     opts: DistributeOptions,
     rho: Vec<[f32; 3]>,
@@ -585,7 +638,9 @@ impl<'a> Distributor<'a> {
             }
             None => Vec::new(),
         };
+        static NEXT_ID: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
         Ok(Self {
+            id: NEXT_ID.fetch_add(1, std::sync::atomic::Ordering::Relaxed),
             v: *v,
             opts: *opts,
             rho,
@@ -601,6 +656,42 @@ impl<'a> Distributor<'a> {
             nd,
             leaving,
         })
+    }
+
+    /// The first send `X` of a sparse warm jump from `c` (an earlier
+    /// frame e of this distributor) to the frame f whose patches are
+    /// `present` and emit `emitted`, or `None` when the jump
+    /// needs a full gather. `X` is what e sent in all, `S`, plus the change
+    /// in emitted power, on the patches present in f. By linearity
+    /// `c.received = G_e(S)`, and for a patch q present in f,
+    /// `G_f(X)[q] = base(q)·X + overlay_f(q)·X` while
+    /// `G_e(S)[q] = base(q)·S + overlay_e(q)·S`; so
+    /// `G_f(X) = G_e(S) + overlay_f(X) − overlay_e(S)` exactly when
+    /// `base(q)·(X − S) = 0`, that is when no patch with frame 0 links
+    /// changes presence or emission between e and f. (Patches present in
+    /// f but not in e have no frame 0 links, and receive nothing in e.)
+    fn sparse_jump(&self, c: &Carry, emitted: &[[f32; 4]], present: Option<&[bool]>) -> Option<Vec<[f32; 4]>> {
+        let n = self.v.patch_count();
+        if c.sent.len() != n || c.emitted.len() != n || c.received.len() != n * self.nb {
+            return None;
+        }
+        let present_e: Option<Vec<bool>> = self.v.sequence.map(|_| {
+            let prims = self.v.present_primitives(c.frame);
+            self.v.patch_primitive.iter().map(|&p| prims[p as usize]).collect()
+        });
+        let here = |set: &Option<&[bool]>, p: usize| set.is_none_or(|s| s[p]);
+        let (present_e, present_f) = (present_e.as_deref(), present);
+        let mut x = vec![[0.0f32; 4]; n];
+        for p in 0..n {
+            let (in_e, in_f) = (here(&present_e, p), here(&present_f, p));
+            if self.linked[p] > 0.0 && (in_e != in_f || (in_f && emitted[p] != c.emitted[p])) {
+                return None;
+            }
+            if in_f {
+                x[p] = [0, 1, 2, 3].map(|k| c.sent[p][k] + (emitted[p][k] - c.emitted[p][k]));
+            }
+        }
+        Some(x)
     }
 
     /// Calls `out(q, w, d)` for every frame 0 link end of a patch `q` whose
@@ -692,21 +783,39 @@ impl<'a> Distributor<'a> {
         let mut shoot = vec![[0.0f32; 4]; n];
         let mut recv = vec![[0.0f32; 4]; n * nb];
         let mut spread = vec![[0.0f32; 4]; n];
+        let emitted_power = unshot.clone();
+        // A warm start from this distributor's solution of an earlier frame
+        // (diffuse archives) first sends what that frame sent in all, plus
+        // the change in emission: the light that delivers is that frame's
+        // total received light, plus this frame's overlay ends applied to
+        // it, minus that frame's overlay ends applied to that frame's
+        // light; two sparse gathers instead of a full one (§ `sparse_jump`).
+        let sparse = start
+            .and_then(|s| s.carry.as_deref())
+            .filter(|c| self.nd.is_none() && emitted_total > 0.0 && c.distributor == self.id)
+            .and_then(|c| self.sparse_jump(c, &emitted_power, present_patch.as_deref()).map(|x| (c, x)));
         // Warm start: send O₀ first (the residual then carries E − O₀).
-        let guess: Option<Vec<[f32; 4]>> = start.filter(|s| s.received.len() == n && emitted_total > 0.0).map(|s| {
-            (0..n)
-                .map(|p| {
-                    let e = unshot[p];
-                    let r = s.received[p];
-                    let on = e[0] + e[1] + e[2] > 0.0 || linked[p] > 0.0;
-                    if on {
-                        [e[0] + rho[p][0] * r[0], e[1] + rho[p][1] * r[1], e[2] + rho[p][2] * r[2], 0.0]
-                    } else {
-                        [0.0; 4]
-                    }
-                })
-                .collect()
-        });
+        let guess: Option<Vec<[f32; 4]>> = match &sparse {
+            Some((_, x)) => Some(x.clone()),
+            None => start.filter(|s| s.received.len() == n && emitted_total > 0.0).map(|s| {
+                (0..n)
+                    .map(|p| {
+                        let e = unshot[p];
+                        let r = s.received[p];
+                        let on = e[0] + e[1] + e[2] > 0.0 || linked[p] > 0.0;
+                        if on {
+                            [e[0] + rho[p][0] * r[0], e[1] + rho[p][1] * r[1], e[2] + rho[p][2] * r[2], 0.0]
+                        } else {
+                            [0.0; 4]
+                        }
+                    })
+                    .collect()
+            }),
+        };
+        // Totals over the iterations, for the next frame's sparse jump.
+        let carrying = self.nd.is_none();
+        let mut sent_total = vec![[0.0f32; 4]; if carrying { n } else { 0 }];
+        let mut received_total = vec![[0.0f32; 4]; if carrying { n * nb } else { 0 }];
         // `unshot` is the residual: the power still to send. What an
         // iteration sends is `send`: the residual itself, the warm guess
         // first, or Anderson's mixed step.
@@ -820,8 +929,27 @@ impl<'a> Distributor<'a> {
                 }
             }
             let nd_phi = nd.map(|x| (x, &phi[..]));
-            match (bucket_runs, &rings) {
-                (Some(runs), Some(rings)) => {
+            match (&sparse, bucket_runs) {
+                (Some((c, _)), _) if warm_jump => {
+                    // G_f(X) = G_e(S) + overlay_f(X) − overlay_e(S) for the
+                    // earlier frame e (see `sparse_jump`).
+                    recv.copy_from_slice(&c.received);
+                    if let Some(o) = &overlay {
+                        add_ends(&o.gather, nb, &shoot, 1.0, &mut recv);
+                    }
+                    if let Some(e) = &c.overlay {
+                        let shoot_e: Vec<[f32; 4]> =
+                            c.sent.iter().zip(share).map(|(x, &s)| [x[0] * s, x[1] * s, x[2] * s, 0.0]).collect();
+                        add_ends(e, nb, &shoot_e, -1.0, &mut recv);
+                    }
+                    silence_absent(present_patch.as_deref(), nb, &mut recv);
+                    bal.ends_gathered += [overlay.as_ref().map(|o| &o.gather), c.overlay.as_ref()]
+                        .iter()
+                        .flatten()
+                        .map(|e| e.other.len() as u64)
+                        .sum::<u64>();
+                }
+                (_, Some(runs)) => {
                     gather_buckets(
                         v.link_offsets,
                         v.link_other,
@@ -839,9 +967,8 @@ impl<'a> Distributor<'a> {
                         x.gather_corrections(nb, true, &phi, &mut recv);
                         silence_absent(present_patch.as_deref(), nb, &mut recv);
                     }
-                    rings.spread(&recv, nb, &mut spread);
                 }
-                _ => {
+                (_, None) => {
                     gather(v.link_offsets, v.link_other, v.link_weight, present_patch.as_deref(), &shoot, &mut recv);
                     if let Some(o) = &overlay {
                         o.gather(1, &shoot, nd_phi, &mut recv);
@@ -850,7 +977,25 @@ impl<'a> Distributor<'a> {
                         x.gather_corrections(1, false, &phi, &mut recv);
                         silence_absent(present_patch.as_deref(), 1, &mut recv);
                     }
-                    spread.fill([0.0; 4]);
+                }
+            }
+            if !(sparse.is_some() && warm_jump) {
+                bal.ends_gathered += (v.link_other.len() + overlay.as_ref().map_or(0, |o| o.gather.other.len())) as u64;
+            }
+            match &rings {
+                Some(rings) if bucket_runs.is_some() => rings.spread(&recv, nb, &mut spread),
+                _ => spread.fill([0.0; 4]),
+            }
+            if carrying {
+                for (t, x) in sent_total.iter_mut().zip(&send) {
+                    for c in 0..3 {
+                        t[c] += x[c];
+                    }
+                }
+                for (t, r) in received_total.iter_mut().zip(&recv) {
+                    for c in 0..3 {
+                        t[c] += r[c];
+                    }
                 }
             }
             residual_total = 0.0;
@@ -960,7 +1105,17 @@ impl<'a> Distributor<'a> {
                 .collect();
             DirectionalRadiance { patches: x.patches.clone(), directions: x.n, radiance }
         });
-        Ok(Solution { radiance, received, balance: bal, delta_s, directional, history: anderson })
+        let carry = carrying.then(|| {
+            std::sync::Arc::new(Carry {
+                distributor: self.id,
+                frame,
+                sent: sent_total,
+                received: received_total,
+                emitted: emitted_power,
+                overlay: overlay.as_ref().map(|o| o.gather.clone()),
+            })
+        });
+        Ok(Solution { radiance, received, balance: bal, delta_s, directional, history: anderson, carry })
     }
 }
 
