@@ -252,22 +252,33 @@ impl<'a> Renderer<'a> {
                 let moving: Vec<u32> = kept.iter().copied().filter(|&i| self.temporal[i as usize]).collect();
                 let moving_prims: Vec<Primitive> = moving.iter().map(|&i| self.all_prims[i as usize]).collect();
                 let moving_bvh = (!moving_prims.is_empty()).then(|| PrimitiveBvh::new(&moving_prims));
-                // Pixels the moving primitives may cover: their projected
-                // bounding rectangle (the whole image if one reaches behind
-                // the camera), widened by a pixel.
-                let mut rect = (f32::MAX, f32::MAX, f32::MIN, f32::MIN);
+                // Pixels the moving primitives may cover: each one's projected
+                // bounding rectangle (the whole image if it reaches behind
+                // the camera), widened by a pixel. (One rectangle around all
+                // of them covered 2–3× the pixels in the fan room: the fan
+                // and the lamp are far apart on screen.)
+                let mut covered = vec![false; (w * h) as usize];
                 for p in &moving_prims {
+                    let mut rect = (f32::MAX, f32::MAX, f32::MIN, f32::MIN);
                     for v in &p.p[..p.corner_count()] {
                         match camera.project(*v) {
                             Some((x, y)) => rect = (rect.0.min(x), rect.1.min(y), rect.2.max(x), rect.3.max(y)),
                             None => rect = (f32::MIN, f32::MIN, f32::MAX, f32::MAX),
                         }
                     }
+                    // Pixel x covers [x, x + 1): it may meet the rectangle
+                    // widened by a pixel when x + 1 ≥ min − 1 and x ≤ max + 1.
+                    let span = |lo: f32, hi: f32, n: u32| {
+                        let a = (lo - 2.0).ceil().clamp(0.0, n as f32) as usize;
+                        let b = ((hi + 1.0).floor() + 1.0).clamp(0.0, n as f32) as usize;
+                        a..b.max(a)
+                    };
+                    let (xs, ys) = (span(rect.0, rect.2, w), span(rect.1, rect.3, h));
+                    for y in ys {
+                        covered[y * w as usize..][xs.clone()].fill(true);
+                    }
                 }
-                let inside = |x: u32, y: u32| {
-                    let (x, y) = (x as f32, y as f32);
-                    x + 1.0 >= rect.0 - 1.0 && x <= rect.2 + 1.0 && y + 1.0 >= rect.1 - 1.0 && y <= rect.3 + 1.0
-                };
+                let inside = |x: u32, y: u32| covered[(y * w + x) as usize];
                 cached.par_chunks_mut(w as usize * per_pixel).enumerate().for_each(|(y, row)| {
                     for (i, sample) in row.iter_mut().enumerate() {
                         let (x, k) = ((i / per_pixel) as u32, i % per_pixel);
