@@ -112,6 +112,8 @@ pub struct Solution {
     /// What a frame warm-started from this solution reuses to find the
     /// light its first step delivers without a full gather.
     carry: Option<std::sync::Arc<Carry>>,
+    /// The frame solved.
+    frame: u32,
 }
 
 /// A frame's totals kept for the next frame's warm start (diffuse archives):
@@ -659,7 +661,7 @@ impl<'a> Distributor<'a> {
     }
 
     /// The first send `X` of a sparse warm jump from `c` (an earlier
-    /// frame e of this distributor) to the frame f whose patches are
+    /// frame e of this distributor) to `frame` f, whose patches are
     /// `present` and emit `emitted`, or `None` when the jump
     /// needs a full gather. `X` is what e sent in all, `S`, plus the change
     /// in emitted power, on the patches present in f. By linearity
@@ -670,7 +672,13 @@ impl<'a> Distributor<'a> {
     /// `base(q)·(X − S) = 0`, that is when no patch with frame 0 links
     /// changes presence or emission between e and f. (Patches present in
     /// f but not in e have no frame 0 links, and receive nothing in e.)
-    fn sparse_jump(&self, c: &Carry, emitted: &[[f32; 4]], present: Option<&[bool]>) -> Option<Vec<[f32; 4]>> {
+    fn sparse_jump(
+        &self,
+        c: &Carry,
+        frame: u32,
+        emitted: &[[f32; 4]],
+        present: Option<&[bool]>,
+    ) -> Option<Vec<[f32; 4]>> {
         let n = self.v.patch_count();
         if c.sent.len() != n || c.emitted.len() != n || c.received.len() != n * self.nb {
             return None;
@@ -691,7 +699,47 @@ impl<'a> Distributor<'a> {
                 x[p] = [0, 1, 2, 3].map(|k| c.sent[p][k] + (emitted[p][k] - c.emitted[p][k]));
             }
         }
+        // A patch that enters (no frame 0 links, so X is free there) sends
+        // what the same cell of the instance it replaces sent, changed by
+        // the change in emission: the blades and the lamp reflect light too,
+        // and leaving that out of X left it in the first residual.
+        for (p, q) in self.predecessors(c.frame, frame) {
+            let (p, q) = (p as usize, q as usize);
+            x[p] = [0, 1, 2, 3].map(|k| c.sent[q][k] + (emitted[p][k] - c.emitted[q][k]));
+        }
         Some(x)
+    }
+
+    /// Pairs `(p, q)`: patch `p` of an instance present at `frame` but not
+    /// at `earlier`, and the same cell `q` of the instance of its surface
+    /// present at `earlier`, when the two instances have the same primitive
+    /// grids (rigid motion keeps them; a keyframed scale may not).
+    fn predecessors(&self, earlier: u32, frame: u32) -> Vec<(u32, u32)> {
+        let (Some(s), v) = (&self.v.sequence, &self.v) else { return Vec::new() };
+        let n = v.patch_count() as u32;
+        let patches_of = |i: &crate::archive::layout::InstanceRecord| {
+            let first = i.first_primitive as usize;
+            let end = first + i.primitive_count as usize;
+            let start = v.primitives[first].first_patch;
+            let stop = v.primitives.get(end).map_or(n, |p| p.first_patch);
+            start..stop
+        };
+        let present = |i: &crate::archive::layout::InstanceRecord, f: u32| i.frame_first <= f && f <= i.frame_last;
+        let mut out = Vec::new();
+        for i in s.instances.iter().filter(|i| present(i, frame) && !present(i, earlier)) {
+            let Some(j) = s.instances.iter().find(|j| j.surface == i.surface && present(j, earlier)) else {
+                continue;
+            };
+            let grids = |r: &crate::archive::layout::InstanceRecord| {
+                let first = r.first_primitive as usize;
+                v.primitives[first..first + r.primitive_count as usize].iter().map(|p| (p.kind, p.grid_u, p.grid_v))
+            };
+            let (pi, pj) = (patches_of(i), patches_of(j));
+            if i.primitive_count == j.primitive_count && pi.len() == pj.len() && grids(i).eq(grids(j)) {
+                out.extend(pi.zip(pj));
+            }
+        }
+        out
     }
 
     /// Calls `out(q, w, d)` for every frame 0 link end of a patch `q` whose
@@ -793,15 +841,21 @@ impl<'a> Distributor<'a> {
         let sparse = start
             .and_then(|s| s.carry.as_deref())
             .filter(|c| self.nd.is_none() && emitted_total > 0.0 && c.distributor == self.id)
-            .and_then(|c| self.sparse_jump(c, &emitted_power, present_patch.as_deref()).map(|x| (c, x)));
+            .and_then(|c| self.sparse_jump(c, frame, &emitted_power, present_patch.as_deref()).map(|x| (c, x)));
         // Warm start: send O₀ first (the residual then carries E − O₀).
         let guess: Option<Vec<[f32; 4]>> = match &sparse {
             Some((_, x)) => Some(x.clone()),
             None => start.filter(|s| s.received.len() == n && emitted_total > 0.0).map(|s| {
+                // Patches that enter take what the same cell of the instance
+                // they replace received.
+                let mut source: Vec<u32> = (0..n as u32).collect();
+                for (p, q) in self.predecessors(s.frame, frame) {
+                    source[p as usize] = q;
+                }
                 (0..n)
                     .map(|p| {
                         let e = unshot[p];
-                        let r = s.received[p];
+                        let r = s.received[source[p] as usize];
                         let on = e[0] + e[1] + e[2] > 0.0 || linked[p] > 0.0;
                         if on {
                             [e[0] + rho[p][0] * r[0], e[1] + rho[p][1] * r[1], e[2] + rho[p][2] * r[2], 0.0]
@@ -1115,7 +1169,7 @@ impl<'a> Distributor<'a> {
                 overlay: overlay.as_ref().map(|o| o.gather.clone()),
             })
         });
-        Ok(Solution { radiance, received, balance: bal, delta_s, directional, history: anderson, carry })
+        Ok(Solution { radiance, received, balance: bal, delta_s, directional, history: anderson, carry, frame })
     }
 }
 
