@@ -148,7 +148,43 @@ pub fn write_heatmap(width: u32, height: u32, values: &[f32], full_scale: f32, p
 
 /// 8-bit sRGB pixels of `image` (radiance × `exposure`, clamped).
 fn srgb8(image: &Image, exposure: f32) -> Vec<u8> {
-    image.pixels.iter().flatten().map(|&v| (srgb_encode(v * exposure) * 255.0 + 0.5) as u8).collect()
+    let thresholds = srgb8_thresholds();
+    image.pixels.iter().flatten().map(|&v| srgb8_of(thresholds, v * exposure)).collect()
+}
+
+/// The 8-bit sRGB code of a linear value: `(srgb_encode(x)·255 + 0.5)` truncated.
+fn srgb8_exact(x: f32) -> u8 {
+    (srgb_encode(x) * 255.0 + 0.5) as u8
+}
+
+/// [`srgb8_exact`] by search among the 255 linear values where the code
+/// steps up (a `powf` per channel was most of the time spent writing a
+/// frame). The code is a non-decreasing function of `x`, so the thresholds
+/// reproduce it exactly (tested at the steps and on a dense sample; an
+/// ignored test checks every `f32` of `[0, 1]`).
+fn srgb8_of(thresholds: &[f32; 255], x: f32) -> u8 {
+    // NaN gives 0, as `as u8` of NaN does.
+    if x.is_nan() {
+        return 0;
+    }
+    thresholds.partition_point(|&t| t <= x) as u8
+}
+
+/// `thresholds[k]`: the least `f32` whose code is above `k`.
+fn srgb8_thresholds() -> &'static [f32; 255] {
+    static T: std::sync::OnceLock<[f32; 255]> = std::sync::OnceLock::new();
+    T.get_or_init(|| {
+        std::array::from_fn(|k| {
+            // Bisect over the bit patterns of non-negative floats (ordered
+            // as integers) for the first one whose code exceeds k.
+            let (mut lo, mut hi) = (0u32, 1.0f32.to_bits() + 1);
+            while lo < hi {
+                let mid = lo + (hi - lo) / 2;
+                if srgb8_exact(f32::from_bits(mid)) as usize > k { hi = mid } else { lo = mid + 1 }
+            }
+            f32::from_bits(lo)
+        })
+    })
 }
 
 /// Writes frames as an animated GIF (looping, `fps` frames per second),
@@ -189,4 +225,42 @@ pub fn write_contact_sheet(frames: &[Image], columns: u32, exposure: f32, path: 
         }
     }
     save_atomic(path, |wr| sheet.write_to(wr, ImageFormat::Png))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn srgb8_by_thresholds_equals_the_formula() {
+        // At each step, on both sides, and on a dense sample of bit patterns
+        // (every 64th float of [0, 1], about 16 M values), plus values
+        // outside [0, 1]. (Every float of [0, 1]: the ignored test below.)
+        let t = srgb8_thresholds();
+        for (k, &x) in t.iter().enumerate() {
+            let below = f32::from_bits(x.to_bits() - 1);
+            assert_eq!((srgb8_of(t, below), srgb8_of(t, x)), (srgb8_exact(below), srgb8_exact(x)), "step {k}");
+            assert_eq!(srgb8_exact(x) as usize, k + 1, "step {k}");
+        }
+        for bits in (0..=1.0f32.to_bits()).step_by(64) {
+            let x = f32::from_bits(bits);
+            assert_eq!(srgb8_of(t, x), srgb8_exact(x), "{x}");
+        }
+        for x in [-1.0, -0.0, 1.5, f32::INFINITY, f32::NEG_INFINITY, f32::NAN, 1e-40] {
+            assert_eq!(srgb8_of(t, x), srgb8_exact(x), "{x}");
+        }
+    }
+
+    #[test]
+    #[ignore = "every float of [0, 1]: about 5 s; run with --ignored"]
+    fn srgb8_by_thresholds_equals_the_formula_everywhere() {
+        let t = srgb8_thresholds();
+        let differ = (0..=1.0f32.to_bits())
+            .filter(|&b| {
+                let x = f32::from_bits(b);
+                srgb8_of(t, x) != srgb8_exact(x)
+            })
+            .count();
+        assert_eq!(differ, 0);
+    }
 }
