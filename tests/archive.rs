@@ -133,3 +133,23 @@ fn absurd_resolutions_are_errors_not_overflows() {
     let err = build_with(BuildHints { ray_spacing: Some(1e-9), ..Default::default() }).unwrap_err();
     assert!(err.contains("rays"), "{err}");
 }
+
+#[test]
+fn a_view_with_link_ends_to_missing_patches_is_refused_by_the_distributor() {
+    // The gather reads per-patch state without a bounds check per end, over
+    // indices checked once: a view that did not come through validation
+    // (InetView's fields are public) must be refused, not read out of bounds.
+    use illumnet::distribute::{DistributeOptions, Distributor, Lighting};
+    let bytes = archive::write_to_vec(&small_contents()).unwrap();
+    let a = Archive::from_bytes(&bytes).unwrap();
+    let v = a.view();
+    let opts = DistributeOptions::default();
+    assert!(Distributor::new(&v, &opts, &Lighting::from_view(&v)).is_ok());
+    let mut other = v.link_other.to_vec();
+    let middle = other.len() / 2;
+    other[middle] = v.patch_count() as u32;
+    let mut bad = v;
+    bad.link_other = &other;
+    let err = Distributor::new(&bad, &opts, &Lighting::from_view(&bad)).err().unwrap().to_string();
+    assert!(err.contains("LOTH"), "{err}");
+}
