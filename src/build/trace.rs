@@ -350,6 +350,8 @@ struct Walk<'a> {
     nd_index: &'a [u32],
     /// Per non-diffuse patch and pair, rays crossing it.
     nd_hits: &'a [AtomicU32],
+    /// Per patch, the frames it is present in.
+    patch_active: &'a [(u32, u32)],
 }
 
 impl Walk<'_> {
@@ -480,16 +482,19 @@ impl Walk<'_> {
             counted += self.frame(s.walk.iter().map(|&k| &hits[k as usize]), f, &mut s.frame_links, &mut s.counts);
             s.frame_links.sort_unstable();
             let out = &mut s.changes[f as usize];
+            // A link with an end at a patch absent from f is removed by rule
+            // (§5.13): the removal of the links of an instance that has just
+            // left needs no record, and the running sums drop what such
+            // patches still hold (`accumulate_changes`).
+            let present = |p: u32| {
+                let (lo, hi) = self.patch_active[p as usize];
+                lo <= f && f <= hi
+            };
             diff(&s.prev_links, &s.frame_links, |key, count| {
-                out.push(DeltaRecord {
-                    pair,
-                    a: (key.0 >> 32) as u32,
-                    b: key.0 as u32,
-                    count,
-                    bucket_a: key.1,
-                    bucket_b: key.2,
-                    reserved: 0,
-                })
+                let (a, b) = ((key.0 >> 32) as u32, key.0 as u32);
+                if present(a) && present(b) {
+                    out.push(DeltaRecord { pair, a, b, count, bucket_a: key.1, bucket_b: key.2, reserved: 0 })
+                }
             });
             std::mem::swap(&mut s.prev_links, &mut s.frame_links);
         }
@@ -627,6 +632,7 @@ pub fn trace_all(
             pairs,
             nd_index,
             nd_hits: &nd_hits,
+            patch_active: &patch_active,
         };
         let mut stats = BundleStats { rays: g.nu * g.nv, ..Default::default() };
         s.keys.clear();
@@ -744,11 +750,13 @@ pub fn trace_all(
 
 /// Turns the current pair's per-ray changes (`s.changes`, per frame) into
 /// its changes relative to frame 0 at every frame, appended to `s.chunk`:
-/// frame `f`'s list is frame `f − 1`'s merged with the changes at `f`.
-/// Records of links with an end at a patch absent from frame `f` are not
-/// appended: the format removes such links from every frame (§5.13), so
-/// frame 0's links of instances that have left need no records (they were
-/// 35–40% of the fan room's). Pairs whose links never change append nothing.
+/// frame `f`'s list is frame `f − 1`'s merged with the changes at `f`, less
+/// the records with an end at a patch that has left before `f`. The format
+/// removes links with an end at an absent patch from every frame (§5.13),
+/// so neither their removal when a patch leaves (`Walk::ray` writes none)
+/// nor frame 0's links of instances that have left need records (they were
+/// 35–40% of the fan room's); every record kept has both ends present.
+/// Pairs whose links never change append nothing.
 fn accumulate_changes(s: &mut Scratch, patch_active: &[(u32, u32)]) {
     s.cumulative.clear();
     for f in 1..s.changes.len() {
@@ -756,16 +764,10 @@ fn accumulate_changes(s: &mut Scratch, patch_active: &[(u32, u32)]) {
         if changes.is_empty() && s.cumulative.is_empty() {
             continue;
         }
-        // Frame 0's links of a patch that leaves (present from frame 0 to
-        // some frame before `f`) are removed by rule from `f` on and the
-        // patch never returns: the running sum need not carry removal
-        // records for them (it would, through every later frame).
         let frame = f as u32;
-        let gone = |p: u32| {
-            let (lo, hi) = patch_active[p as usize];
-            lo == 0 && hi < frame
-        };
-        changes.retain(|d| !gone(d.a) && !gone(d.b));
+        // Patches never return once they leave (instances span one run of
+        // frames): what the sum holds for them is dropped for good.
+        let gone = |d: &DeltaRecord| patch_active[d.a as usize].1 < frame || patch_active[d.b as usize].1 < frame;
         // Sum the rays' changes of one link.
         changes.sort_unstable_by_key(record_key);
         let mut n = 0;
@@ -808,17 +810,17 @@ fn accumulate_changes(s: &mut Scratch, patch_active: &[(u32, u32)]) {
                 }
                 (None, None) => unreachable!(),
             };
-            if d.count != 0 {
+            if d.count != 0 && !gone(&d) {
                 s.next.push(d);
             }
         }
         changes.clear();
         std::mem::swap(&mut s.cumulative, &mut s.next);
-        let present = |p: u32| {
+        debug_assert!(s.cumulative.iter().all(|d| [d.a, d.b].iter().all(|&p| {
             let (lo, hi) = patch_active[p as usize];
             lo <= frame && frame <= hi
-        };
-        s.chunk[f].extend(s.cumulative.iter().filter(|d| present(d.a) && present(d.b)));
+        })));
+        s.chunk[f].extend_from_slice(&s.cumulative);
     }
 }
 
