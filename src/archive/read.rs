@@ -171,6 +171,9 @@ impl SequenceView<'_> {
     }
 
     /// Decodes and validates frame `frame`'s changes relative to frame 0.
+    /// The frame's links are frame 0's plus these, less every link with an
+    /// end at a patch absent from the frame (§5.13, step 2: since version 6
+    /// the records leave such links out).
     pub fn frame_delta(&self, frame: u32) -> Result<Vec<DeltaRecord>, ArchiveError> {
         let Some(ix) = self.index.get(frame as usize) else {
             return Err(ArchiveError::corrupt(format!("frame {frame} is outside the sequence 0..{}", self.frames())));
