@@ -399,6 +399,19 @@ fn glossy_movers_radiance_from_the_sequence_equals_from_scratch() {
                 worst = worst.max((sol.radiance[p][c] - w[c]).abs() as f64 / (w[c].abs() as f64).max(1e-3));
             }
         }
+        // Where the power went, too: absent glossy patches must not count
+        // light found along their frame 0 ends as reflected.
+        for c in 0..3 {
+            let (e, b, a) = (want.balance.emitted[c], &sol.balance, &want.balance);
+            assert!(
+                (b.absorbed[c] - a.absorbed[c]).abs() < 1e-4 * e && (b.escaped[c] - a.escaped[c]).abs() < 1e-4 * e,
+                "frame {k}, band {c}: absorbed {} vs {}, escaped {} vs {} from scratch",
+                b.absorbed[c],
+                a.absorbed[c],
+                b.escaped[c],
+                a.escaped[c]
+            );
+        }
         // Directional radiance of the glossy patches present, by identity.
         let (d, wd) = (sol.directional.as_ref().unwrap(), want.directional.as_ref().unwrap());
         let want_dir: std::collections::BTreeMap<_, _> =

@@ -462,8 +462,9 @@ impl Ends {
 /// What a frame changes in frame 0's links: link ends added (positive
 /// weights) or removed (negative).
 struct Overlay {
-    /// Every end, by owner (one bucket run each): what non-diffuse patches
-    /// send and receive along. Built only for archives with non-diffuse patches.
+    /// Every end between two present patches, by owner (one bucket run
+    /// each): what non-diffuse patches send and receive along. Built only
+    /// for archives with non-diffuse patches.
     all: Option<Ends>,
     /// The ends between two patches present in the frame, by owner and
     /// bucket: what the gather adds. Ends that touch an absent patch are
@@ -1098,8 +1099,10 @@ impl<'a> Distributor<'a> {
             if let Some(x) = nd {
                 let totals = x.step(v, &shoot, &phi, &overlay_ends, &mut phi_next);
                 std::mem::swap(&mut phi, &mut phi_next);
-                // Absent non-diffuse patches keep nothing to send (frame 0's
-                // ends and the overlay's cancel only up to rounding).
+                // Absent non-diffuse patches keep nothing to send: `step`
+                // walks their frame 0 ends too, and what it finds there is
+                // not light of this frame (the senders counted those ends
+                // as escaped, `absent_ends`).
                 if let Some(present) = &present_patch {
                     for (k, &q) in x.patches.iter().enumerate() {
                         if !present[q as usize] {
@@ -1113,6 +1116,10 @@ impl<'a> Distributor<'a> {
                     }
                 }
                 for (k, t) in totals.iter().enumerate() {
+                    if present_patch.as_ref().is_some_and(|p| !p[x.patches[k] as usize]) {
+                        pending[k] = [0.0; 3];
+                        continue;
+                    }
                     pending[k] = t.reflected;
                     for c in 0..3 {
                         bal.absorbed[c] -= t.reflected[c];
