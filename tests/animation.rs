@@ -582,3 +582,43 @@ fn warm_frames_of_one_distributor_start_with_a_sparse_gather_and_reach_the_cold_
     assert_eq!(sparse, vec![2, 4, 5, 6], "frames 1 and 3 lose frame 0 instances, the others need no full gather");
     assert!(worst < 1e-3, "warm and cold solutions differ by {worst}");
 }
+
+#[test]
+fn a_long_chain_of_sparse_warm_starts_keeps_the_cold_light() {
+    // See: distribute::Carry. The fan room's 60 frames warm-started one from
+    // the next: totals carried from sparse jump to sparse jump must not
+    // drift from the cold-start light (a full gather every 32nd jump bounds
+    // the rounding carried along).
+    use illumnet::archive::{self, Archive};
+    use illumnet::distribute::{DistributeOptions, Distributor, Lighting};
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/fan_room.toml");
+    let scene = Scene::from_file(&path).unwrap();
+    let hints = BuildHints { patch_size: Some(0.4), frequency: Some(4), ray_spacing: Some(0.12), buckets: Some(1) };
+    let seq = build::build_sequence(&scene, &BuildSettings::resolve(&scene, hints), &NoProgress).unwrap();
+    let arch = Archive::from_bytes(&archive::write_to_vec(&seq.contents).unwrap()).unwrap();
+    let v = arch.view();
+    let opts = DistributeOptions { tolerance: 1e-7, ..Default::default() };
+    let d = Distributor::new(&v, &opts, &Lighting::from_view(&v)).unwrap();
+    let mut previous = d.frame(0, None, &NoProgress).unwrap();
+    let mut sparse = 0;
+    for k in 1..scene.frame_count() {
+        let warm = d.frame(k, Some(&previous), &NoProgress).unwrap();
+        let cold = d.frame(k, None, &NoProgress).unwrap();
+        let full = cold.balance.ends_gathered / cold.balance.iterations as u64;
+        sparse += (warm.balance.ends_gathered < full * warm.balance.iterations as u64) as u32;
+        assert!(warm.balance.imbalance().abs() < 1e-6, "frame {k}: {:?}", warm.balance);
+        if k % 29 == 0 || k == scene.frame_count() - 1 {
+            let mut worst = 0.0f64;
+            for (a, b) in cold.radiance.iter().zip(&warm.radiance) {
+                for c in 0..3 {
+                    worst = worst.max((a[c] - b[c]).abs() as f64 / (a[c].abs() as f64).max(1e-2));
+                }
+            }
+            eprintln!("frame {k}: warm vs cold {worst:.1e}");
+            assert!(worst < 1e-4, "frame {k}: warm and cold differ by {worst}");
+        }
+        previous = warm;
+    }
+    // Frame 1 loses frame 0's instances, frame 33 ends a chain of 32.
+    assert_eq!(sparse, scene.frame_count() - 3, "sparse first steps in all but frames 1 and 33");
+}

@@ -122,22 +122,42 @@ pub struct Solution {
 /// frame's link operator G, so the next frame's operator applied to (nearly)
 /// the same power differs from `received` only through the two frames'
 /// overlays (see [`Distributor::frame`]).
-#[derive(Debug, PartialEq)]
 struct Carry {
     /// The [`Distributor`] that made it (sums from another archive, options
     /// or link set are not reused).
     distributor: u64,
     /// Frame.
     frame: u32,
-    /// Σ power sent over the iterations, per patch.
-    sent: Vec<[f32; 4]>,
+    /// Sparse jumps in a row that led to this frame: rounding in the sums
+    /// is carried from jump to jump, so every [`MAX_SPARSE_CHAIN`]-th frame
+    /// gathers in full.
+    chain: u32,
+    /// Σ power sent over the iterations, per patch (f64: the sums are
+    /// carried from frame to frame).
+    sent: Vec<[f64; 3]>,
     /// Σ power received over the iterations, per patch and bucket (before
     /// spreading).
-    received: Vec<[f32; 4]>,
+    received: Vec<[f64; 3]>,
     /// Power emitted per patch (the frame's emission).
     emitted: Vec<[f32; 4]>,
     /// The frame's overlay of present ends (None for frame 0 of a still).
     overlay: Option<std::sync::Arc<Ends>>,
+}
+
+/// Sparse warm jumps in a row before a full gather (see [`Carry::chain`]).
+const MAX_SPARSE_CHAIN: u32 = 32;
+
+/// A carry is a cache for the next frame, not part of a solution's value.
+impl PartialEq for Carry {
+    fn eq(&self, _: &Self) -> bool {
+        true
+    }
+}
+
+impl std::fmt::Debug for Carry {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "Carry {{ frame: {}, chain: {}, patches: {} }}", self.frame, self.chain, self.sent.len())
+    }
 }
 
 /// Radiance leaving non-diffuse patches along each direction of the set,
@@ -289,7 +309,7 @@ fn gather(
 /// bucket of every end (that scan took a quarter of the gather's time).
 struct BucketRuns {
     /// Per patch, its runs `offsets[q]..offsets[q + 1]`.
-    offsets: Vec<u32>,
+    offsets: Vec<u64>,
     /// Per run, the link end after its last one.
     end: Vec<u64>,
     /// Per run, its bucket.
@@ -309,7 +329,7 @@ impl BucketRuns {
                     runs.bucket.push(*k);
                 }
             }
-            runs.offsets.push(runs.end.len() as u32);
+            runs.offsets.push(runs.end.len() as u64);
         }
         runs
     }
@@ -599,6 +619,8 @@ pub struct Distributor<'a> {
     bucket_runs: Option<BucketRuns>,
     /// `LOTH`, checked below the patch count once.
     link_other: Bounded<'a>,
+    /// Per patch, whether frame 0's links reach it (see [`Self::sparse_jump`]).
+    in_base: Vec<bool>,
     nb: usize,
     rings: Option<buckets::Rings>,
     patch_surface: Vec<u32>,
@@ -646,6 +668,12 @@ impl<'a> Distributor<'a> {
         let bucket_runs = bucket_column.map(|b| BucketRuns::new(v.link_offsets, b));
         let link_other = Bounded::new(v.link_other, n)
             .ok_or_else(|| crate::archive::ArchiveError::Corrupt("LOTH: a link end's patch is out of range".into()))?;
+        // Patches with frame 0 link ends of their own or at another's end
+        // (the same, when every link is stored at both ends).
+        let mut in_base: Vec<bool> = linked.iter().map(|&l| l > 0.0).collect();
+        for &o in v.link_other {
+            in_base[o as usize] = true;
+        }
         let nb = bucket_column.map_or(1, |_| v.build.max_bucket as usize + 1);
         let rings = match bucket_column {
             Some(_) => Some(
@@ -694,6 +722,7 @@ impl<'a> Distributor<'a> {
             linked,
             bucket_runs,
             link_other,
+            in_base,
             nb,
             rings,
             patch_surface,
@@ -732,14 +761,15 @@ impl<'a> Distributor<'a> {
         });
         let here = |set: &Option<&[bool]>, p: usize| set.is_none_or(|s| s[p]);
         let (present_e, present_f) = (present_e.as_deref(), present);
+        let sent = |q: usize, k: usize| if k < 3 { c.sent[q][k] as f32 } else { 0.0 };
         let mut x = vec![[0.0f32; 4]; n];
         for p in 0..n {
             let (in_e, in_f) = (here(&present_e, p), here(&present_f, p));
-            if self.linked[p] > 0.0 && (in_e != in_f || (in_f && emitted[p] != c.emitted[p])) {
+            if self.in_base[p] && (in_e != in_f || (in_f && emitted[p] != c.emitted[p])) {
                 return None;
             }
             if in_f {
-                x[p] = [0, 1, 2, 3].map(|k| c.sent[p][k] + (emitted[p][k] - c.emitted[p][k]));
+                x[p] = [0, 1, 2, 3].map(|k| sent(p, k) + (emitted[p][k] - c.emitted[p][k]));
             }
         }
         // A patch that enters (no frame 0 links, so X is free there) sends
@@ -748,7 +778,7 @@ impl<'a> Distributor<'a> {
         // and leaving that out of X left it in the first residual.
         for (p, q) in self.predecessors(c.frame, frame) {
             let (p, q) = (p as usize, q as usize);
-            x[p] = [0, 1, 2, 3].map(|k| c.sent[q][k] + (emitted[p][k] - c.emitted[q][k]));
+            x[p] = [0, 1, 2, 3].map(|k| sent(q, k) + (emitted[p][k] - c.emitted[q][k]));
         }
         Some(x)
     }
@@ -883,7 +913,9 @@ impl<'a> Distributor<'a> {
         // light; two sparse gathers instead of a full one (§ `sparse_jump`).
         let sparse = start
             .and_then(|s| s.carry.as_deref())
-            .filter(|c| self.nd.is_none() && emitted_total > 0.0 && c.distributor == self.id)
+            .filter(|c| {
+                self.nd.is_none() && emitted_total > 0.0 && c.distributor == self.id && c.chain < MAX_SPARSE_CHAIN
+            })
             .and_then(|c| self.sparse_jump(c, frame, &emitted_power, present_patch.as_deref()).map(|x| (c, x)));
         // Warm start: send O₀ first (the residual then carries E − O₀).
         let guess: Option<Vec<[f32; 4]>> = match &sparse {
@@ -910,9 +942,9 @@ impl<'a> Distributor<'a> {
             }),
         };
         // Totals over the iterations, for the next frame's sparse jump.
-        let carrying = self.nd.is_none();
-        let mut sent_total = vec![[0.0f32; 4]; if carrying { n } else { 0 }];
-        let mut received_total = vec![[0.0f32; 4]; if carrying { n * nb } else { 0 }];
+        let carrying = self.nd.is_none() && v.sequence.is_some();
+        let mut sent_total = vec![[0.0f64; 3]; if carrying { n } else { 0 }];
+        let mut received_total = vec![[0.0f64; 3]; if carrying { n * nb } else { 0 }];
         // `unshot` is the residual: the power still to send. What an
         // iteration sends is `send`: the residual itself, the warm guess
         // first, or Anderson's mixed step.
@@ -1030,13 +1062,19 @@ impl<'a> Distributor<'a> {
                 (Some((c, _)), _) if warm_jump => {
                     // G_f(X) = G_e(S) + overlay_f(X) − overlay_e(S) for the
                     // earlier frame e (see `sparse_jump`).
-                    recv.copy_from_slice(&c.received);
+                    for (r, t) in recv.iter_mut().zip(&c.received) {
+                        *r = [t[0] as f32, t[1] as f32, t[2] as f32, 0.0];
+                    }
                     if let Some(o) = &overlay {
                         add_ends(&o.gather, nb, &shoot, 1.0, &mut recv);
                     }
                     if let Some(e) = &c.overlay {
-                        let shoot_e: Vec<[f32; 4]> =
-                            c.sent.iter().zip(share).map(|(x, &s)| [x[0] * s, x[1] * s, x[2] * s, 0.0]).collect();
+                        let shoot_e: Vec<[f32; 4]> = c
+                            .sent
+                            .iter()
+                            .zip(share)
+                            .map(|(x, &s)| [x[0] as f32 * s, x[1] as f32 * s, x[2] as f32 * s, 0.0])
+                            .collect();
                         add_ends(e, nb, &shoot_e, -1.0, &mut recv);
                     }
                     silence_absent(present_patch.as_deref(), nb, &mut recv);
@@ -1084,16 +1122,15 @@ impl<'a> Distributor<'a> {
                 _ => spread.fill([0.0; 4]),
             }
             if carrying {
-                for (t, x) in sent_total.iter_mut().zip(&send) {
-                    for c in 0..3 {
-                        t[c] += x[c];
+                let add = |(t, x): (&mut [[f64; 3]], &[[f32; 4]])| {
+                    for (t, x) in t.iter_mut().zip(x) {
+                        for c in 0..3 {
+                            t[c] += x[c] as f64;
+                        }
                     }
-                }
-                for (t, r) in received_total.iter_mut().zip(&recv) {
-                    for c in 0..3 {
-                        t[c] += r[c];
-                    }
-                }
+                };
+                sent_total.par_chunks_mut(BLOCK).zip(send.par_chunks(BLOCK)).for_each(add);
+                received_total.par_chunks_mut(BLOCK * nb).zip(recv.par_chunks(BLOCK * nb)).for_each(add);
             }
             residual_total = 0.0;
             if let Some(x) = nd {
@@ -1212,6 +1249,10 @@ impl<'a> Distributor<'a> {
             std::sync::Arc::new(Carry {
                 distributor: self.id,
                 frame,
+                chain: match &sparse {
+                    Some((c, _)) => c.chain + 1,
+                    None => 0,
+                },
                 sent: sent_total,
                 received: received_total,
                 emitted: emitted_power,
@@ -1265,6 +1306,6 @@ mod tests {
             }
         }
         // Patch 3 alternates buckets: one run per end.
-        assert_eq!(runs.offsets[4] - runs.offsets[3], (offsets[4] - offsets[3]) as u32);
+        assert_eq!(runs.offsets[4] - runs.offsets[3], offsets[4] - offsets[3]);
     }
 }

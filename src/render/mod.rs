@@ -274,8 +274,12 @@ impl<'a> Renderer<'a> {
                         a..b.max(a)
                     };
                     let (xs, ys) = (span(rect.0, rect.2, w), span(rect.1, rect.3, h));
+                    let whole = xs.len() == w as usize && ys.len() == h as usize;
                     for y in ys {
                         covered[y * w as usize..][xs.clone()].fill(true);
+                    }
+                    if whole {
+                        break;
                     }
                 }
                 let inside = |x: u32, y: u32| covered[(y * w + x) as usize];
