@@ -121,7 +121,7 @@ pub struct Solution {
 /// emission. Because the balance is linear, `received = G(sent)` for the
 /// frame's link operator G, so the next frame's operator applied to (nearly)
 /// the same power differs from `received` only through the two frames'
-/// overlays (see [`Distributor::frame`]).
+/// overlays (see `Distributor::sparse_jump`).
 struct Carry {
     /// The [`Distributor`] that made it (sums from another archive, options
     /// or link set are not reused).
