@@ -429,7 +429,8 @@ impl Walk<'_> {
         let present_at = |f: u32| move |h: &&RayHitRecord| h.active.0 <= f && f <= h.active.1;
         let temporal = s.hits.iter().any(|h| h.active != (0, last));
         if !temporal {
-            return self.frame(s.hits.iter().filter(present_at(0)), 0, &mut s.keys, &mut s.counts);
+            // Every hit is present in every frame.
+            return self.frame(s.hits.iter(), 0, &mut s.keys, &mut s.counts);
         }
         // The active hits change only where an instance appears or leaves.
         s.change_frames.clear();
