@@ -373,18 +373,38 @@ fn gather_buckets(
 
 /// Adds `sign · Σ w·shoot[other]` over the ends of `ends` to each owner's
 /// bucket slot of `recv` (a sparse gather: owners without ends cost one
-/// offset comparison per bucket).
-fn add_ends(ends: &Ends, buckets: usize, shoot: &[[f32; 4]], sign: f32, recv: &mut [[f32; 4]]) {
+/// offset comparison per bucket), and, given the non-diffuse patches and
+/// their per-ray power `phi`, what non-diffuse senders send along the ends.
+fn add_ends(
+    ends: &Ends,
+    buckets: usize,
+    shoot: &[[f32; 4]],
+    sign: f32,
+    nd: Option<(&nondiffuse::NonDiffuse<'_>, &[[f32; 4]])>,
+    recv: &mut [[f32; 4]],
+) {
     recv.par_chunks_mut(BLOCK * buckets).enumerate().for_each(|(block, out)| {
         let first = block * BLOCK;
         for (i, r) in out.chunks_exact_mut(buckets).enumerate() {
             let q = first + i;
             for (k, slot) in r.iter_mut().enumerate() {
                 let run = ends.run(q, buckets, k);
-                if !run.is_empty() {
-                    let acc = weighted_sum(ends.bounded().slice(run.clone()), &ends.weight[run], shoot);
-                    for c in 0..4 {
-                        slot[c] += sign * acc[c];
+                if run.is_empty() {
+                    continue;
+                }
+                let acc = weighted_sum(ends.bounded().slice(run.clone()), &ends.weight[run.clone()], shoot);
+                for c in 0..4 {
+                    slot[c] += sign * acc[c];
+                }
+                if let Some((nd, phi)) = nd {
+                    for e in run {
+                        let j = nd.nd_of[ends.other[e] as usize];
+                        if j != u32::MAX {
+                            let p = phi[nd.slot(j, ends.direction[e] ^ 1)];
+                            for c in 0..4 {
+                                slot[c] += sign * ends.weight[e] * p[c];
+                            }
+                        }
                     }
                 }
             }
@@ -530,34 +550,7 @@ impl Overlay {
         nd: Option<(&nondiffuse::NonDiffuse<'_>, &[[f32; 4]])>,
         recv: &mut [[f32; 4]],
     ) {
-        let g = &self.gather;
-        recv.par_chunks_mut(BLOCK * buckets).enumerate().for_each(|(block, out)| {
-            let first = block * BLOCK;
-            for (i, r) in out.chunks_exact_mut(buckets).enumerate() {
-                let q = first + i;
-                for (k, slot) in r.iter_mut().enumerate() {
-                    let run = g.run(q, buckets, k);
-                    if run.is_empty() {
-                        continue;
-                    }
-                    let acc = weighted_sum(g.bounded().slice(run.clone()), &g.weight[run.clone()], shoot);
-                    for c in 0..4 {
-                        slot[c] += acc[c];
-                    }
-                    if let Some((nd, phi)) = nd {
-                        for e in run {
-                            let j = nd.nd_of[g.other[e] as usize];
-                            if j != u32::MAX {
-                                let p = phi[nd.slot(j, g.direction[e] ^ 1)];
-                                for c in 0..4 {
-                                    slot[c] += g.weight[e] * p[c];
-                                }
-                            }
-                        }
-                    }
-                }
-            }
-        });
+        add_ends(&self.gather, buckets, shoot, 1.0, nd, recv);
     }
 }
 
@@ -1066,7 +1059,7 @@ impl<'a> Distributor<'a> {
                         *r = [t[0] as f32, t[1] as f32, t[2] as f32, 0.0];
                     }
                     if let Some(o) = &overlay {
-                        add_ends(&o.gather, nb, &shoot, 1.0, &mut recv);
+                        add_ends(&o.gather, nb, &shoot, 1.0, None, &mut recv);
                     }
                     if let Some(e) = &c.overlay {
                         let shoot_e: Vec<[f32; 4]> = c
@@ -1075,7 +1068,7 @@ impl<'a> Distributor<'a> {
                             .zip(share)
                             .map(|(x, &s)| [x[0] as f32 * s, x[1] as f32 * s, x[2] as f32 * s, 0.0])
                             .collect();
-                        add_ends(e, nb, &shoot_e, -1.0, &mut recv);
+                        add_ends(e, nb, &shoot_e, -1.0, None, &mut recv);
                     }
                     silence_absent(present_patch.as_deref(), nb, &mut recv);
                     bal.ends_gathered += [overlay.as_ref().map(|o| &o.gather), c.overlay.as_ref()]
