@@ -36,13 +36,13 @@ fn stages(c: &mut Criterion) {
     let one = DistributeOptions { max_iterations: 1, tolerance: 0.0, ..Default::default() };
     g.throughput(Throughput::Elements(stats.link_ends));
     g.bench_function("distribute_1_iteration (link ends)", |b| {
-        b.iter(|| distribute::distribute(black_box(&view), &one, &NoProgress))
+        b.iter(|| distribute::distribute(black_box(&view), &one, &NoProgress).unwrap())
     });
 
     g.throughput(Throughput::Bytes(bytes.len() as u64));
     g.bench_function("archive_validate (bytes)", |b| b.iter(|| Archive::from_bytes(black_box(&bytes)).unwrap()));
 
-    let sol = distribute::distribute(&view, &DistributeOptions::default(), &NoProgress);
+    let sol = distribute::distribute(&view, &DistributeOptions::default(), &NoProgress).unwrap();
     let opts = RenderOptions::default();
     g.throughput(Throughput::Elements(256 * 256 * 16));
     g.bench_function("render_256_16spp (samples)", |b| {

@@ -67,7 +67,7 @@ buckets = 0
     let (c, _) = build::build(&scene, &s, &NoProgress).unwrap();
     let a = Archive::from_bytes(&illumnet::archive::write_to_vec(&c).unwrap()).unwrap();
     let v = a.view();
-    let sol = distribute::distribute(&v, &DistributeOptions::default(), &NoProgress);
+    let sol = distribute::distribute(&v, &DistributeOptions::default(), &NoProgress).unwrap();
     let d = sol.directional.as_ref().unwrap();
     let k = (0..d.patches.len())
         .min_by(|&a, &b| {

@@ -54,7 +54,7 @@ pub fn measure(
         let archive = Archive::from_bytes(&archive::write_to_vec(&contents).map_err(|e| e.to_string())?)
             .map_err(|e| e.to_string())?;
         let v = archive.view();
-        let sol = distribute::distribute(&v, options, &NoProgress);
+        let sol = distribute::distribute(&v, options, &NoProgress).map_err(|e| e.to_string())?;
         let lum: Vec<f32> = v
             .patch_primitive
             .iter()

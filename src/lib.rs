@@ -33,7 +33,7 @@
 //! let settings = build::BuildSettings::resolve(&scene, hints);
 //! let (contents, _) = build::build(&scene, &settings, &NoProgress).unwrap();
 //! let archive = archive::Archive::from_bytes(&archive::write_to_vec(&contents).unwrap()).unwrap();
-//! let light = distribute::distribute(&archive.view(), &Default::default(), &NoProgress);
+//! let light = distribute::distribute(&archive.view(), &Default::default(), &NoProgress).unwrap();
 //! assert!(light.balance.converged && light.balance.imbalance().abs() < 1e-6);
 //! ```
 #![deny(missing_docs)]
@@ -51,6 +51,7 @@ pub mod distribute;
 pub mod flicker;
 pub mod geodesic;
 pub mod geometry;
+pub mod limits;
 pub mod patch;
 pub mod progress;
 pub mod reflectance;

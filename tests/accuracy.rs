@@ -20,7 +20,7 @@ fn cornell_box_is_within_ten_percent_of_the_path_traced_reference() {
     let bytes = illumnet::archive::write_to_vec(&contents).unwrap();
     let archive = illumnet::archive::Archive::from_bytes(&bytes).unwrap();
     let view = archive.view();
-    let sol = distribute::distribute(&view, &DistributeOptions::default(), &NoProgress);
+    let sol = distribute::distribute(&view, &DistributeOptions::default(), &NoProgress).unwrap();
     let image = render::render(&view, &sol.radiance, &RenderOptions::default());
     let err = image_io::relative_l2(&image, &reference).unwrap();
     // Measured 0.0324 at default settings (docs/ACCURACY.md); the bar is 10%.

@@ -177,10 +177,10 @@ fn frame_radiance_from_the_sequence_archive_equals_from_scratch() {
     let mut worst = 0.0f64;
     for k in 0..scene.frame_count() {
         let sol = distribute::distribute_frame(&v, k, &opts, &NoProgress).unwrap();
-        let present = v.present_primitives(k);
+        let present = v.presence(k).primitives;
         let still = from_scratch(&scene, &seq, &settings, k);
         let still_arch = Archive::from_bytes(&archive::write_to_vec(&still.contents).unwrap()).unwrap();
-        let want = distribute::distribute(&still_arch.view(), &opts, &NoProgress);
+        let want = distribute::distribute(&still_arch.view(), &opts, &NoProgress).unwrap();
         let want_by_id: std::collections::BTreeMap<_, _> = still.patch_identity.iter().zip(&want.radiance).collect();
         let mut compared = 0;
         for p in 0..v.patch_count() {
@@ -384,14 +384,14 @@ fn glossy_movers_radiance_from_the_sequence_equals_from_scratch() {
         // Warm-started from the previous frame, as `render --frames` does.
         let sol = distribute::distribute_frame_from(&v, k, &opts, previous.as_ref(), &NoProgress).unwrap();
         assert!(sol.balance.imbalance().abs() < 1e-5, "frame {k}: {:?}", sol.balance);
-        let present = v.present_primitives(k);
+        let present = v.presence(k).primitives;
         // Absent patches take no part, glossy senders notwithstanding.
         for p in (0..v.patch_count()).filter(|&p| !present[v.patch_primitive[p] as usize]) {
             assert_eq!(sol.received[p], [0.0; 3], "frame {k}: absent patch {p} received light");
         }
         let still = from_scratch(&scene, &seq, &settings, k);
         let still_arch = Archive::from_bytes(&archive::write_to_vec(&still.contents).unwrap()).unwrap();
-        let want = distribute::distribute(&still_arch.view(), &opts, &NoProgress);
+        let want = distribute::distribute(&still_arch.view(), &opts, &NoProgress).unwrap();
         let want_by_id: std::collections::BTreeMap<_, _> = still.patch_identity.iter().zip(&want.radiance).collect();
         for p in (0..v.patch_count()).filter(|&p| present[v.patch_primitive[p] as usize]) {
             let w = want_by_id[&seq.patch_identity[p]];

@@ -90,6 +90,42 @@ fn bad_input_gives_clear_errors() {
     assert!(String::from_utf8_lossy(&out.stderr).contains("corrupt archive"));
 }
 
+/// Runs illumnet expecting failure; returns its exit code and stderr.
+fn failing(args: &[&str]) -> (i32, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_illumnet")).args(args).output().unwrap();
+    assert!(!out.status.success(), "illumnet {args:?} succeeded");
+    (out.status.code().unwrap_or(-1), String::from_utf8_lossy(&out.stderr).into_owned())
+}
+
+#[test]
+fn exit_codes_tell_the_kind_of_failure() {
+    // The codes the README documents: 2 usage, 3 bad input, 4 corrupt
+    // archive, 5 I/O.
+    let dir = tempfile::tempdir().unwrap();
+    let path = |name: &str| dir.path().join(name).to_str().unwrap().to_string();
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/cornell_box.toml");
+    let scene = scene.to_str().unwrap();
+    assert_eq!(failing(&["render", "--no-such-option", "x.inet"]).0, 2);
+    std::fs::write(path("bad.toml"), "[camera]\nposition = [0, 0]\n").unwrap();
+    assert_eq!(failing(&["build", &path("bad.toml"), "-o", &path("x.inet")]).0, 3);
+    assert_eq!(failing(&["build", scene, "-o", &path("x.inet"), "--frame", "3"]).0, 3);
+    assert_eq!(failing(&["build", scene, "-o", &path("x.inet"), "--turn", "nothing"]).0, 3);
+    std::fs::write(path("junk.inet"), b"hello").unwrap();
+    assert_eq!(failing(&["inspect", &path("junk.inet")]).0, 4);
+    let (code, err) = failing(&["render", &path("missing.inet"), "-o", &path("x.png")]);
+    assert_eq!(code, 5, "{err}");
+    illumnet(&["build", "-q", scene, "-o", &path("box.inet"), "--frequency", "4", "--patch-size", "0.1"]);
+    assert_eq!(failing(&["render", &path("box.inet"), "-o", &path("x.png"), "--frames", "1..3"]).0, 3);
+    assert_eq!(failing(&["render", &path("box.inet"), "-o", &path("x.png"), "--set", "nobody.emission=1,1,1"]).0, 3);
+    // An option's value out of range.
+    let (code, err) = failing(&["render", &path("box.inet"), "-o", &path("x.png"), "--tolerance", "2"]);
+    assert_eq!(code, 3, "{err}");
+    // An output that cannot be written.
+    std::fs::write(path("file"), b"").unwrap();
+    let (code, err) = failing(&["render", &path("box.inet"), "-q", "-o", &format!("{}/x.png", path("file"))]);
+    assert_eq!(code, 5, "{err}");
+}
+
 #[test]
 fn sequence_archives_render_frame_ranges() {
     let dir = tempfile::tempdir().unwrap();

@@ -27,7 +27,7 @@ fn contents(scene: &Scene, hints: BuildHints) -> ArchiveContents {
 fn render_still(bytes: &[u8], samples: u32) -> Image {
     let archive = Archive::from_bytes(bytes).unwrap();
     let v = archive.view();
-    let sol = distribute::distribute(&v, &DistributeOptions::default(), &NoProgress);
+    let sol = distribute::distribute(&v, &DistributeOptions::default(), &NoProgress).unwrap();
     assert!(sol.balance.converged && sol.balance.imbalance().abs() < 1e-5, "{:?}", sol.balance);
     render::render(&v, &render::frame_radiance(&v, 0, &sol), &RenderOptions { samples_per_axis: samples })
 }

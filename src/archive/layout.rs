@@ -45,7 +45,7 @@ pub const PAGE_ALIGN: u64 = 4096;
 pub const LARGE_SECTION: u64 = 64 * 1024;
 
 /// Widest bucket a valid archive may record (§5.1, `max_bucket`).
-pub const MAX_BUCKET: u32 = 4;
+pub const MAX_BUCKET: u32 = crate::limits::MAX_BUCKET;
 
 /// Section compression codes (§4).
 pub mod compression {

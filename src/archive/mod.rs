@@ -19,6 +19,7 @@
 
 pub mod deltas;
 pub mod layout;
+pub mod presence;
 mod read;
 mod write;
 

@@ -10,6 +10,7 @@ use super::layout::{
     InstanceRecord, MaterialRecord, NonDiffusePatchRecord, OrientationRecord, PrimitiveRecord, PrototypeRecord,
     SectionEntry, SurfaceRecord, Tag, compression, tag,
 };
+use super::presence::{self, FramePresence, FrameSpan};
 use super::{ArchiveError, ArchiveMeta, tag_name};
 
 enum Storage {
@@ -164,12 +165,6 @@ impl SequenceView<'_> {
         self.record.frames
     }
 
-    /// Whether instance `i` is present at `frame`.
-    pub fn instance_present(&self, i: usize, frame: u32) -> bool {
-        let r = &self.instances[i];
-        r.frame_first <= frame && frame <= r.frame_last
-    }
-
     /// Decodes and validates frame `frame`'s changes relative to frame 0.
     /// The frame's links are frame 0's plus these, less every link with an
     /// end at a patch absent from the frame (§5.13, step 2: since version 6
@@ -214,21 +209,31 @@ impl<'a> InetView<'a> {
         self.patch_area.len()
     }
 
-    /// Which primitives are present at `frame` (all of them in a still archive).
-    pub fn present_primitives(&self, frame: u32) -> Vec<bool> {
+    /// Per primitive, the frames it is present in (every frame of a still).
+    pub fn primitive_spans(&self) -> Vec<FrameSpan> {
         match &self.sequence {
-            None => vec![true; self.primitives.len()],
-            Some(s) => {
-                let mut out = vec![false; self.primitives.len()];
-                for (i, inst) in s.instances.iter().enumerate() {
-                    if s.instance_present(i, frame) {
-                        let first = inst.first_primitive as usize;
-                        out[first..first + inst.primitive_count as usize].fill(true);
-                    }
-                }
-                out
-            }
+            None => vec![FrameSpan::all(1); self.primitives.len()],
+            Some(s) => presence::primitive_spans(s.instances, self.primitives.len()),
         }
+    }
+
+    /// Which primitives and patches are present at `frame` (all of them in
+    /// a still archive), and so which links are links of the frame.
+    pub fn presence(&self, frame: u32) -> FramePresence {
+        FramePresence::new(frame, &self.primitive_spans(), self.patch_primitive)
+    }
+
+    /// The keyed emitted radiance of every surface at `frame` (`EMIF`),
+    /// when the archive keys emission.
+    pub fn keyed_emission(&self, frame: u32) -> Option<&'a [[f32; 3]]> {
+        let n = self.surfaces.len();
+        self.sequence.and_then(|s| s.emissions).and_then(|e| e.get(frame as usize * n..(frame as usize + 1) * n))
+    }
+
+    /// Per primitive, whether it is temporal: present in only some frames.
+    pub fn temporal_primitives(&self) -> Vec<bool> {
+        let frames = self.sequence.map_or(1, |s| s.frames());
+        self.primitive_spans().iter().map(|s| s.is_temporal(frames)).collect()
     }
 
     /// Link ends of patch `p`: `(other patch, weight, outgoing direction)` columns.
@@ -623,7 +628,7 @@ fn validate_contents(v: &InetView<'_>, meta: &ArchiveMeta) -> Result<(), Archive
     count("DIRS", v.directions.len(), nd)?;
     let f = b.frequency as u64;
     let expected_dirs = match b.direction_set {
-        0 if (1..=crate::geodesic::MAX_FREQUENCY as u64).contains(&f) => 10 * f * f + 2,
+        0 if (1..=crate::limits::MAX_FREQUENCY as u64).contains(&f) => 10 * f * f + 2,
         1 if (1..=100).contains(&f) => 6 * f * f,
         _ => u64::MAX,
     };

@@ -31,7 +31,7 @@ pub struct BuildSettings {
 }
 
 /// Widest bucket supported (the archive's limit).
-pub const MAX_BUCKET: u32 = crate::archive::layout::MAX_BUCKET;
+pub const MAX_BUCKET: u32 = crate::limits::MAX_BUCKET;
 /// Default widest bucket: rings of up to 5 patches (chosen in docs/ACCURACY.md).
 pub const DEFAULT_MAX_BUCKET: u32 = 1;
 

@@ -3,7 +3,7 @@
 use std::path::Path;
 use std::time::Instant;
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Context, Result};
 use illumnet::archive::{self, Archive, tag_name};
 use illumnet::build::{self, BuildSettings};
 use illumnet::distribute::{self, DistributeOptions};
@@ -12,6 +12,7 @@ use illumnet::progress::Progress;
 use illumnet::render::{self, RenderOptions, image_io};
 use illumnet::scene::{BuildHints, Scene};
 
+use super::exit::{BadInput, InputContext, IoFailure, bail_input};
 use super::{BuildArgs, RenderArgs};
 
 fn hints(a: &BuildArgs) -> BuildHints {
@@ -35,7 +36,7 @@ fn build_scene(scene: &Scene, output: &Path, args: &BuildArgs, progress: &dyn Pr
         settings.map_method = illumnet::reflectance::MapMethod::Rings;
     }
     let t = Instant::now();
-    let seq = build::build_sequence(scene, &settings, progress).map_err(anyhow::Error::msg)?;
+    let seq = build::build_sequence(scene, &settings, progress).map_err(BadInput)?;
     for w in &seq.warnings {
         eprintln!("warning: {w}");
     }
@@ -79,18 +80,18 @@ fn build_scene(scene: &Scene, output: &Path, args: &BuildArgs, progress: &dyn Pr
 pub fn build(scene: &Path, output: &Path, frame: Option<u32>, args: BuildArgs, progress: &dyn Progress) -> Result<()> {
     let mut scene = Scene::from_file(scene)?;
     for t in &args.turn {
-        let (name, deg) = t.split_once('=').with_context(|| format!("--turn `{t}`: expected SURFACE=DEGREES"))?;
+        let (name, deg) = t.split_once('=').input(|| format!("--turn `{t}`: expected SURFACE=DEGREES"))?;
         let deg: f32 = deg
             .trim()
             .parse()
             .ok()
             .filter(|d: &f32| d.is_finite())
-            .with_context(|| format!("--turn `{t}`: `{deg}` is not a number of degrees"))?;
-        scene.turn_surface(name, deg).map_err(|e| anyhow::anyhow!("--turn `{t}`: {e}"))?;
+            .input(|| format!("--turn `{t}`: `{deg}` is not a number of degrees"))?;
+        scene.turn_surface(name, deg).map_err(|e| BadInput(format!("--turn `{t}`: {e}")))?;
     }
     let frames = scene.frame_count();
     match frame {
-        Some(f) if f >= frames => bail!("--frame {f} is outside the sequence 0..{frames}"),
+        Some(f) if f >= frames => bail_input!("--frame {f} is outside the sequence 0..{frames}"),
         Some(f) => scene = scene.at_frame(f),
         None => {}
     }
@@ -113,18 +114,18 @@ fn frame_path(pattern: &Path, frame: u32) -> Option<std::path::PathBuf> {
 
 /// Parses `A..B` (B exclusive) or a single frame `A`.
 pub fn parse_frames(text: &str) -> Result<std::ops::Range<u32>> {
-    let parse = |t: &str| t.trim().parse::<u32>().with_context(|| format!("`{text}` is not a frame range like 0..60"));
+    let parse = |t: &str| t.trim().parse::<u32>().input(|| format!("`{text}` is not a frame range like 0..60"));
     match text.split_once("..") {
         Some((a, b)) => {
             let (a, b) = (parse(a)?, parse(b)?);
             if a >= b {
-                bail!("frame range `{text}` is empty");
+                bail_input!("frame range `{text}` is empty");
             }
             Ok(a..b)
         }
         None => {
             let a = parse(text)?;
-            Ok(a..a.checked_add(1).with_context(|| format!("frame {a} is out of range"))?)
+            Ok(a..a.checked_add(1).input(|| format!("frame {a} is out of range"))?)
         }
     }
 }
@@ -134,41 +135,39 @@ fn relight(lighting: &mut distribute::Lighting, archive: &Archive, sets: &[Strin
     let meta = archive.meta();
     let materials = archive.view().surfaces.iter().map(|s| s.material as usize).collect::<Vec<_>>();
     for set in sets {
-        let (target, value) =
-            set.split_once('=').with_context(|| format!("--set `{set}`: expected NAME.FIELD=R,G,B"))?;
-        let (name, field) =
-            target.rsplit_once('.').with_context(|| format!("--set `{set}`: expected NAME.FIELD=R,G,B"))?;
+        let (target, value) = set.split_once('=').input(|| format!("--set `{set}`: expected NAME.FIELD=R,G,B"))?;
+        let (name, field) = target.rsplit_once('.').input(|| format!("--set `{set}`: expected NAME.FIELD=R,G,B"))?;
         let v: Vec<f32> = value
             .split(',')
             .map(|x| x.trim().parse::<f32>())
             .collect::<Result<_, _>>()
             .ok()
             .filter(|v: &Vec<f32>| v.len() == 3 && v.iter().all(|x| x.is_finite()))
-            .with_context(|| format!("--set `{set}`: the value must be three numbers R,G,B"))?;
+            .input(|| format!("--set `{set}`: the value must be three numbers R,G,B"))?;
         let rgb = [v[0], v[1], v[2]];
         let surface = meta.surface_names.iter().position(|s| s == name);
         let material = meta.material_names.iter().position(|m| m == name);
         match field {
             "emission" => {
-                let s = surface.with_context(|| {
+                let s = surface.input(|| {
                     format!("--set `{set}`: no surface named `{name}` (surfaces: {})", meta.surface_names.join(", "))
                 })?;
                 if rgb.iter().any(|&x| x < 0.0) {
-                    bail!("--set `{set}`: emission must be non-negative");
+                    bail_input!("--set `{set}`: emission must be non-negative");
                 }
                 lighting.emission[s] = rgb;
                 lighting.emission_fixed[s] = true;
             }
             "reflectance" | "specular" => {
                 if rgb.iter().any(|&x| !(0.0..=1.0).contains(&x)) {
-                    bail!("--set `{set}`: {field} components must be in [0, 1]");
+                    bail_input!("--set `{set}`: {field} components must be in [0, 1]");
                 }
                 let column = if field == "reflectance" { &mut lighting.reflectance } else { &mut lighting.specular };
                 let glossy = |m: usize| archive.view().materials[m].model != archive::layout::model::DIFFUSE;
                 if field == "specular"
                     && !surface.map_or_else(|| material.is_some_and(glossy), |s| glossy(materials[s]))
                 {
-                    bail!(
+                    bail_input!(
                         "--set `{set}`: `{name}` is diffuse: only rough_conductor and broad_specular materials have a specular colour"
                     );
                 }
@@ -181,19 +180,21 @@ fn relight(lighting: &mut distribute::Lighting, archive: &Archive, sets: &[Strin
                             }
                         }
                     }
-                    (None, None) => bail!(
+                    (None, None) => bail_input!(
                         "--set `{set}`: no surface or material named `{name}` (surfaces: {}; materials: {})",
                         meta.surface_names.join(", "),
                         meta.material_names.join(", ")
                     ),
                 }
             }
-            other => bail!("--set `{set}`: unknown field `{other}` (known: emission, reflectance, specular)"),
+            other => bail_input!("--set `{set}`: unknown field `{other}` (known: emission, reflectance, specular)"),
         }
     }
     for (s, name) in meta.surface_names.iter().enumerate() {
         if (0..3).any(|c| lighting.reflectance[s][c] + lighting.specular[s][c] > 1.0) {
-            bail!("surface `{name}`: reflectance + specular exceeds 1 in some band (the surface would create energy)");
+            bail_input!(
+                "surface `{name}`: reflectance + specular exceeds 1 in some band (the surface would create energy)"
+            );
         }
     }
     Ok(())
@@ -218,13 +219,13 @@ pub fn render(
     progress: &dyn Progress,
 ) -> Result<()> {
     if args.anderson > distribute::MAX_ANDERSON_DEPTH {
-        bail!("--anderson keeps at most {} secant pairs, got {}", distribute::MAX_ANDERSON_DEPTH, args.anderson);
+        bail_input!("--anderson keeps at most {} secant pairs, got {}", distribute::MAX_ANDERSON_DEPTH, args.anderson);
     }
     if !(args.tolerance > 0.0 && args.tolerance < 1.0) {
-        bail!("--tolerance must be in (0, 1), got {}", args.tolerance);
+        bail_input!("--tolerance must be in (0, 1), got {}", args.tolerance);
     }
     if !(1..=64).contains(&args.samples) {
-        bail!("--samples must be in 1..=64, got {}", args.samples);
+        bail_input!("--samples must be in 1..=64, got {}", args.samples);
     }
     let t = Instant::now();
     let archive = Archive::open(path).with_context(|| format!("cannot open {}", path.display()))?;
@@ -236,14 +237,14 @@ pub fn render(
         None => 0..1,
     };
     if range.end > total_frames {
-        bail!("frames {}..{} are outside the archive's sequence 0..{total_frames}", range.start, range.end);
+        bail_input!("frames {}..{} are outside the archive's sequence 0..{total_frames}", range.start, range.end);
     }
     let sequence_output = range.len() > 1;
     let out_path = |pattern: &Path, f: u32| -> Result<std::path::PathBuf> {
         match frame_path(pattern, f) {
             Some(p) => Ok(p),
             None if !sequence_output => Ok(pattern.to_path_buf()),
-            None => bail!(
+            None => bail_input!(
                 "{} needs a frame number pattern such as frame_%04d.png to render several frames",
                 pattern.display()
             ),
@@ -291,9 +292,9 @@ pub fn render(
         let t2 = Instant::now();
         let image = renderer.frame(f, &render::frame_radiance(&view, f, &solution));
         t_render += t2.elapsed().as_secs_f64();
-        image_io::write_png(&image, &out_path(png, f)?, args.exposure).map_err(anyhow::Error::msg)?;
+        image_io::write_png(&image, &out_path(png, f)?, args.exposure).map_err(IoFailure)?;
         if let Some(exr) = exr {
-            image_io::write_exr(&image, &out_path(exr, f)?).map_err(anyhow::Error::msg)?;
+            image_io::write_exr(&image, &out_path(exr, f)?).map_err(IoFailure)?;
         }
         previous = Some(solution);
         if keep_images {
@@ -302,11 +303,11 @@ pub fn render(
     }
     if let Some(gif) = extras.gif {
         let fps = view.sequence.map_or(24.0, |s| s.record.fps);
-        image_io::write_gif(&images, fps, args.exposure, gif).map_err(anyhow::Error::msg)?;
+        image_io::write_gif(&images, fps, args.exposure, gif).map_err(IoFailure)?;
         println!("wrote preview {}", gif.display());
     }
     if let Some(sheet) = extras.contact_sheet {
-        image_io::write_contact_sheet(&images, 10, args.exposure, sheet).map_err(anyhow::Error::msg)?;
+        image_io::write_contact_sheet(&images, 10, args.exposure, sheet).map_err(IoFailure)?;
         println!("wrote contact sheet {}", sheet.display());
     }
     let c = view.camera;
@@ -468,15 +469,15 @@ pub fn inspect(path: &Path, json: bool) -> Result<()> {
 }
 
 pub fn compare(image: &Path, reference: &Path, heatmap: Option<&Path>, full_scale: f32) -> Result<()> {
-    let a = image_io::read_exr(image).map_err(anyhow::Error::msg)?;
-    let r = image_io::read_exr(reference).map_err(anyhow::Error::msg)?;
-    let (err, map) = image_io::compare(&a, &r).map_err(anyhow::Error::msg)?;
+    let a = image_io::read_exr(image).map_err(IoFailure)?;
+    let r = image_io::read_exr(reference).map_err(IoFailure)?;
+    let (err, map) = image_io::compare(&a, &r).map_err(BadInput)?;
     println!(
         "relative L2 {:.4}, relative MSE {:.3e}, mean absolute error {:.4e} over {} pixels",
         err.relative_l2, err.relative_mse, err.mean_abs, err.pixels
     );
     if let Some(path) = heatmap {
-        image_io::write_heatmap(a.width, a.height, &map, full_scale, path).map_err(anyhow::Error::msg)?;
+        image_io::write_heatmap(a.width, a.height, &map, full_scale, path).map_err(IoFailure)?;
         println!("wrote heat map {} (white = relative error ≥ {full_scale})", path.display());
     }
     Ok(())

@@ -3,6 +3,7 @@
 //! the [`illumnet::progress::Progress`] trait.
 
 mod commands;
+mod exit;
 mod progress_bar;
 
 use std::path::PathBuf;
@@ -181,7 +182,6 @@ enum Command {
     },
 }
 
-/// Runs the CLI; errors print as `illumnet: error: …` and exit with 1.
 /// A closed stdout (`illumnet inspect ARCHIVE | head`) ends the program
 /// quietly, as it does other command-line tools, instead of with a panic
 /// message: Rust ignores SIGPIPE, so `println!` panics on a broken pipe.
@@ -196,6 +196,8 @@ fn quiet_on_broken_pipe() {
     }));
 }
 
+/// Runs the CLI; errors print as `illumnet: error: …` and exit with the
+/// code of their kind (`exit.rs`, README).
 pub fn main() -> ExitCode {
     quiet_on_broken_pipe();
     let cli = Cli::parse();
@@ -233,7 +235,7 @@ pub fn main() -> ExitCode {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("illumnet: error: {e:#}");
-            ExitCode::FAILURE
+            ExitCode::from(exit::code(&e))
         }
     }
 }

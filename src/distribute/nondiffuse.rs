@@ -38,13 +38,8 @@
 
 use rayon::prelude::*;
 
+use super::kernels::{BATCH, BLOCK, LANES, Lanes, scatter_table_rows};
 use crate::archive::{InetView, ReflectanceView};
-
-/// Patches that go through a prototype table together (see [`NonDiffuse::step`]).
-const BATCH: usize = 8;
-/// RGB of a batch, patch-major: lane `3b + c` is band `c` of patch `b`.
-const LANES: usize = 3 * BATCH;
-type Lanes = [f32; LANES];
 
 /// Per-archive state of the non-diffuse patches.
 pub(super) struct NonDiffuse<'a> {
@@ -214,8 +209,8 @@ impl<'a> NonDiffuse<'a> {
     /// Adds what non-diffuse senders send along their directions to `recv`
     /// (bucketed as the main gather, `nb` buckets per patch).
     pub fn gather_corrections(&self, nb: usize, use_buckets: bool, phi: &[[f32; 4]], recv: &mut [[f32; 4]]) {
-        recv.par_chunks_mut(super::BLOCK * nb).enumerate().for_each(|(block, out)| {
-            let first = block * super::BLOCK;
+        recv.par_chunks_mut(BLOCK * nb).enumerate().for_each(|(block, out)| {
+            let first = block * BLOCK;
             for (i, r) in out.chunks_exact_mut(nb).enumerate() {
                 let q = first + i;
                 for e in self.corr_offsets[q] as usize..self.corr_offsets[q + 1] as usize {
@@ -317,14 +312,7 @@ impl<'a> NonDiffuse<'a> {
             *s = [0.0; LANES];
         }
         let rows = |i: usize| self.r.row(t, map[i] as usize);
-        #[cfg(target_arch = "x86_64")]
-        if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
-            // SAFETY: the CPU was just checked to support AVX2 and FMA, the
-            // only requirement of a `#[target_feature]` function.
-            unsafe { scatter_rows_avx2(bands, inbuf, scratch, &rows) };
-            return;
-        }
-        scatter_rows(bands, inbuf, scratch, &rows);
+        scatter_table_rows(bands, inbuf, scratch, &rows);
     }
 }
 
@@ -385,44 +373,6 @@ fn incoming_scales(
         }
     });
     out
-}
-
-/// A table row: outgoing directions and factors.
-type Row<'r> = (&'r [u32], &'r [f32]);
-
-/// The scatter kernel, compiled twice: for the baseline target, and with
-/// AVX2 + FMA (chosen at run time), where 24 lanes are three 8-wide FMAs
-/// (1.2× faster than SSE2 on the glossy floor).
-#[inline(always)]
-fn scatter_rows<'r>(bands: usize, inbuf: &[Lanes], scratch: &mut [Lanes], rows: &dyn Fn(usize) -> Row<'r>) {
-    for (i, light) in inbuf.iter().enumerate() {
-        if light.iter().all(|&l| l == 0.0) {
-            continue;
-        }
-        let (outs, f) = rows(i);
-        if bands == 1 {
-            for (&o, &f) in outs.iter().zip(f) {
-                let s = &mut scratch[o as usize];
-                for j in 0..LANES {
-                    s[j] += f * light[j];
-                }
-            }
-        } else {
-            for (e, &o) in outs.iter().enumerate() {
-                let s = &mut scratch[o as usize];
-                let fe = [f[e * 3], f[e * 3 + 1], f[e * 3 + 2]];
-                for j in 0..LANES {
-                    s[j] += fe[j % 3] * light[j];
-                }
-            }
-        }
-    }
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-fn scatter_rows_avx2<'r>(bands: usize, inbuf: &[Lanes], scratch: &mut [Lanes], rows: &dyn Fn(usize) -> Row<'r>) {
-    scatter_rows(bands, inbuf, scratch, rows)
 }
 
 impl NonDiffuse<'_> {

@@ -24,7 +24,7 @@ pub use ray_space::ray_space;
 use glam::DVec3;
 
 /// Largest supported frequency (`10·80² + 2 = 64 002` directions).
-pub const MAX_FREQUENCY: u32 = 80;
+pub const MAX_FREQUENCY: u32 = crate::limits::MAX_FREQUENCY;
 
 /// Which construction a [`DirectionSet`] came from. The discriminants are the
 /// on-disk values (`format-spec/archive.md`, `BILD.direction_set`).

@@ -161,15 +161,7 @@ impl<'a> Renderer<'a> {
     pub fn new(v: &InetView<'a>, opts: RenderOptions) -> Self {
         let (all_prims, grids): (Vec<Primitive>, Vec<PatchGrid>) = v.primitives.iter().map(primitive_of).unzip();
         let normals = all_prims.iter().map(|p| p.normal()).collect();
-        let mut temporal = vec![false; all_prims.len()];
-        if let Some(s) = v.sequence {
-            for inst in s.instances {
-                if inst.frame_first > 0 || inst.frame_last + 1 < s.frames() {
-                    let first = inst.first_primitive as usize;
-                    temporal[first..first + inst.primitive_count as usize].fill(true);
-                }
-            }
-        }
+        let temporal = v.temporal_primitives();
         Self { v: *v, opts, all_prims, grids, normals, temporal, cache: None, cache_budget: CACHE_BUDGET, retraced: 0 }
     }
 
@@ -185,7 +177,7 @@ impl<'a> Renderer<'a> {
         let v = &self.v;
         let record = *v.sequence.and_then(|s| s.cameras).and_then(|c| c.get(frame as usize)).unwrap_or(v.camera);
         let camera = PinholeCamera::from_record(&record);
-        let present = v.present_primitives(frame);
+        let present = v.presence(frame).primitives;
         let kept: Vec<u32> = (0..self.all_prims.len() as u32).filter(|&i| present[i as usize]).collect();
         let prims: Vec<Primitive> = kept.iter().map(|&i| self.all_prims[i as usize]).collect();
         let bvh = PrimitiveBvh::new(&prims);

@@ -288,17 +288,17 @@ pub(super) fn parse(text: &str, file: &Path, base_dir: &Path, name: String) -> R
             build.ray_spacing = Some(*r.get_ref());
         }
         if let Some(k) = &b.buckets {
-            if *k.get_ref() > crate::build::MAX_BUCKET {
-                return Err(cx.err(k.span(), "build.buckets", format!("must be in 0..={}", crate::build::MAX_BUCKET)));
+            if *k.get_ref() > crate::limits::MAX_BUCKET {
+                return Err(cx.err(k.span(), "build.buckets", format!("must be in 0..={}", crate::limits::MAX_BUCKET)));
             }
             build.buckets = Some(*k.get_ref());
         }
         if let Some(f) = &b.frequency {
-            if !(1..=crate::geodesic::MAX_FREQUENCY).contains(f.get_ref()) {
+            if !(1..=crate::limits::MAX_FREQUENCY).contains(f.get_ref()) {
                 return Err(cx.err(
                     f.span(),
                     "build.frequency",
-                    format!("must be in 1..={}", crate::geodesic::MAX_FREQUENCY),
+                    format!("must be in 1..={}", crate::limits::MAX_FREQUENCY),
                 ));
             }
             build.frequency = Some(*f.get_ref());

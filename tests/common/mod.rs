@@ -26,8 +26,18 @@ pub fn build_archive(scene: &Scene, hints: BuildHints) -> Archive {
     Archive::from_bytes(&archive::write_to_vec(&contents).unwrap()).unwrap()
 }
 
+/// Builds `scene` (still or animated: a sequence) with default settings
+/// (plus `hints`) and opens the result from memory.
+pub fn build_sequence_archive(scene: &Scene, hints: BuildHints) -> Archive {
+    let mut settings = BuildSettings::resolve(scene, hints);
+    settings.prototype_library = None;
+    let seq = build::build_sequence(scene, &settings, &NoProgress).unwrap();
+    Archive::from_bytes(&archive::write_to_vec(&seq.contents).unwrap()).unwrap()
+}
+
 pub fn solve(archive: &Archive) -> Solution {
     distribute::distribute(&archive.view(), &DistributeOptions { tolerance: 1e-7, ..Default::default() }, &NoProgress)
+        .unwrap()
 }
 
 /// Surface index of every patch.

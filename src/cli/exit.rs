@@ -1,0 +1,112 @@
+//! Exit codes: what a script can tell from `$?` (documented in the README).
+//!
+//! | code | meaning |
+//! |---|---|
+//! | 0 | success |
+//! | 1 | failure not covered below |
+//! | 2 | usage: unknown option, missing argument (clap) |
+//! | 3 | bad input: a scene file, an option's value, a frame the archive does not have |
+//! | 4 | corrupt or unsupported archive |
+//! | 5 | I/O: a file could not be read or written |
+//! | 6 | reserved: the job does not fit the memory budget |
+//! | 7 | reserved: the result is not finite or did not converge |
+//! | 101 | internal error (a panic: a bug, please report it) |
+//!
+//! Errors carry their kind as a typed source in the `anyhow` chain
+//! (`SceneError`, `ArchiveError`, `DistributeError`, I/O errors, or the
+//! [`BadInput`] and [`IoFailure`] of the CLI's own checks); the code is
+//! that of the first classified source.
+
+use std::fmt;
+
+use illumnet::archive::ArchiveError;
+use illumnet::distribute::DistributeError;
+use illumnet::scene::SceneError;
+
+/// Failure not covered by another code.
+pub const FAILURE: u8 = 1;
+/// An input (scene, option value, frame) is wrong.
+pub const BAD_INPUT: u8 = 3;
+/// The archive is corrupt or needs a newer reader.
+pub const CORRUPT_ARCHIVE: u8 = 4;
+/// Reading or writing a file failed.
+pub const IO: u8 = 5;
+
+/// An option value or other input the CLI refuses.
+#[derive(Debug)]
+pub struct BadInput(pub String);
+
+/// A file the CLI could not read or write (image encoders report strings).
+#[derive(Debug)]
+pub struct IoFailure(pub String);
+
+impl fmt::Display for BadInput {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl fmt::Display for IoFailure {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl std::error::Error for BadInput {}
+impl std::error::Error for IoFailure {}
+
+/// `Err(BadInput(format!(…)))` from the enclosing function.
+macro_rules! bail_input {
+    ($($t:tt)*) => {
+        return Err(anyhow::Error::new($crate::cli::exit::BadInput(format!($($t)*))))
+    };
+}
+pub(crate) use bail_input;
+
+/// `.input(|| message)`: a missing value or a parse failure as [`BadInput`].
+pub trait InputContext<T> {
+    /// The value, or a [`BadInput`] with `message`.
+    fn input(self, message: impl FnOnce() -> String) -> anyhow::Result<T>;
+}
+
+impl<T> InputContext<T> for Option<T> {
+    fn input(self, message: impl FnOnce() -> String) -> anyhow::Result<T> {
+        self.ok_or_else(|| anyhow::Error::new(BadInput(message())))
+    }
+}
+
+impl<T, E> InputContext<T> for Result<T, E> {
+    fn input(self, message: impl FnOnce() -> String) -> anyhow::Result<T> {
+        self.map_err(|_| anyhow::Error::new(BadInput(message())))
+    }
+}
+
+fn archive_code(e: &ArchiveError) -> u8 {
+    match e {
+        ArchiveError::Io { .. } => IO,
+        ArchiveError::Corrupt(_) | ArchiveError::UnsupportedVersion { .. } => CORRUPT_ARCHIVE,
+    }
+}
+
+/// The exit code of `err` (module docs).
+pub fn code(err: &anyhow::Error) -> u8 {
+    for cause in err.chain() {
+        if cause.is::<BadInput>() || cause.is::<SceneError>() {
+            return BAD_INPUT;
+        }
+        if cause.is::<IoFailure>() || cause.is::<std::io::Error>() {
+            return IO;
+        }
+        if let Some(e) = cause.downcast_ref::<ArchiveError>() {
+            return archive_code(e);
+        }
+        if let Some(e) = cause.downcast_ref::<DistributeError>() {
+            return match e {
+                DistributeError::Archive(a) => archive_code(a),
+                DistributeError::TooLarge(_) | DistributeError::Unsupported(_) => FAILURE,
+                _ => BAD_INPUT,
+            };
+        }
+    }
+    FAILURE
+}

@@ -1,0 +1,167 @@
+//! A plain reference solver: Jacobi iteration of the same energy balance
+//! over the same links, written for clarity, not speed, so that tests can
+//! hold the fast path ([`super::Distributor`]: blocked kernels, bucket runs,
+//! overlays, Anderson acceleration, warm starts, sparse jumps) to it.
+//!
+//! For a frame k it lists the frame's link ends once, plainly: frame 0's
+//! ends and the frame's delta records, both ends of each, keeping those
+//! whose two patches are present (§5.13). Then it iterates
+//! `O ← E + ρ·(direct(O) + spread(O))` in `f64`, where `direct` gathers
+//! `w · O[other] / H_other` over a patch's ends of bucket 0 and `spread`
+//! shares wider buckets over rings of neighbours (the `buckets` module),
+//! until the change in `O` is below the tolerance. Diffuse archives only.
+
+use super::buckets::Rings;
+use super::{DistributeError, DistributeOptions, Lighting, patch_materials};
+use crate::archive::{ArchiveError, InetView};
+
+/// What the reference solver found.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ReferenceSolution {
+    /// Outgoing radiance per patch (W·sr⁻¹·m⁻², RGB), as
+    /// [`super::Solution::radiance`].
+    pub radiance: Vec<[f64; 3]>,
+    /// Power each patch sends at the fixed point (W, RGB).
+    pub sent: Vec<[f64; 3]>,
+    /// Jacobi iterations run.
+    pub iterations: u32,
+    /// Whether the change fell below the tolerance.
+    pub converged: bool,
+}
+
+/// One link end of the frame: `owner` receives over it from `other`.
+struct End {
+    owner: u32,
+    other: u32,
+    weight: f64,
+    bucket: u8,
+}
+
+/// Solves `frame` of `v` under `lighting` with the options' tolerance
+/// (on the summed change of sent power relative to emitted power),
+/// iteration limit, buckets and patch-size correction; Anderson depth is
+/// ignored. Fails for archives with non-diffuse patches.
+pub fn solve(
+    v: &InetView<'_>,
+    frame: u32,
+    lighting: &Lighting,
+    opts: &DistributeOptions,
+) -> Result<ReferenceSolution, DistributeError> {
+    if v.reflectance.is_some() {
+        return Err(DistributeError::Unsupported("the reference solver handles diffuse archives only".into()));
+    }
+    let n = v.patch_count();
+    let frames = v.sequence.map_or(1, |s| s.frames());
+    if frame >= frames {
+        return Err(match v.sequence {
+            Some(_) => DistributeError::FrameOutOfRange { frame, frames },
+            None => DistributeError::NotASequence { frame },
+        });
+    }
+    let presence = v.presence(frame);
+    let (rho, mut emit) = patch_materials(v, lighting);
+    if let Some(keyed) = v.keyed_emission(frame) {
+        for p in 0..n {
+            let surface = v.primitives[v.patch_primitive[p] as usize].surface as usize;
+            if !lighting.emission_fixed[surface] {
+                emit[p] = keyed[surface];
+            }
+        }
+    }
+    let use_buckets = opts.buckets && v.build.max_bucket > 0 && v.link_bucket.is_some();
+    let buckets = if use_buckets { v.build.max_bucket as usize + 1 } else { 1 };
+    let mut ends = Vec::new();
+    for q in 0..n {
+        let (other, weight, _) = v.link_ends(q);
+        let a = v.link_offsets[q] as usize;
+        for (i, (&o, &w)) in other.iter().zip(weight).enumerate() {
+            let bucket = if use_buckets { v.link_bucket.map_or(0, |b| b[a + i]) } else { 0 };
+            ends.push(End { owner: q as u32, other: o, weight: w as f64, bucket });
+        }
+    }
+    if let Some(s) = v.sequence {
+        for d in s.frame_delta(frame)? {
+            let (ba, bb) = if use_buckets { (d.bucket_a, d.bucket_b) } else { (0, 0) };
+            ends.push(End { owner: d.a, other: d.b, weight: d.count as f64, bucket: ba });
+            ends.push(End { owner: d.b, other: d.a, weight: d.count as f64, bucket: bb });
+        }
+    }
+    ends.retain(|e| presence.link(e.owner, e.other));
+    let rings = match use_buckets {
+        true => Some(
+            Rings::new(v.adjacency_offsets, v.adjacency, buckets - 1)
+                .map_err(|e| DistributeError::Archive(ArchiveError::Corrupt(e)))?,
+        ),
+        false => None,
+    };
+    // Share of a patch's power per end, and the area irradiance is over.
+    let (share, area_eff): (Vec<f64>, Vec<f64>) = (0..n)
+        .map(|p| {
+            let (h, hx, a) = (v.patch_hits[p] as f64, v.patch_expected_hits[p] as f64, v.patch_area[p] as f64);
+            if opts.patch_size_correction {
+                (if h > 0.0 { 1.0 / h } else { 0.0 }, if h > 0.0 && hx > 0.0 { a * h / hx } else { a })
+            } else {
+                (if hx > 0.0 { 1.0 / hx } else { 0.0 }, a)
+            }
+        })
+        .unzip();
+    let emitted: Vec<[f64; 3]> = (0..n)
+        .map(|p| {
+            let k = std::f64::consts::PI * v.patch_area[p] as f64;
+            let on = presence.patch(p);
+            [0, 1, 2].map(|c| if on { emit[p][c] as f64 * k } else { 0.0 })
+        })
+        .collect();
+    let emitted_total: f64 = emitted.iter().flatten().sum();
+    // Received light of `sent`: bucket 0 on the patch itself, the rest
+    // spread over the rings.
+    let receive = |sent: &[[f64; 3]]| -> (Vec<[f64; 3]>, Vec<[f64; 3]>) {
+        let mut recv = vec![[0.0f64; 3]; n * buckets];
+        for e in &ends {
+            let (o, slot) = (e.other as usize, e.owner as usize * buckets + e.bucket as usize);
+            for c in 0..3 {
+                recv[slot][c] += e.weight * share[o] * sent[o][c];
+            }
+        }
+        let direct = (0..n).map(|q| recv[q * buckets]).collect();
+        let spread = match &rings {
+            Some(r) => {
+                let wide: Vec<[f32; 4]> = recv.iter().map(|x| [x[0] as f32, x[1] as f32, x[2] as f32, 0.0]).collect();
+                let mut out = vec![[0.0f32; 4]; n];
+                r.spread(&wide, buckets, &mut out);
+                out.iter().map(|x| [x[0] as f64, x[1] as f64, x[2] as f64]).collect()
+            }
+            None => vec![[0.0; 3]; n],
+        };
+        (direct, spread)
+    };
+    let mut sent = emitted.clone();
+    let (mut iterations, mut converged) = (0, emitted_total == 0.0);
+    while !converged && iterations < opts.max_iterations {
+        let (direct, spread) = receive(&sent);
+        let mut change = 0.0;
+        for p in 0..n {
+            for c in 0..3 {
+                let next = emitted[p][c] + rho[p][c] as f64 * (direct[p][c] + spread[p][c]);
+                change += (next - sent[p][c]).abs();
+                sent[p][c] = next;
+            }
+        }
+        iterations += 1;
+        converged = change <= opts.tolerance * emitted_total;
+    }
+    let (direct, spread) = receive(&sent);
+    let pi = std::f64::consts::PI;
+    let radiance = (0..n)
+        .map(|p| {
+            let kd = if area_eff[p] > 0.0 { 1.0 / (pi * area_eff[p]) } else { 0.0 };
+            let ks = if v.patch_area[p] > 0.0 { 1.0 / (pi * v.patch_area[p] as f64) } else { 0.0 };
+            let on = presence.patch(p);
+            [0, 1, 2].map(|c| {
+                let e = if on { emit[p][c] as f64 } else { 0.0 };
+                e + rho[p][c] as f64 * (direct[p][c] * kd + spread[p][c] * ks)
+            })
+        })
+        .collect();
+    Ok(ReferenceSolution { radiance, sent, iterations, converged })
+}

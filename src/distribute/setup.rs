@@ -1,0 +1,138 @@
+//! Per-frame setup: what one frame of a sequence changes in the
+//! per-archive state of a [`Distributor`] — which patches are present,
+//! what they emit, the frame's overlay of link changes and the linked
+//! weights that follow.
+
+use std::borrow::Cow;
+
+use super::overlay::Overlay;
+use super::{DistributeError, Distributor};
+use crate::archive::presence::FramePresence;
+
+/// One frame's view of the archive, made before its first iteration.
+pub(super) struct FrameSetup<'d> {
+    /// Which patches are present (`None` for a still: all of them).
+    pub presence: Option<FramePresence>,
+    /// Emitted radiance per patch (zero for absent patches).
+    pub emit: Vec<[f32; 3]>,
+    /// The frame's link changes against frame 0 (sequences only).
+    pub overlay: Option<Overlay>,
+    /// Per patch, the summed weight of its link ends in this frame.
+    pub linked: Vec<f64>,
+    /// Per non-diffuse patch and direction, the rays that reach a facing
+    /// patch in this frame (borrowed unless the frame changes them).
+    pub linked_dir: Cow<'d, [f32]>,
+    /// Power emitted per patch, `π·L_e·A_p` (the first unshot power).
+    pub emitted_power: Vec<[f32; 4]>,
+    /// Its sum per band.
+    pub emitted: [f64; 3],
+    /// Seconds spent decoding and applying the delta (0 for stills).
+    pub delta_s: f64,
+}
+
+impl FrameSetup<'_> {
+    /// The emitted power summed over bands.
+    pub fn emitted_total(&self) -> f64 {
+        self.emitted.iter().sum()
+    }
+
+    /// Per patch, whether it is present; `None` when all are.
+    pub fn absent_mask(&self) -> Option<&[bool]> {
+        self.presence.as_ref().and_then(FramePresence::absent_mask)
+    }
+}
+
+impl<'a> Distributor<'a> {
+    /// Checks `frame` against the archive and sets it up.
+    pub(super) fn setup(&self, frame: u32) -> Result<FrameSetup<'_>, DistributeError> {
+        let v = &self.v;
+        let n = v.patch_count();
+        let mut emit = self.emit.clone();
+        let t_delta = std::time::Instant::now();
+        let (overlay, presence) = match &v.sequence {
+            Some(s) => {
+                if frame >= s.frames() {
+                    return Err(DistributeError::FrameOutOfRange { frame, frames: s.frames() });
+                }
+                let presence = v.presence(frame);
+                let keyed = v.keyed_emission(frame);
+                for p in 0..n {
+                    let surface = self.patch_surface[p] as usize;
+                    if !presence.patch(p) {
+                        emit[p] = [0.0; 3];
+                    } else if let Some(keyed) = keyed
+                        && !self.emission_fixed.get(surface).copied().unwrap_or(false)
+                    {
+                        emit[p] = keyed[surface];
+                    }
+                }
+                let records = s.frame_delta(frame)?;
+                (Some(Overlay::new(self.nb, &records, &presence, self.nd.is_some())), Some(presence))
+            }
+            None if frame == 0 => (None, None),
+            None => return Err(DistributeError::NotASequence { frame }),
+        };
+        let mut linked = self.linked.clone();
+        if let Some(o) = &overlay {
+            for (l, d) in linked.iter_mut().zip(&o.linked) {
+                *l += d;
+            }
+            self.absent_ends(frame, |q, w, _| linked[q] -= w as f64);
+        }
+        let delta_s = if overlay.is_some() { t_delta.elapsed().as_secs_f64() } else { 0.0 };
+        let emitted_power: Vec<[f32; 4]> = (0..n)
+            .map(|p| {
+                let k = std::f32::consts::PI * v.patch_area[p];
+                [emit[p][0] * k, emit[p][1] * k, emit[p][2] * k, 0.0]
+            })
+            .collect();
+        let mut emitted = [0.0f64; 3];
+        for u in &emitted_power {
+            for c in 0..3 {
+                emitted[c] += u[c] as f64;
+            }
+        }
+        let linked_dir = self.linked_directions(frame, overlay.as_ref());
+        Ok(FrameSetup { presence, emit, overlay, linked, linked_dir, emitted_power, emitted, delta_s })
+    }
+
+    /// Per non-diffuse patch and direction, the rays that reach a facing
+    /// patch at `frame`: frame 0's, changed by the overlay and less the
+    /// ends to patches absent from the frame.
+    fn linked_directions(&self, frame: u32, overlay: Option<&Overlay>) -> Cow<'_, [f32]> {
+        match (&self.nd, overlay.and_then(|o| o.all.as_ref())) {
+            (Some(x), Some(o)) => {
+                let mut l = x.linked.clone();
+                for (k, &q) in x.patches.iter().enumerate() {
+                    for e in o.run(q as usize, 1, 0) {
+                        l[k * x.n + o.direction[e] as usize] += o.weight[e];
+                    }
+                }
+                self.absent_ends(frame, |q, w, d| {
+                    let k = x.nd_of[q];
+                    if k != u32::MAX {
+                        l[x.slot(k, d)] -= w;
+                    }
+                });
+                Cow::Owned(l)
+            }
+            (Some(x), None) => Cow::Borrowed(&x.linked[..]),
+            _ => Cow::Borrowed(&[][..]),
+        }
+    }
+
+    /// Calls `out(q, w, d)` for every frame 0 link end of a patch `q` whose
+    /// other patch is absent from `frame`: `w` rays leaving `q` along
+    /// direction `d` that no longer link (§5.13: a link with an end at an
+    /// absent patch is not a link of the frame).
+    pub(super) fn absent_ends(&self, frame: u32, mut out: impl FnMut(usize, f32, u32)) {
+        for &(t, last) in &self.leaving {
+            if frame > last {
+                let (other, weight, direction) = self.v.link_ends(t as usize);
+                for ((&q, &w), &d) in other.iter().zip(weight).zip(direction) {
+                    out(q as usize, w, d ^ 1);
+                }
+            }
+        }
+    }
+}

@@ -1,0 +1,462 @@
+//! The iteration: one frame's state vectors and the step that the
+//! distribution loop repeats until the unshot power is below tolerance.
+//!
+//! A step chooses what to send (the warm start's guess first, else the
+//! unshot power, or Anderson's mix of it with earlier steps), turns it into
+//! the per-end shares patches shoot, gathers what every patch receives
+//! over its link ends (frame 0's CSR, the frame's overlay, the correction
+//! list of non-diffuse senders), spreads bucketed light over rings of
+//! neighbours, and reflects: `ρ` of what arrived becomes new unshot power,
+//! the rest is absorbed. Each of those is one small method below; the
+//! kernels they call are in `kernels.rs`.
+
+use rayon::prelude::*;
+
+use super::anderson::Anderson;
+use super::kernels::{BLOCK, add_ends, gather, gather_buckets, silence_absent};
+use super::setup::FrameSetup;
+use super::warm::{Carry, WarmStart};
+use super::{DirectionalRadiance, Distributor, EnergyBalance, Solution};
+
+/// Per-ray state of the non-diffuse patches (`nondiffuse.rs`).
+struct Glossy {
+    /// Per-ray directional power to shoot.
+    phi: Vec<[f32; 4]>,
+    /// The next step's, swapped in after each step.
+    phi_next: Vec<[f32; 4]>,
+    /// Its running total (the view-dependent term of §3.5).
+    dir_total: Vec<[f32; 4]>,
+    /// Per non-diffuse patch, the power its last reflection carries.
+    pending: Vec<[f64; 3]>,
+}
+
+/// One frame's iteration state.
+pub(super) struct Iteration<'d, 'f, 's> {
+    d: &'d Distributor<'d>,
+    s: &'f FrameSetup<'d>,
+    warm: WarmStart<'s>,
+    /// The residual: power still to send.
+    unshot: Vec<[f32; 4]>,
+    /// What this step sends: the residual itself, the warm guess first, or
+    /// Anderson's mixed step.
+    send: Vec<[f32; 4]>,
+    /// `send` per link end (`send · U_p/H_p`).
+    shoot: Vec<[f32; 4]>,
+    /// Received per patch and bucket.
+    recv: Vec<[f32; 4]>,
+    /// Spread onto each patch from its rings.
+    spread: Vec<[f32; 4]>,
+    /// What the step changed in the residual, for the acceleration.
+    residual_change: Vec<[f32; 4]>,
+    /// Received power over the iterations: what hit the patch itself
+    /// (bucket 0, whose density follows the patch's hit count) and what
+    /// was spread onto it.
+    total_direct: Vec<[f32; 4]>,
+    total_spread: Vec<[f32; 4]>,
+    /// Totals over the iterations, for the next frame's sparse jump
+    /// (diffuse sequences only; empty otherwise).
+    carrying: bool,
+    sent_total: Vec<[f64; 3]>,
+    received_total: Vec<[f64; 3]>,
+    anderson: Anderson,
+    glossy: Option<Glossy>,
+    bal: EnergyBalance,
+    residual_total: f64,
+    /// A mixed step leaves a residual shaped by the least-squares fit, not
+    /// by the light: converged after one, the loop takes one plain step,
+    /// which spreads what is left like plain iteration would (per-patch
+    /// errors as small as plain iteration's at the same tolerance).
+    last_mixed: bool,
+}
+
+impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
+    /// The state before the first step of frame `s`, started as `warm`.
+    pub fn new(d: &'d Distributor<'d>, s: &'f FrameSetup<'d>, warm: WarmStart<'s>, start: Option<&Solution>) -> Self {
+        let n = d.v.patch_count();
+        let nb = d.nb;
+        let carrying = d.nd.is_none() && d.v.sequence.is_some();
+        // A warm start also starts from the previous frame's secant pairs:
+        // its operator differs a little, but the pairs only steer the step,
+        // and its slowest mode is this frame's too.
+        let anderson = match start {
+            Some(st) if warm.first_send().is_some() && st.history.fits(n, d.opts.anderson_depth) => st.history.clone(),
+            _ => Anderson::new(if d.nd.is_none() { d.opts.anderson_depth } else { 0 }),
+        };
+        let glossy = d.nd.as_ref().map(|x| {
+            let nn = x.patches.len() * x.n;
+            Glossy {
+                phi: vec![[0.0; 4]; nn],
+                phi_next: vec![[0.0; 4]; nn],
+                dir_total: vec![[0.0; 4]; nn],
+                pending: vec![[0.0; 3]; x.patches.len()],
+            }
+        });
+        Self {
+            d,
+            s,
+            warm,
+            unshot: s.emitted_power.clone(),
+            send: vec![[0.0; 4]; n],
+            shoot: vec![[0.0; 4]; n],
+            recv: vec![[0.0; 4]; n * nb],
+            spread: vec![[0.0; 4]; n],
+            residual_change: vec![[0.0; 4]; n],
+            total_direct: vec![[0.0; 4]; n],
+            total_spread: vec![[0.0; 4]; n],
+            carrying,
+            sent_total: vec![[0.0; 3]; if carrying { n } else { 0 }],
+            received_total: vec![[0.0; 3]; if carrying { n * nb } else { 0 }],
+            anderson,
+            glossy,
+            bal: EnergyBalance { emitted: s.emitted, ..Default::default() },
+            residual_total: s.emitted_total(),
+            last_mixed: false,
+        }
+    }
+
+    /// Whether the residual is within tolerance.
+    fn converged(&self) -> bool {
+        self.residual_total <= self.d.opts.tolerance * self.s.emitted_total()
+    }
+
+    /// Whether another step is due: not converged (or the last step was
+    /// mixed) and within the iteration limit.
+    pub fn wants_step(&self) -> bool {
+        (!self.converged() || self.last_mixed) && self.bal.iterations < self.d.opts.max_iterations
+    }
+
+    /// One iteration.
+    pub fn step(&mut self) {
+        let warm_jump = self.bal.iterations == 0 && self.warm.first_send().is_some();
+        let converged = self.converged();
+        self.choose_send(warm_jump, converged);
+        self.last_mixed = !warm_jump && !converged && self.anderson.pairs() > 0;
+        let previous_residual = self.residual_total;
+        self.shoot();
+        self.escape_directional();
+        match self.warm.carry() {
+            Some(c) if warm_jump => self.gather_sparse(c),
+            _ => self.gather_full(),
+        }
+        self.spread();
+        self.add_to_carry();
+        self.residual_total = 0.0;
+        self.reflect_directional();
+        self.reflect();
+        if !warm_jump {
+            if self.residual_total < previous_residual {
+                self.anderson.record(&self.send, &self.residual_change);
+            } else {
+                self.anderson.reset();
+            }
+        }
+        self.bal.iterations += 1;
+    }
+
+    /// Sets `send`: the warm start's first send, the residual (a plain
+    /// step), or Anderson's mix.
+    fn choose_send(&mut self, warm_jump: bool, converged: bool) {
+        match self.warm.first_send() {
+            Some(g) if warm_jump => self.send.copy_from_slice(g),
+            _ if converged => self.send.copy_from_slice(&self.unshot),
+            _ => self.anderson.step(&self.unshot, &mut self.send),
+        }
+        // A mixed step may hand absent patches (present in an earlier
+        // frame of the history) something to send: they send nothing.
+        silence_absent(self.s.absent_mask(), 1, &mut self.send);
+    }
+
+    /// `shoot = send · share` per patch; the shares of ends that link
+    /// nowhere have escaped. Per-patch passes run in parallel blocks; their
+    /// sums are added in block order, so the result does not depend on the
+    /// threads.
+    fn shoot(&mut self) {
+        let (share, linked, send) = (&self.d.share, &self.s.linked, &self.send);
+        let escaped: Vec<[f64; 3]> = self
+            .shoot
+            .par_chunks_mut(BLOCK)
+            .enumerate()
+            .map(|(block, out)| {
+                let mut sum = [0.0f64; 3];
+                for (i, sh) in out.iter_mut().enumerate() {
+                    let p = block * BLOCK + i;
+                    let s = share[p];
+                    let escape = 1.0 - linked[p] * s as f64;
+                    for c in 0..3 {
+                        sh[c] = send[p][c] * s;
+                        sum[c] += send[p][c] as f64 * escape;
+                    }
+                }
+                sum
+            })
+            .collect();
+        for e in &escaped {
+            for c in 0..3 {
+                self.bal.escaped[c] += e[c];
+            }
+        }
+    }
+
+    /// Directional power leaves along every ray of its direction; rays that
+    /// reach no facing patch lose it.
+    fn escape_directional(&mut self) {
+        let (Some(x), Some(g)) = (self.d.nd.as_ref(), self.glossy.as_mut()) else { return };
+        let linked_dir = &self.s.linked_dir;
+        for (k, pending) in g.pending.iter_mut().enumerate() {
+            let mut sent = [0.0f64; 3];
+            for o in 0..x.n {
+                let l = linked_dir[k * x.n + o];
+                if l != 0.0 {
+                    for c in 0..3 {
+                        sent[c] += (l * g.phi[k * x.n + o][c]) as f64;
+                    }
+                }
+            }
+            for c in 0..3 {
+                self.bal.escaped[c] += pending[c] - sent[c];
+            }
+            *pending = [0.0; 3];
+        }
+    }
+
+    /// The sparse jump's gather: `G_f(X) = G_e(S) + overlay_f(X) −
+    /// overlay_e(S)` for the earlier frame e (see
+    /// `Distributor::sparse_jump`).
+    fn gather_sparse(&mut self, c: &Carry) {
+        let (nb, s) = (self.d.nb, self.s);
+        for (r, t) in self.recv.iter_mut().zip(&c.received) {
+            *r = [t[0] as f32, t[1] as f32, t[2] as f32, 0.0];
+        }
+        if let Some(o) = &s.overlay {
+            add_ends(&o.gather, nb, &self.shoot, 1.0, None, &mut self.recv);
+        }
+        if let Some(e) = &c.overlay {
+            let shoot_e: Vec<[f32; 4]> = c
+                .sent
+                .iter()
+                .zip(&self.d.share)
+                .map(|(x, &s)| [x[0] as f32 * s, x[1] as f32 * s, x[2] as f32 * s, 0.0])
+                .collect();
+            add_ends(e, nb, &shoot_e, -1.0, None, &mut self.recv);
+        }
+        silence_absent(s.absent_mask(), nb, &mut self.recv);
+        self.bal.ends_gathered += [s.overlay.as_ref().map(|o| &o.gather), c.overlay.as_ref()]
+            .iter()
+            .flatten()
+            .map(|e| e.other.len() as u64)
+            .sum::<u64>();
+    }
+
+    /// The full gather: frame 0's links, the frame's overlay, and what
+    /// non-diffuse senders send along their ends.
+    fn gather_full(&mut self) {
+        let (d, s, nb) = (self.d, self.s, self.d.nb);
+        let v = &d.v;
+        let present = s.absent_mask();
+        let nd_phi = d.nd.as_ref().zip(self.glossy.as_ref()).map(|(x, g)| (x, &g.phi[..]));
+        match &d.bucket_runs {
+            Some(runs) => gather_buckets(
+                v.link_offsets,
+                d.link_other,
+                v.link_weight,
+                runs,
+                nb,
+                present,
+                &self.shoot,
+                &mut self.recv,
+            ),
+            None => gather(v.link_offsets, d.link_other, v.link_weight, present, &self.shoot, &mut self.recv),
+        }
+        if let Some(o) = &s.overlay {
+            add_ends(&o.gather, nb, &self.shoot, 1.0, nd_phi, &mut self.recv);
+        }
+        if let Some((x, phi)) = nd_phi {
+            x.gather_corrections(nb, d.bucket_runs.is_some(), phi, &mut self.recv);
+            silence_absent(present, nb, &mut self.recv);
+        }
+        self.bal.ends_gathered += (v.link_other.len() + s.overlay.as_ref().map_or(0, |o| o.gather.other.len())) as u64;
+    }
+
+    /// Light that arrived in wide buckets, spread over rings of neighbours
+    /// (§3.4).
+    fn spread(&mut self) {
+        match &self.d.rings {
+            Some(rings) if self.d.bucket_runs.is_some() => rings.spread(&self.recv, self.d.nb, &mut self.spread),
+            _ => self.spread.fill([0.0; 4]),
+        }
+    }
+
+    /// Adds what this step sent and received to the totals a sparse jump
+    /// of the next frame starts from.
+    fn add_to_carry(&mut self) {
+        if !self.carrying {
+            return;
+        }
+        let nb = self.d.nb;
+        let add = |(t, x): (&mut [[f64; 3]], &[[f32; 4]])| {
+            for (t, x) in t.iter_mut().zip(x) {
+                for c in 0..3 {
+                    t[c] += x[c] as f64;
+                }
+            }
+        };
+        self.sent_total.par_chunks_mut(BLOCK).zip(self.send.par_chunks(BLOCK)).for_each(add);
+        self.received_total.par_chunks_mut(BLOCK * nb).zip(self.recv.par_chunks(BLOCK * nb)).for_each(add);
+    }
+
+    /// Non-diffuse patches reflect what arrived along each direction
+    /// through their tables (Figure 9) into the next step's per-ray power.
+    fn reflect_directional(&mut self) {
+        let (Some(x), Some(g)) = (self.d.nd.as_ref(), self.glossy.as_mut()) else { return };
+        let v = &self.d.v;
+        let all_ends = self.s.overlay.as_ref().and_then(|o| o.all.as_ref());
+        let overlay_ends = |q: usize, add: &mut dyn FnMut(u32, f32, u32)| {
+            if let Some(o) = all_ends {
+                for e in o.run(q, 1, 0) {
+                    add(o.other[e], o.weight[e], o.direction[e]);
+                }
+            }
+        };
+        let totals = x.step(v, &self.shoot, &g.phi, &overlay_ends, &mut g.phi_next);
+        std::mem::swap(&mut g.phi, &mut g.phi_next);
+        // Absent non-diffuse patches keep nothing to send: `step` walks
+        // their frame 0 ends too, and what it finds there is not light of
+        // this frame (the senders counted those ends as escaped,
+        // `absent_ends`).
+        let present = self.s.absent_mask();
+        if let Some(present) = present {
+            for (k, &q) in x.patches.iter().enumerate() {
+                if !present[q as usize] {
+                    g.phi[k * x.n..(k + 1) * x.n].fill([0.0; 4]);
+                }
+            }
+        }
+        for (t, p) in g.dir_total.iter_mut().zip(&g.phi) {
+            for c in 0..4 {
+                t[c] += p[c];
+            }
+        }
+        for (k, t) in totals.iter().enumerate() {
+            if present.is_some_and(|p| !p[x.patches[k] as usize]) {
+                g.pending[k] = [0.0; 3];
+                continue;
+            }
+            g.pending[k] = t.reflected;
+            for c in 0..3 {
+                self.bal.absorbed[c] -= t.reflected[c];
+                self.residual_total += t.reflected[c].abs();
+            }
+        }
+    }
+
+    /// Every patch reflects `ρ` of what it received (direct and spread) as
+    /// new unshot power and absorbs the rest: `f(x + δ) = f(x) − δ + K·δ`.
+    fn reflect(&mut self) {
+        let (rho, nb) = (&self.d.rho, self.d.nb);
+        let (recv, spread, send) = (&self.recv, &self.spread, &self.send);
+        let sums: Vec<([f64; 3], f64)> = (
+            self.total_direct.par_chunks_mut(BLOCK),
+            self.total_spread.par_chunks_mut(BLOCK),
+            self.residual_change.par_chunks_mut(BLOCK),
+            self.unshot.par_chunks_mut(BLOCK),
+        )
+            .into_par_iter()
+            .enumerate()
+            .map(|(block, (td, ts, rc, un))| {
+                let (mut absorbed, mut residual) = ([0.0f64; 3], 0.0f64);
+                for i in 0..td.len() {
+                    let p = block * BLOCK + i;
+                    for c in 0..3 {
+                        let direct = recv[p * nb][c];
+                        let r = direct + spread[p][c];
+                        td[i][c] += direct;
+                        ts[i][c] += spread[p][c];
+                        let reflected = r * rho[p][c];
+                        rc[i][c] = reflected - send[p][c];
+                        un[i][c] = un[i][c] - send[p][c] + reflected;
+                        absorbed[c] += (r - reflected) as f64;
+                        residual += un[i][c].abs() as f64;
+                    }
+                }
+                (absorbed, residual)
+            })
+            .collect();
+        for (a, r) in &sums {
+            for c in 0..3 {
+                self.bal.absorbed[c] += a[c];
+            }
+            self.residual_total += r;
+        }
+    }
+
+    /// The frame's solution: radiance from the received totals, the
+    /// balance with what is left unshot, and what the next frame's warm
+    /// start reuses.
+    pub fn finish(self, frame: u32) -> Solution {
+        let (d, s) = (self.d, self.s);
+        let v = &d.v;
+        let n = v.patch_count();
+        let mut bal = self.bal;
+        for u in &self.unshot {
+            for c in 0..3 {
+                bal.residual[c] += u[c] as f64;
+            }
+        }
+        if let Some(g) = &self.glossy {
+            for p in &g.pending {
+                for c in 0..3 {
+                    bal.residual[c] += p[c];
+                }
+            }
+        }
+        bal.converged = self.residual_total <= d.opts.tolerance * s.emitted_total();
+        let (area_eff, rho, emit) = (&d.area_eff, &d.rho, &s.emit);
+        let (total_direct, total_spread) = (&self.total_direct, &self.total_spread);
+        let inv_pi = 1.0 / std::f32::consts::PI;
+        let radiance = (0..n)
+            .map(|p| {
+                let kd = if area_eff[p] > 0.0 { inv_pi / area_eff[p] } else { 0.0 };
+                let ks = if v.patch_area[p] > 0.0 { inv_pi / v.patch_area[p] } else { 0.0 };
+                [0, 1, 2].map(|c| emit[p][c] + rho[p][c] * (total_direct[p][c] * kd + total_spread[p][c] * ks))
+            })
+            .collect();
+        let received = (0..n).map(|p| [0, 1, 2].map(|c| total_direct[p][c] + total_spread[p][c])).collect();
+        // Per-ray power → radiance: one ray stands for the étendue
+        // π·A_p/E[H_p] of its patch (as for the diffuse radiance above).
+        let directional = d.nd.as_ref().zip(self.glossy.as_ref()).map(|(x, g)| {
+            let radiance = x
+                .patches
+                .iter()
+                .enumerate()
+                .flat_map(|(k, &q)| {
+                    let q = q as usize;
+                    let a = v.patch_area[q];
+                    let to_l = if a > 0.0 { v.patch_expected_hits[q] / (std::f32::consts::PI * a) } else { 0.0 };
+                    g.dir_total[k * x.n..(k + 1) * x.n].iter().map(move |t| [t[0] * to_l, t[1] * to_l, t[2] * to_l])
+                })
+                .collect();
+            DirectionalRadiance { patches: x.patches.clone(), directions: x.n, radiance }
+        });
+        let carry = self.carrying.then(|| {
+            std::sync::Arc::new(Carry {
+                distributor: d.id,
+                frame,
+                chain: self.warm.carry().map_or(0, |c| c.chain + 1),
+                sent: self.sent_total,
+                received: self.received_total,
+                emitted: s.emitted_power.clone(),
+                overlay: s.overlay.as_ref().map(|o| o.gather.clone()),
+            })
+        });
+        Solution {
+            radiance,
+            received,
+            balance: bal,
+            delta_s: s.delta_s,
+            directional,
+            history: self.anderson,
+            carry,
+            frame,
+        }
+    }
+}
