@@ -124,7 +124,7 @@ fn sequence_links_equal_from_scratch_links_at_every_frame() {
             seq.instances.iter().any(|i| {
                 let inside = prim >= first && prim < first + i.primitives.len();
                 first += i.primitives.len();
-                inside && i.frames.0 <= k && k <= i.frames.1
+                inside && i.frames.contains(k)
             })
         };
         let mut seq_hits = std::collections::BTreeMap::new();
@@ -489,7 +489,7 @@ fn explicit_removals_of_links_to_absent_patches_give_the_same_light() {
         let present_at = |k: u32| {
             let mut present = Vec::new();
             for i in &seq.instances {
-                present.extend(std::iter::repeat_n(i.frames.0 <= k && k <= i.frames.1, i.primitives.len()));
+                present.extend(std::iter::repeat_n(i.frames.contains(k), i.primitives.len()));
             }
             seq.contents.patch_primitive.iter().map(|&p| present[p as usize]).collect::<Vec<bool>>()
         };

@@ -26,6 +26,7 @@ use crate::archive::layout::{
     self, BuildRecord, CameraRecord, DirectionRecord, MaterialRecord, PrimitiveRecord, SurfaceRecord,
 };
 use crate::archive::layout::{AnimationRecord, InstanceRecord};
+use crate::archive::presence::{FramePresence, FrameSpan};
 use crate::archive::{ArchiveContents, ArchiveMeta, SequenceContents};
 use crate::geodesic::{DirectionSet, DirectionSetKind};
 use crate::geometry::Primitive;
@@ -87,8 +88,8 @@ pub fn build(
 pub struct Instance {
     /// Surface index.
     pub surface: u32,
-    /// Inclusive frame range.
-    pub frames: (u32, u32),
+    /// The frames it is present in.
+    pub frames: FrameSpan,
     /// The surface's primitives placed for those frames.
     pub primitives: Vec<Primitive>,
     /// The surface's grain placed for those frames.
@@ -174,12 +175,9 @@ impl Sequence {
 
     /// Per patch, whether it is present at `frame`.
     fn present_patches(&self, frame: u32) -> Vec<bool> {
-        let mut primitive_present = Vec::new();
-        for i in &self.instances {
-            let here = i.frames.0 <= frame && frame <= i.frames.1;
-            primitive_present.extend(std::iter::repeat_n(here, i.primitives.len()));
-        }
-        self.contents.patch_primitive.iter().map(|&prim| primitive_present[prim as usize]).collect()
+        let spans: Vec<FrameSpan> =
+            self.instances.iter().flat_map(|i| std::iter::repeat_n(i.frames, i.primitives.len())).collect();
+        FramePresence::new(frame, &spans, &self.contents.patch_primitive).patches
     }
 }
 
@@ -192,7 +190,7 @@ pub fn instances(scene: &Scene) -> Vec<Instance> {
         match &surf.motion {
             None => out.push(Instance {
                 surface: s as u32,
-                frames: (0, last),
+                frames: FrameSpan { first: 0, last },
                 primitives: surf.primitives.clone(),
                 grain: surf.grain,
             }),
@@ -202,7 +200,7 @@ pub fn instances(scene: &Scene) -> Vec<Instance> {
                     if f == last + 1 || !m.same_transform(f0, f) {
                         out.push(Instance {
                             surface: s as u32,
-                            frames: (f0, f - 1),
+                            frames: FrameSpan { first: f0, last: f - 1 },
                             primitives: m.apply(f0, &surf.primitives),
                             grain: surf.grain.map(|g| m.apply_direction(f0, g)),
                         });
@@ -236,8 +234,8 @@ fn sequence_sections(
                 surface: i.surface,
                 first_primitive: first,
                 primitive_count: i.primitives.len() as u32,
-                frame_first: i.frames.0,
-                frame_last: i.frames.1,
+                frame_first: i.frames.first,
+                frame_last: i.frames.last,
                 reserved: [0; 3],
             };
             first += i.primitives.len() as u32;
@@ -312,7 +310,7 @@ fn build_impl(
             if !(p.p.iter().all(|v| v.is_finite()) && p.area() > 0.0) {
                 return Err(format!(
                     "surface `{}` at frames {}..={}: keyframed motion makes a primitive degenerate or infinite (a scale through 0?)",
-                    scene.surfaces[inst.surface as usize].name, inst.frames.0, inst.frames.1
+                    scene.surfaces[inst.surface as usize].name, inst.frames.first, inst.frames.last
                 ));
             }
         }

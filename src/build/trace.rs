@@ -13,6 +13,7 @@ use rayon::prelude::*;
 
 use crate::archive::deltas::{Block, BlockCompressor};
 use crate::archive::layout::DeltaRecord;
+use crate::archive::presence::FrameSpan;
 use crate::geodesic::{DirectionSet, DirectionSetKind};
 use crate::geometry::Primitive;
 use crate::geometry::accel::PrimitiveBvh;
@@ -209,8 +210,8 @@ struct RayHitRecord {
     t: f32,
     primitive: u32,
     uv: Vec2,
-    /// Frames the primitive is present in (inclusive).
-    active: (u32, u32),
+    /// Frames the primitive is present in.
+    active: FrameSpan,
     /// `normal · d`.
     cos: f32,
     /// Patch hit.
@@ -224,8 +225,8 @@ type LinkKey = (u64, u8, u8);
 pub struct TraceInput<'a> {
     /// All primitives: permanent ones and temporal instances.
     pub prims: &'a [Primitive],
-    /// Inclusive frame range each primitive is present in.
-    pub active: &'a [(u32, u32)],
+    /// Frames each primitive is present in.
+    pub active: &'a [FrameSpan],
     /// Build-independent tie-break for hits at equal distance
     /// (`surface << 32 | index within surface`), so that an animated build and
     /// a from-scratch build of one frame order coincident hits alike.
@@ -351,7 +352,7 @@ struct Walk<'a> {
     /// Per non-diffuse patch and pair, rays crossing it.
     nd_hits: &'a [AtomicU32],
     /// Per patch, the frames it is present in.
-    patch_active: &'a [(u32, u32)],
+    patch_active: &'a [FrameSpan],
 }
 
 impl Walk<'_> {
@@ -379,7 +380,7 @@ impl Walk<'_> {
         let mut counted = 0;
         let mut prev: Option<(u32, f32, u32, bool, f32)> = None; // (patch, t, primitive, faces +d, cos)
         for h in hits {
-            let (lo, _) = h.active;
+            let lo = h.active.first;
             let cos = h.cos;
             if cos == 0.0 {
                 continue;
@@ -426,8 +427,9 @@ impl Walk<'_> {
     fn ray(&self, pair: u32, s: &mut Scratch) -> u64 {
         let last = self.input.frames - 1;
         self.prepare(&mut s.hits);
-        let present_at = |f: u32| move |h: &&RayHitRecord| h.active.0 <= f && f <= h.active.1;
-        let temporal = s.hits.iter().any(|h| h.active != (0, last));
+        let all = FrameSpan::all(self.input.frames);
+        let present_at = |f: u32| move |h: &&RayHitRecord| h.active.contains(f);
+        let temporal = s.hits.iter().any(|h| h.active != all);
         if !temporal {
             // Every hit is present in every frame.
             return self.frame(s.hits.iter(), 0, &mut s.keys, &mut s.counts);
@@ -435,7 +437,7 @@ impl Walk<'_> {
         // The active hits change only where an instance appears or leaves.
         s.change_frames.clear();
         for h in &s.hits {
-            let (lo, hi) = h.active;
+            let FrameSpan { first: lo, last: hi } = h.active;
             if lo > 0 {
                 s.change_frames.push(lo);
             }
@@ -456,22 +458,22 @@ impl Walk<'_> {
         s.permanent.clear();
         s.by_first.clear();
         for (i, h) in s.hits.iter().enumerate() {
-            if h.active == (0, last) {
+            if h.active == all {
                 s.permanent.push(i as u32);
             } else {
                 s.by_first.push(i as u32);
             }
         }
         let hits = &s.hits;
-        s.by_first.sort_unstable_by_key(|&i| hits[i as usize].active.0);
+        s.by_first.sort_unstable_by_key(|&i| hits[i as usize].active.first);
         s.active.clear();
         let mut next = 0;
         for i in 0..s.change_frames.len() {
             let f = s.change_frames[i];
-            s.active.retain(|&k| hits[k as usize].active.1 >= f);
-            while next < s.by_first.len() && hits[s.by_first[next] as usize].active.0 <= f {
+            s.active.retain(|&k| hits[k as usize].active.last >= f);
+            while next < s.by_first.len() && hits[s.by_first[next] as usize].active.first <= f {
                 let k = s.by_first[next];
-                if hits[k as usize].active.1 >= f {
+                if hits[k as usize].active.last >= f {
                     s.active.push(k);
                 }
                 next += 1;
@@ -487,10 +489,7 @@ impl Walk<'_> {
             // (§5.13): the removal of the links of an instance that has just
             // left needs no record, and the running sums drop what such
             // patches still hold (`accumulate_changes`).
-            let present = |p: u32| {
-                let (lo, hi) = self.patch_active[p as usize];
-                lo <= f && f <= hi
-            };
+            let present = |p: u32| self.patch_active[p as usize].contains(f);
             diff(&s.prev_links, &s.frame_links, |key, count| {
                 let (a, b) = ((key.0 >> 32) as u32, key.0 as u32);
                 if present(a) && present(b) {
@@ -613,7 +612,7 @@ pub fn trace_all(
     let frames = input.frames as usize;
     // Frames each patch is present in: links touching a patch absent from a
     // frame are left out of its changes (the format removes them anyway).
-    let patch_active: Vec<(u32, u32)> = patches.primitive.iter().map(|&p| input.active[p as usize]).collect();
+    let patch_active: Vec<FrameSpan> = patches.primitive.iter().map(|&p| input.active[p as usize]).collect();
     let per_chunk = pairs.div_ceil(CHUNKS).max(1);
     let chunks = pairs.div_ceil(per_chunk);
     let trace_pair = |s: &mut Scratch, k: u32| -> (Bundle, BundleStats) {
@@ -648,7 +647,7 @@ pub fn trace_all(
                         t: h.hit.t,
                         primitive: h.primitive,
                         uv: h.hit.uv,
-                        active: (0, 0),
+                        active: FrameSpan::all(1),
                         cos: 0.0,
                         patch: 0,
                     })
@@ -758,7 +757,7 @@ pub fn trace_all(
 /// nor frame 0's links of instances that have left need records (they were
 /// 35–40% of the fan room's); every record kept has both ends present.
 /// Pairs whose links never change append nothing.
-fn accumulate_changes(s: &mut Scratch, patch_active: &[(u32, u32)]) {
+fn accumulate_changes(s: &mut Scratch, patch_active: &[FrameSpan]) {
     s.cumulative.clear();
     for f in 1..s.changes.len() {
         let changes = &mut s.changes[f];
@@ -768,7 +767,7 @@ fn accumulate_changes(s: &mut Scratch, patch_active: &[(u32, u32)]) {
         let frame = f as u32;
         // Patches never return once they leave (instances span one run of
         // frames): what the sum holds for them is dropped for good.
-        let gone = |d: &DeltaRecord| patch_active[d.a as usize].1 < frame || patch_active[d.b as usize].1 < frame;
+        let gone = |d: &DeltaRecord| patch_active[d.a as usize].last < frame || patch_active[d.b as usize].last < frame;
         // Sum the rays' changes of one link.
         changes.sort_unstable_by_key(record_key);
         let mut n = 0;
@@ -817,10 +816,9 @@ fn accumulate_changes(s: &mut Scratch, patch_active: &[(u32, u32)]) {
         }
         changes.clear();
         std::mem::swap(&mut s.cumulative, &mut s.next);
-        debug_assert!(s.cumulative.iter().all(|d| [d.a, d.b].iter().all(|&p| {
-            let (lo, hi) = patch_active[p as usize];
-            lo <= frame && frame <= hi
-        })));
+        debug_assert!(
+            s.cumulative.iter().all(|d| [d.a, d.b].iter().all(|&p| patch_active[p as usize].contains(frame)))
+        );
         s.chunk[f].extend_from_slice(&s.cumulative);
     }
 }
