@@ -11,7 +11,7 @@ use illumnet::render::{self, RenderOptions, image_io};
 use illumnet::scene::{BuildHints, Scene};
 
 #[test]
-fn cornell_box_is_within_ten_percent_of_the_path_traced_reference() {
+fn cornell_box_is_close_to_the_path_traced_reference_with_either_shading() {
     let reference_path = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/cornell_box_ref.exr");
     let reference = image_io::read_exr(&reference_path).unwrap();
     let scene = Scene::cornell_box();
@@ -21,13 +21,23 @@ fn cornell_box_is_within_ten_percent_of_the_path_traced_reference() {
     let archive = illumnet::archive::Archive::from_bytes(&bytes).unwrap();
     let view = archive.view();
     let sol = distribute::distribute(&view, &DistributeOptions::default(), &NoProgress).unwrap();
-    let image = render::render(&view, &sol.radiance, &RenderOptions::default());
-    let err = image_io::relative_l2(&image, &reference).unwrap();
-    // Measured 0.0324 at default settings (docs/ACCURACY.md); the bar is 10%.
-    eprintln!("Cornell box relative L2 error against the reference: {:.4}", err);
-    if err >= 0.10 {
-        let out = Path::new(env!("CARGO_TARGET_TMPDIR")).join("cornell_box_got.exr");
-        let _ = image_io::write_exr(&image, &out);
-        panic!("relative L2 error {err:.4} ≥ 0.10; our image: {}", out.display());
-    }
+    let check = |name: &str, image: &render::Image, bar: f64| -> f64 {
+        let err = image_io::relative_l2(image, &reference).unwrap();
+        eprintln!("Cornell box, {name} shading: relative L2 error {err:.4} against the reference");
+        if err >= bar {
+            let out = Path::new(env!("CARGO_TARGET_TMPDIR")).join(format!("cornell_box_{name}.exr"));
+            let _ = image_io::write_exr(image, &out);
+            panic!("{name} shading: relative L2 error {err:.4} ≥ {bar}; our image: {}", out.display());
+        }
+        err
+    };
+    // The paper's rendering: measured 0.0324 (docs/ACCURACY.md).
+    let inet = check("inet", &render::render(&view, &sol.radiance, &RenderOptions::default()), 0.04);
+    // Direct light per image sample: measured 0.0194, of which about 1.0%
+    // is the reference's own noise (in quadrature).
+    let light = render::DirectLight::new(&view, 0, &sol.surface_emission, &sol.surface_reflectance, 2);
+    let indirect = render::indirect_frame_radiance(&view, 0, &sol);
+    let (image, _) = render::Renderer::new(&view, RenderOptions::default()).frame_direct(0, &indirect, &light);
+    let direct = check("direct", &image, 0.023);
+    assert!(direct < 0.7 * inet, "direct shading {direct:.4} is not clearly better than the I-net's {inet:.4}");
 }

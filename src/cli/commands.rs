@@ -13,7 +13,7 @@ use illumnet::render::{self, RenderOptions, image_io};
 use illumnet::scene::{BuildHints, Scene};
 
 use super::exit::{BadInput, InputContext, IoFailure, bail_input};
-use super::{BuildArgs, RenderArgs};
+use super::{BuildArgs, RenderArgs, Shading};
 
 fn hints(a: &BuildArgs) -> BuildHints {
     BuildHints { patch_size: a.patch_size, frequency: a.frequency, ray_spacing: a.ray_spacing, buckets: a.buckets }
@@ -227,6 +227,13 @@ pub fn render(
     if !(1..=64).contains(&args.samples) {
         bail_input!("--samples must be in 1..=64, got {}", args.samples);
     }
+    if !(1..=16).contains(&args.light_samples) {
+        bail_input!("--light-samples must be in 1..=16, got {}", args.light_samples);
+    }
+    let direct_shading = args.shading == Shading::Direct;
+    if args.layers && (exr.is_none() || !direct_shading) {
+        bail_input!("--layers writes EXR layers of direct and indirect light: it needs --exr and --shading direct");
+    }
     let t = Instant::now();
     let archive = Archive::open(path).with_context(|| format!("cannot open {}", path.display()))?;
     let view = archive.view();
@@ -255,6 +262,7 @@ pub fn render(
         buckets: !args.no_buckets,
         patch_size_correction: !args.no_patch_size_correction,
         anderson_depth: args.anderson,
+        split_direct: direct_shading,
         ..Default::default()
     };
     let (mut t_dist, mut t_render, mut ends, mut t_delta) = (0.0, 0.0, 0.0, 0.0);
@@ -290,11 +298,38 @@ pub fn render(
             if b.converged { "" } else { " (NOT converged: raise the iteration limit or the tolerance)" }
         );
         let t2 = Instant::now();
-        let image = renderer.frame(f, &render::frame_radiance(&view, f, &solution));
+        let (image, direct) = if direct_shading {
+            let light = render::DirectLight::new(
+                &view,
+                f,
+                &solution.surface_emission,
+                &solution.surface_reflectance,
+                args.light_samples,
+            );
+            let (image, direct) =
+                renderer.frame_direct(f, &render::indirect_frame_radiance(&view, f, &solution), &light);
+            (image, Some(direct))
+        } else {
+            (renderer.frame(f, &render::frame_radiance(&view, f, &solution)), None)
+        };
         t_render += t2.elapsed().as_secs_f64();
         image_io::write_png(&image, &out_path(png, f)?, args.exposure).map_err(IoFailure)?;
         if let Some(exr) = exr {
-            image_io::write_exr(&image, &out_path(exr, f)?).map_err(IoFailure)?;
+            let path = out_path(exr, f)?;
+            image_io::write_exr(&image, &path).map_err(IoFailure)?;
+            if let (true, Some(direct)) = (args.layers, &direct) {
+                let indirect = render::Image {
+                    pixels: image
+                        .pixels
+                        .iter()
+                        .zip(&direct.pixels)
+                        .map(|(t, d)| [0, 1, 2].map(|c| t[c] - d[c]))
+                        .collect(),
+                    ..*direct
+                };
+                image_io::write_exr(direct, &path.with_extension("direct.exr")).map_err(IoFailure)?;
+                image_io::write_exr(&indirect, &path.with_extension("indirect.exr")).map_err(IoFailure)?;
+            }
         }
         previous = Some(solution);
         if keep_images {

@@ -94,6 +94,29 @@ struct RenderArgs {
     /// previous frame's light (same answer, more iterations).
     #[arg(long)]
     cold: bool,
+    /// `direct`: light straight from the emitters computed per image
+    /// sample (exact, with shadows), the I-net giving the indirect light;
+    /// `inet`: the paper's rendering, all light interpolated from the
+    /// patches (§3.5).
+    #[arg(long, value_enum, default_value_t = Shading::Direct)]
+    shading: Shading,
+    /// Shadow-ray samples per emitter and image sample, along each axis
+    /// (N×N, stratified; `--shading direct`).
+    #[arg(long, default_value_t = 2, value_name = "N")]
+    light_samples: u32,
+    /// With --exr and `--shading direct`: also write the direct and the
+    /// indirect light as IMAGE.direct.exr and IMAGE.indirect.exr.
+    #[arg(long)]
+    layers: bool,
+}
+
+/// How images are shaded (see `--shading`).
+#[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum Shading {
+    /// Direct light per image sample, indirect light from the I-net.
+    Direct,
+    /// All light from the I-net (the paper's §3.5).
+    Inet,
 }
 
 /// Relighting without a rebuild (repeatable): `SURFACE.emission=R,G,B`,

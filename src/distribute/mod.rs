@@ -74,11 +74,23 @@ pub struct DistributeOptions {
     /// 5, at most [`MAX_ANDERSON_DEPTH`]); 0 iterates plainly. Archives
     /// with non-diffuse patches always iterate plainly.
     pub anderson_depth: usize,
+    /// Also find the part of each patch's radiance that is light straight
+    /// from the emitters ([`Solution::direct`]; default on): one more
+    /// gather, so that a renderer can replace it by direct light computed
+    /// per image sample and keep the rest (the indirect light).
+    pub split_direct: bool,
 }
 
 impl Default for DistributeOptions {
     fn default() -> Self {
-        Self { tolerance: 1e-4, max_iterations: 1000, patch_size_correction: true, buckets: true, anderson_depth: 5 }
+        Self {
+            tolerance: 1e-4,
+            max_iterations: 1000,
+            patch_size_correction: true,
+            buckets: true,
+            anderson_depth: 5,
+            split_direct: true,
+        }
     }
 }
 
@@ -126,6 +138,18 @@ pub struct Solution {
     /// Outgoing radiance of non-diffuse patches per direction (the
     /// view-dependent term of §3.5), when the archive has any.
     pub directional: Option<DirectionalRadiance>,
+    /// The part of [`Self::radiance`] (diffuse, per patch) that is emitted
+    /// light reflected once: `ρ·G(E)/(π·A)` for the link operator G and the
+    /// emitted power E. By linearity the rest, `radiance − direct`, is the
+    /// emission plus the light that has bounced at least twice, whatever
+    /// acceleration or warm start found the balance. Present with
+    /// [`DistributeOptions::split_direct`].
+    pub direct: Option<Vec<[f32; 3]>>,
+    /// Emitted radiance per surface at this frame (keyed emission and
+    /// relighting applied): what emitters a renderer samples.
+    pub surface_emission: Vec<[f32; 3]>,
+    /// Diffuse reflectance `k_d` per surface the frame was solved with.
+    pub surface_reflectance: Vec<[f32; 3]>,
     /// The acceleration's secant history, which the next frame of a
     /// sequence starts from when warm-started from this solution.
     history: anderson::Anderson,
@@ -271,6 +295,9 @@ pub struct Distributor<'a> {
     rings: Option<buckets::Rings>,
     patch_surface: Vec<u32>,
     emission_fixed: Vec<bool>,
+    /// The lighting's emitted radiance and `k_d` per surface.
+    surface_emission: Vec<[f32; 3]>,
+    surface_reflectance: Vec<[f32; 3]>,
     nd: Option<nondiffuse::NonDiffuse<'a>>,
     /// Patches of instances present at frame 0 but not in every frame,
     /// with the last frame they are present in: their frame 0 link ends
@@ -368,6 +395,8 @@ impl<'a> Distributor<'a> {
             rings,
             patch_surface,
             emission_fixed,
+            surface_emission: lighting.emission.clone(),
+            surface_reflectance: lighting.reflectance.clone(),
             nd,
             leaving,
         })

@@ -15,6 +15,8 @@ pub(super) struct FrameSetup<'d> {
     pub presence: Option<FramePresence>,
     /// Emitted radiance per patch (zero for absent patches).
     pub emit: Vec<[f32; 3]>,
+    /// Emitted radiance per surface (keyed emission applied).
+    pub surface_emission: Vec<[f32; 3]>,
     /// The frame's link changes against frame 0 (sequences only).
     pub overlay: Option<Overlay>,
     /// Per patch, the summed weight of its link ends in this frame.
@@ -48,6 +50,7 @@ impl<'a> Distributor<'a> {
         let v = &self.v;
         let n = v.patch_count();
         let mut emit = self.emit.clone();
+        let mut surface_emission = self.surface_emission.clone();
         let t_delta = std::time::Instant::now();
         let (overlay, presence) = match &v.sequence {
             Some(s) => {
@@ -56,6 +59,13 @@ impl<'a> Distributor<'a> {
                 }
                 let presence = v.presence(frame);
                 let keyed = v.keyed_emission(frame);
+                if let Some(keyed) = keyed {
+                    for (s, e) in surface_emission.iter_mut().enumerate() {
+                        if !self.emission_fixed.get(s).copied().unwrap_or(false) {
+                            *e = keyed[s];
+                        }
+                    }
+                }
                 for p in 0..n {
                     let surface = self.patch_surface[p] as usize;
                     if !presence.patch(p) {
@@ -93,7 +103,17 @@ impl<'a> Distributor<'a> {
             }
         }
         let linked_dir = self.linked_directions(frame, overlay.as_ref());
-        Ok(FrameSetup { presence, emit, overlay, linked, linked_dir, emitted_power, emitted, delta_s })
+        Ok(FrameSetup {
+            presence,
+            emit,
+            surface_emission,
+            overlay,
+            linked,
+            linked_dir,
+            emitted_power,
+            emitted,
+            delta_s,
+        })
     }
 
     /// Per non-diffuse patch and direction, the rays that reach a facing

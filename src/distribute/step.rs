@@ -389,10 +389,49 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
         }
     }
 
+    /// Per patch, the radiance of the emitted light reflected once,
+    /// `ρ·G(E)` over the area as in [`Self::finish`]: one gather of the
+    /// emitted power over the frame's links (frame 0's, the overlay; the
+    /// non-diffuse senders' directional light is not emission), spread
+    /// over the rings like any other step's.
+    fn first_bounce(&mut self) -> Vec<[f32; 3]> {
+        let (d, s, nb) = (self.d, self.s, self.d.nb);
+        let v = &d.v;
+        let present = s.absent_mask();
+        for ((sh, e), &k) in self.shoot.iter_mut().zip(&s.emitted_power).zip(&d.share) {
+            *sh = [e[0] * k, e[1] * k, e[2] * k, 0.0];
+        }
+        match &d.bucket_runs {
+            Some(runs) => gather_buckets(
+                v.link_offsets,
+                d.link_other,
+                v.link_weight,
+                runs,
+                nb,
+                present,
+                &self.shoot,
+                &mut self.recv,
+            ),
+            None => gather(v.link_offsets, d.link_other, v.link_weight, present, &self.shoot, &mut self.recv),
+        }
+        if let Some(o) = &s.overlay {
+            add_ends(&o.gather, nb, &self.shoot, 1.0, None, &mut self.recv);
+        }
+        self.spread();
+        let inv_pi = 1.0 / std::f32::consts::PI;
+        (0..v.patch_count())
+            .map(|p| {
+                let kd = if d.area_eff[p] > 0.0 { inv_pi / d.area_eff[p] } else { 0.0 };
+                let ks = if v.patch_area[p] > 0.0 { inv_pi / v.patch_area[p] } else { 0.0 };
+                [0, 1, 2].map(|c| d.rho[p][c] * (self.recv[p * nb][c] * kd + self.spread[p][c] * ks))
+            })
+            .collect()
+    }
+
     /// The frame's solution: radiance from the received totals, the
     /// balance with what is left unshot, and what the next frame's warm
     /// start reuses.
-    pub fn finish(self, frame: u32) -> Solution {
+    pub fn finish(mut self, frame: u32) -> Solution {
         let (d, s) = (self.d, self.s);
         let v = &d.v;
         let n = v.patch_count();
@@ -421,6 +460,7 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
             })
             .collect();
         let received = (0..n).map(|p| [0, 1, 2].map(|c| total_direct[p][c] + total_spread[p][c])).collect();
+        let direct = d.opts.split_direct.then(|| self.first_bounce());
         // Per-ray power → radiance: one ray stands for the étendue
         // π·A_p/E[H_p] of its patch (as for the diffuse radiance above).
         let directional = d.nd.as_ref().zip(self.glossy.as_ref()).map(|(x, g)| {
@@ -454,6 +494,9 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
             balance: bal,
             delta_s: s.delta_s,
             directional,
+            direct,
+            surface_emission: s.surface_emission.clone(),
+            surface_reflectance: d.surface_reflectance.clone(),
             history: self.anderson,
             carry,
             frame,

@@ -9,6 +9,7 @@
 //! directly show their own radiance; back faces and misses are black.
 
 mod camera;
+pub mod direct;
 pub mod image_io;
 pub mod view;
 
@@ -16,7 +17,8 @@ use glam::{Vec2, Vec3};
 use rayon::prelude::*;
 
 pub use camera::PinholeCamera;
-pub use view::{frame_radiance, radiance_seen_from};
+pub use direct::DirectLight;
+pub use view::{frame_radiance, indirect_frame_radiance, radiance_seen_from};
 
 use crate::archive::InetView;
 use crate::archive::layout::PrimitiveRecord;
@@ -72,9 +74,26 @@ impl Default for RenderOptions {
 
 /// Radiance at every patch vertex: area-weighted mean of adjacent patches.
 pub fn vertex_radiance(v: &InetView<'_>, patch_radiance: &[[f32; 3]]) -> Vec<[f32; 3]> {
+    vertex_mean(v, patch_radiance, |p| v.patch_area[p] as f64)
+}
+
+/// Radiance at every patch vertex, weighted by the area of each adjacent
+/// patch that the build's rays saw (`A_p·H_p/E[H_p]`): a patch hidden
+/// under a box (no ray reached it) does not darken the lit patches it
+/// shares vertices with, which the plain area weights do along every
+/// contact edge.
+pub fn vertex_radiance_seen(v: &InetView<'_>, patch_radiance: &[[f32; 3]]) -> Vec<[f32; 3]> {
+    vertex_mean(v, patch_radiance, |p| {
+        let expected = v.patch_expected_hits[p] as f64;
+        let seen = if expected > 0.0 { (v.patch_hits[p] as f64 / expected).min(1.0) } else { 1.0 };
+        v.patch_area[p] as f64 * seen
+    })
+}
+
+fn vertex_mean(v: &InetView<'_>, patch_radiance: &[[f32; 3]], weight: impl Fn(usize) -> f64) -> Vec<[f32; 3]> {
     let mut sum = vec![[0.0f64; 4]; v.vertex_position.len()];
     for (p, corners) in v.patch_corners.iter().enumerate() {
-        let a = v.patch_area[p] as f64;
+        let a = weight(p);
         for &c in corners.iter().filter(|&&c| c != NO_VERTEX) {
             let s = &mut sum[c as usize];
             for k in 0..3 {
@@ -132,6 +151,35 @@ impl SampleHit {
     }
 }
 
+/// A light sampler: the direct light of image sample `k` of pixel
+/// `(x, y)` that saw a hit.
+type SampleLight<'f> = dyn Fn(u32, u32, u32, &SampleHit, &DirectLight) -> Vec3 + Sync + 'f;
+
+/// The box-filtered pixel of `hits` (its samples in order): interpolated
+/// vertex radiance, plus direct light when given; and the direct light
+/// alone.
+#[inline]
+fn shade_pixel(
+    hits: impl Iterator<Item = SampleHit>,
+    vrad: &[[f32; 3]],
+    direct: Option<(&DirectLight, &SampleLight<'_>)>,
+    (x, y): (u32, u32),
+) -> ([f32; 3], [f32; 3]) {
+    let (mut acc, mut light, mut count) = (Vec3::ZERO, Vec3::ZERO, 0u32);
+    for (k, hit) in hits.enumerate() {
+        hit.add_radiance(vrad, &mut acc);
+        if let Some((l, sample_light)) = direct {
+            light += sample_light(x, y, k as u32, &hit, l);
+        }
+        count += 1;
+    }
+    let inv = 1.0 / count.max(1) as f32;
+    match direct {
+        None => ((acc * inv).to_array(), [0.0; 3]),
+        Some(_) => (((acc + light) * inv).to_array(), (light * inv).to_array()),
+    }
+}
+
 const NO_HIT: SampleHit =
     SampleHit { t: f32::INFINITY, primitive: u32::MAX, vertices: [NO_VERTEX; 4], weights: [0.0; 4] };
 
@@ -174,6 +222,26 @@ impl<'a> Renderer<'a> {
 
     /// Renders `frame` from per-patch radiance.
     pub fn frame(&mut self, frame: u32, patch_radiance: &[[f32; 3]]) -> Image {
+        self.shade(frame, patch_radiance, None).0
+    }
+
+    /// Renders `frame` with direct light computed per image sample
+    /// (`direct.rs`) added to `indirect`, the per-patch radiance without
+    /// its direct part (see [`indirect_frame_radiance`]). Returns the
+    /// image and its direct light alone (the indirect light is the
+    /// difference).
+    pub fn frame_direct(&mut self, frame: u32, indirect: &[[f32; 3]], direct: &DirectLight) -> (Image, Image) {
+        let (total, direct) = self.shade(frame, indirect, Some(direct));
+        (total, direct.expect("asked for"))
+    }
+
+    /// The image of `frame` (and its direct part when `direct` is given).
+    fn shade(
+        &mut self,
+        frame: u32,
+        patch_radiance: &[[f32; 3]],
+        direct: Option<&DirectLight>,
+    ) -> (Image, Option<Image>) {
         let v = &self.v;
         let record = *v.sequence.and_then(|s| s.cameras).and_then(|c| c.get(frame as usize)).unwrap_or(v.camera);
         let camera = PinholeCamera::from_record(&record);
@@ -212,25 +280,47 @@ impl<'a> Renderer<'a> {
             }
             SampleHit { t: hit.hit.t, primitive: pi as u32, vertices, weights }
         };
+        // The direct light of sample k of pixel (x, y), which saw `hit`.
+        let sample_light = |x: u32, y: u32, k: u32, hit: &SampleHit, light: &DirectLight| -> Vec3 {
+            if hit.primitive == u32::MAX {
+                return Vec3::ZERO;
+            }
+            let (o, d) = sample_ray(x, y, k % n, k / n);
+            let normal = self.normals[hit.primitive as usize];
+            if normal.dot(d) >= 0.0 {
+                return Vec3::ZERO; // a back face: black
+            }
+            light.radiance(o + d * hit.t, normal, hit.primitive, &bvh, direct::pixel_key(frame, x, y), (k, n))
+        };
         // Images whose samples would not fit the cache budget are shaded
         // directly, sample by sample, keeping nothing.
         let sample_count = (w as u64) * (h as u64) * per_pixel as u64;
         if sample_count * std::mem::size_of::<SampleHit>() as u64 > self.cache_budget {
             self.cache = None;
             self.retraced = sample_count as usize;
-            let vrad = vertex_radiance(v, patch_radiance);
-            let inv = 1.0 / per_pixel as f32;
+            let vrad = if direct.is_some() {
+                vertex_radiance_seen(v, patch_radiance)
+            } else {
+                vertex_radiance(v, patch_radiance)
+            };
             let mut pixels = vec![[0.0f32; 3]; (w * h) as usize];
-            pixels.par_chunks_mut(w as usize).enumerate().for_each(|(y, row)| {
+            let mut direct_pixels = vec![[0.0f32; 3]; (w * h) as usize];
+            let rows = direct_pixels.par_chunks_mut(w as usize);
+            pixels.par_chunks_mut(w as usize).zip(rows).enumerate().for_each(|(y, (row, drow))| {
                 for (x, px) in row.iter_mut().enumerate() {
-                    let mut acc = Vec3::ZERO;
-                    for k in 0..per_pixel as u32 {
-                        trace(x as u32, y as u32, k % n, k / n).add_radiance(&vrad, &mut acc);
-                    }
-                    *px = (acc * inv).to_array();
+                    let hits = (0..per_pixel as u32).map(|k| trace(x as u32, y as u32, k % n, k / n));
+                    let (total, d) = shade_pixel(
+                        hits,
+                        &vrad,
+                        direct.map(|l| (l, &sample_light as &SampleLight<'_>)),
+                        (x as u32, y as u32),
+                    );
+                    *px = total;
+                    drow[x] = d;
                 }
             });
-            return Image { width: w, height: h, pixels };
+            let direct = direct.map(|_| Image { width: w, height: h, pixels: direct_pixels });
+            return (Image { width: w, height: h, pixels }, direct);
         }
         // Reuse what the samples saw last frame when the camera is the same.
         let mut samples = match self.cache.take() {
@@ -305,19 +395,30 @@ impl<'a> Renderer<'a> {
         }
         let samples = samples.expect("filled above");
         self.retraced = retraced.into_inner();
-        let vrad = vertex_radiance(v, patch_radiance);
-        let inv = 1.0 / per_pixel as f32;
+        let vrad =
+            if direct.is_some() { vertex_radiance_seen(v, patch_radiance) } else { vertex_radiance(v, patch_radiance) };
         let mut pixels = vec![[0.0f32; 3]; (w * h) as usize];
-        pixels.par_chunks_mut(w as usize).zip(samples.par_chunks(w as usize * per_pixel)).for_each(|(row, hits)| {
-            for (px, pixel_hits) in row.iter_mut().zip(hits.chunks_exact(per_pixel)) {
-                let mut acc = Vec3::ZERO;
-                for hit in pixel_hits {
-                    hit.add_radiance(&vrad, &mut acc);
+        let mut direct_pixels = vec![[0.0f32; 3]; (w * h) as usize];
+        let rows = direct_pixels.par_chunks_mut(w as usize);
+        pixels
+            .par_chunks_mut(w as usize)
+            .zip(samples.par_chunks(w as usize * per_pixel))
+            .zip(rows)
+            .enumerate()
+            .for_each(|(y, ((row, hits), drow))| {
+                for (x, (px, pixel_hits)) in row.iter_mut().zip(hits.chunks_exact(per_pixel)).enumerate() {
+                    let (total, d) = shade_pixel(
+                        pixel_hits.iter().copied(),
+                        &vrad,
+                        direct.map(|l| (l, &sample_light as &SampleLight<'_>)),
+                        (x as u32, y as u32),
+                    );
+                    *px = total;
+                    drow[x] = d;
                 }
-                *px = (acc * inv).to_array();
-            }
-        });
+            });
         self.cache = Some((record, samples));
-        Image { width: w, height: h, pixels }
+        let direct = direct.map(|_| Image { width: w, height: h, pixels: direct_pixels });
+        (Image { width: w, height: h, pixels }, direct)
     }
 }

@@ -45,6 +45,22 @@ pub fn frame_radiance(v: &InetView<'_>, frame: u32, solution: &Solution) -> Vec<
     radiance_seen_from(v, solution, Vec3::from(cam.position))
 }
 
+/// [`frame_radiance`] less the solution's direct light
+/// ([`Solution::direct`]): what a renderer that computes direct light per
+/// image sample interpolates between patch vertices. Without a direct
+/// part in the solution, all of [`frame_radiance`].
+pub fn indirect_frame_radiance(v: &InetView<'_>, frame: u32, solution: &Solution) -> Vec<[f32; 3]> {
+    let mut out = frame_radiance(v, frame, solution);
+    if let Some(direct) = &solution.direct {
+        for (o, d) in out.iter_mut().zip(direct) {
+            // Exactly non-negative in exact arithmetic (emission plus light
+            // that bounced twice); rounding may leave −1e-7.
+            *o = [0, 1, 2].map(|c| (o[c] - d[c]).max(0.0));
+        }
+    }
+    out
+}
+
 /// `values` (one per direction) at unit vector `w`, interpolated over the
 /// triangle of the nearest direction and two consecutive neighbours that
 /// contains `w` (the nearest direction's value if none does).
