@@ -1,6 +1,6 @@
-//! Direct light per image sample against closed forms: a square emitter
-//! over a floor (the point-to-rectangle form factor), with and without a
-//! blocker; the direct part of the solution; determinism.
+//! Direct light per pixel against closed forms: a square emitter over a
+//! floor (the point-to-rectangle form factor), with and without a blocker,
+//! and in a black room; the direct part of the solution; determinism.
 
 mod common;
 
@@ -83,16 +83,28 @@ fn exact_floor_radiance(p: Vec3, blocker: bool) -> f64 {
 /// Rendered floor pixels (green), each with its image samples' floor
 /// points (4 × 4, where the renderer puts them).
 fn floor_pixels(blocker: bool, shading_direct: bool) -> Vec<(Vec<Vec3>, f64)> {
-    let s = common::scene(&scene(blocker));
     let hints =
         BuildHints { frequency: Some(12), patch_size: Some(0.1), ray_spacing: Some(0.02), ..Default::default() };
+    floor_pixels_of(&scene(blocker), hints, shading_direct, 1.8)
+}
+
+/// Rendered floor pixels of the scene `text` (its floor the plane y = 0),
+/// those whose samples all fall within `extent` of the origin in x and z.
+fn floor_pixels_of(text: &str, hints: BuildHints, shading_direct: bool, extent: f32) -> Vec<(Vec<Vec3>, f64)> {
+    let s = common::scene(text);
     let a = common::build_archive(&s, hints);
     let v = a.view();
     let sol =
         distribute::distribute(&v, &DistributeOptions { tolerance: 1e-6, ..Default::default() }, &NoProgress).unwrap();
     let mut renderer = Renderer::new(&v, RenderOptions::default());
     let image = if shading_direct {
-        let light = DirectLight::new(&v, 0, &sol.surface_emission, &sol.surface_reflectance, 2);
+        let light = DirectLight::new(
+            &v,
+            0,
+            &sol.surface_emission,
+            &sol.surface_reflectance,
+            render::direct::DEFAULT_LIGHT_SAMPLES,
+        );
         renderer.frame_direct(0, &render::indirect_frame_radiance(&v, 0, &sol), &light).0
     } else {
         renderer.frame(0, &render::frame_radiance(&v, 0, &sol))
@@ -108,7 +120,7 @@ fn floor_pixels(blocker: bool, shading_direct: bool) -> Vec<(Vec<Vec3>, f64)> {
                     let (o, d) = camera.ray(x as f32 + sx / n as f32, y as f32 + sy / n as f32);
                     (d.y < -1e-3).then(|| o + d * (-o.y / d.y))
                 })
-                .filter(|p| p.x.abs() < 1.8 && p.z.abs() < 1.8)
+                .filter(|p| p.x.abs() < extent && p.z.abs() < extent)
                 .collect();
             if points.len() == (n * n) as usize {
                 out.push((points, image.at(x, y)[1] as f64));
@@ -133,12 +145,81 @@ fn direct_light_from_a_square_emitter_matches_the_closed_form() {
             .map(|(points, got)| (got - exact_pixel(points, false)).abs() / exact_pixel(points, false))
             .fold(0.0, f64::max)
     };
-    // Unshadowed, the closed form is the answer: measured below 1e-6.
+    // Unshadowed, the closed form is the answer.
     let direct = worst(&pixels);
-    assert!(direct < 1e-4, "worst floor pixel {:.3}% off the closed form", 100.0 * direct);
+    eprintln!("unshadowed: worst pixel {direct:.2e} off the closed form");
+    // The renderer takes the closed form at the centre of a pixel's
+    // samples for its mean over them (exact to second order in the
+    // footprint): measured 3.2e-4 at the far, oblique end of the floor.
+    assert!(direct < 1e-3, "worst floor pixel {:.3}% off the closed form", 100.0 * direct);
     // The paper's shading of the same archive is further off (measured 2.8%).
     let inet = worst(&floor_pixels(false, false));
     assert!(inet > 0.01, "inet {inet:.4} vs direct {direct:.4}");
+}
+
+/// The issue's analytic case (CIE 171 test 5.3 style): a 1 m² emitter of
+/// radiance 10 flush in the ceiling of a 4 × 4 × 3 m room with black
+/// walls and ceiling over a grey floor (ρ 0.5), seen from above. Nothing
+/// but the floor reflects, so its radiance is ρ/π · L · π·F exactly.
+#[test]
+fn a_ceiling_light_in_a_black_room_gives_the_exact_floor_radiance() {
+    let text = r#"
+[camera]
+position = [0.3, 2.6, -1.2]
+look_at = [0, 0, 0.3]
+fov_y_deg = 70
+width = 48
+height = 48
+
+[[material]]
+name = "grey"
+type = "diffuse"
+reflectance = [0.5, 0.5, 0.5]
+
+[[material]]
+name = "black"
+type = "diffuse"
+reflectance = [0, 0, 0]
+
+[[surface]]
+name = "room"
+material = "black"
+box = { min = [-2, 0, -2], max = [2, 3, 2], inward = true, omit = ["-y"] }
+
+[[surface]]
+name = "floor"
+material = "grey"
+quad = [[-2, 0, -2], [-2, 0, 2], [2, 0, 2], [2, 0, -2]]
+
+[[surface]]
+name = "light"
+material = "black"
+emission = [10, 10, 10]
+quad = [[-0.5, 2.999, -0.5], [0.5, 2.999, -0.5], [0.5, 2.999, 0.5], [-0.5, 2.999, 0.5]]
+"#;
+    let exact = |points: &[Vec3]| {
+        let e = |p: &Vec3| {
+            let (px, pz) = (p.x as f64, p.z as f64);
+            0.5 / std::f64::consts::PI * 10.0 * rectangle_irradiance(-0.5 - px, 0.5 - px, -0.5 - pz, 0.5 - pz, 2.999)
+        };
+        points.iter().map(e).sum::<f64>() / points.len() as f64
+    };
+    let hints = BuildHints { frequency: Some(8), patch_size: Some(0.25), ..Default::default() };
+    let pixels = floor_pixels_of(text, hints, true, 1.95);
+    assert!(pixels.len() > 1000, "{} floor pixels", pixels.len());
+    let (mut num, mut den, mut worst) = (0.0f64, 0.0f64, 0.0f64);
+    for (points, got) in &pixels {
+        let want = exact(points);
+        num += (got - want).powi(2);
+        den += want * want;
+        worst = worst.max((got - want).abs() / want);
+    }
+    let l2 = (num / den).sqrt();
+    // The issue asks for 0.5%; measured 1.6e-4 (relative L2) and 3.0e-4
+    // (worst: the closed form at each pixel's centre, see above).
+    eprintln!("black room: relative L2 {l2:.2e}, worst pixel {worst:.2e}");
+    assert!(l2 < 0.005, "relative L2 {:.3}% off the exact floor radiance", 100.0 * l2);
+    assert!(worst < 1e-3, "worst floor pixel {:.3}% off", 100.0 * worst);
 }
 
 #[test]
@@ -160,10 +241,13 @@ fn a_blocker_casts_the_shadow_the_closed_form_gives() {
     }
     assert!(count > 200, "{count} shadowed pixels");
     let (mean, rms) = (sum / count as f64, (sq / count as f64).sqrt());
-    // Measured: mean 0.01%, RMS 2.0%, worst 9.1% (64 light samples per pixel).
+    eprintln!("shadowed pixels: mean {mean:.2e}, RMS {rms:.2e}, worst {worst:.2e}");
+    // Measured: mean -0.12%, RMS 2.1%, worst 14.9% (a lone pixel whose own
+    // four first rays, and none of its neighbours', met the blocker: its
+    // estimate stays unbiased and noisy; 64 rays elsewhere in penumbrae).
     assert!(mean.abs() < 0.005, "shadowed pixels {:.2}% off on average", 100.0 * mean);
     assert!(rms < 0.035, "shadowed pixels {:.2}% RMS", 100.0 * rms);
-    assert!(worst < 0.15, "worst pixel {:.2}% of the open-sky value off", 100.0 * worst);
+    assert!(worst < 0.2, "worst pixel {:.2}% of the open-sky value off", 100.0 * worst);
 }
 
 #[test]
@@ -204,7 +288,8 @@ fn direct_images_do_not_depend_on_the_thread_count() {
     let a = common::build_archive(&s, BuildHints { frequency: Some(6), patch_size: Some(0.2), ..Default::default() });
     let v = a.view();
     let sol = distribute::distribute(&v, &DistributeOptions::default(), &NoProgress).unwrap();
-    let light = DirectLight::new(&v, 0, &sol.surface_emission, &sol.surface_reflectance, 2);
+    let light =
+        DirectLight::new(&v, 0, &sol.surface_emission, &sol.surface_reflectance, render::direct::DEFAULT_LIGHT_SAMPLES);
     let indirect = render::indirect_frame_radiance(&v, 0, &sol);
     let render_with = |threads: usize| {
         let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();

@@ -227,8 +227,8 @@ pub fn render(
     if !(1..=64).contains(&args.samples) {
         bail_input!("--samples must be in 1..=64, got {}", args.samples);
     }
-    if !(1..=16).contains(&args.light_samples) {
-        bail_input!("--light-samples must be in 1..=16, got {}", args.light_samples);
+    if !(1..=64).contains(&args.light_samples) {
+        bail_input!("--light-samples must be in 1..=64, got {}", args.light_samples);
     }
     let direct_shading = args.shading == Shading::Direct;
     if args.layers && (exr.is_none() || !direct_shading) {

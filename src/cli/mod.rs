@@ -100,9 +100,10 @@ struct RenderArgs {
     /// patches (§3.5).
     #[arg(long, value_enum, default_value_t = Shading::Direct)]
     shading: Shading,
-    /// Shadow-ray samples per emitter and image sample, along each axis
-    /// (N×N, stratified; `--shading direct`).
-    #[arg(long, default_value_t = 2, value_name = "N")]
+    /// Shadow rays per emitter and pixel where its shadow is partial,
+    /// along each axis (N×N, stratified; elsewhere four rays decide;
+    /// `--shading direct`).
+    #[arg(long, default_value_t = illumnet::render::direct::DEFAULT_LIGHT_SAMPLES, value_name = "N")]
     light_samples: u32,
     /// With --exr and `--shading direct`: also write the direct and the
     /// indirect light as IMAGE.direct.exr and IMAGE.indirect.exr.

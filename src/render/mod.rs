@@ -151,33 +151,136 @@ impl SampleHit {
     }
 }
 
-/// A light sampler: the direct light of image sample `k` of pixel
-/// `(x, y)` that saw a hit.
-type SampleLight<'f> = dyn Fn(u32, u32, u32, &SampleHit, &DirectLight) -> Vec3 + Sync + 'f;
+/// Where image sample `k` of pixel `(x, y)`, which saw `hit`, lies, when it
+/// is on a front face (back faces are black and take no light).
+type SamplePoint<'f> = dyn Fn(u32, u32, u32, &SampleHit) -> Option<Vec3> + Sync + 'f;
 
-/// The box-filtered pixel of `hits` (its samples in order): interpolated
-/// vertex radiance, plus direct light when given; and the direct light
-/// alone.
-#[inline]
-fn shade_pixel(
-    hits: impl Iterator<Item = SampleHit>,
+/// What the direct light of a pixel needs: the frame's emitters, its
+/// shadow-ray BVH, the primitives' normals and the samples' positions.
+struct PixelLight<'f> {
+    light: &'f DirectLight,
+    bvh: &'f PrimitiveBvh,
+    normals: &'f [Vec3],
+    point: &'f SamplePoint<'f>,
+    frame: u32,
+}
+
+/// Reused per row of pixels: a pixel's lit samples by primitive, their
+/// points, and the emitters in front of them.
+#[derive(Default)]
+struct PixelScratch {
+    lit: Vec<(u32, Vec3)>,
+    points: Vec<Vec3>,
+    emitters: Vec<(u32, f32)>,
+}
+
+/// The image samples of pixel `(x, y)`, in order, into the buffer.
+type PixelHits<'f> = dyn Fn(u32, u32, &mut Vec<SampleHit>) + Sync + 'f;
+
+/// The box-filtered image of `w × h` pixels whose samples `hits_of`
+/// gives: interpolated vertex radiance plus, when `direct` is given,
+/// direct light; and the direct light alone.
+///
+/// Direct light takes two passes. The first gives every pixel a cheap
+/// unbiased estimate (four rays, [`DirectLight::estimate`]) and notes the pixels where
+/// a shadow ray was blocked; the second estimates again, with many rays
+/// (the light samples squared), every pixel with such a pixel among its
+/// eight neighbours. Deciding from the neighbours, not from the pixel's
+/// own rays, keeps the result unbiased (a pixel refined because its own
+/// first rays were blocked would be refined exactly when it looked dark,
+/// which brightened the outskirts of soft shadows: the Cornell box measured
+/// 2.78% against 1.86% with every ray traced), and penumbrae are wider
+/// than a pixel, so their neighbours find them.
+fn shade_image(
+    (w, h): (u32, u32),
+    hits_of: &PixelHits<'_>,
     vrad: &[[f32; 3]],
-    direct: Option<(&DirectLight, &SampleLight<'_>)>,
-    (x, y): (u32, u32),
-) -> ([f32; 3], [f32; 3]) {
-    let (mut acc, mut light, mut count) = (Vec3::ZERO, Vec3::ZERO, 0u32);
-    for (k, hit) in hits.enumerate() {
-        hit.add_radiance(vrad, &mut acc);
-        if let Some((l, sample_light)) = direct {
-            light += sample_light(x, y, k as u32, &hit, l);
+    direct: Option<&PixelLight<'_>>,
+) -> (Image, Option<Image>) {
+    let mut pixels = vec![[0.0f32; 3]; (w * h) as usize];
+    let mut direct_pixels = vec![[0.0f32; 3]; (w * h) as usize];
+    let mut blocked = vec![false; (w * h) as usize];
+    let rows = direct_pixels.par_chunks_mut(w as usize).zip(blocked.par_chunks_mut(w as usize));
+    pixels.par_chunks_mut(w as usize).zip(rows).enumerate().for_each(|(y, (row, (drow, brow)))| {
+        let (mut scratch, mut hits) = (PixelScratch::default(), Vec::new());
+        for (x, px) in row.iter_mut().enumerate() {
+            hits_of(x as u32, y as u32, &mut hits);
+            let mut acc = Vec3::ZERO;
+            for hit in &hits {
+                hit.add_radiance(vrad, &mut acc);
+            }
+            let inv = 1.0 / hits.len().max(1) as f32;
+            *px = (acc * inv).to_array();
+            if let Some(pl) = direct {
+                let (light, any_blocked) = pixel_direct(&hits, pl, (x as u32, y as u32), &mut scratch, false);
+                drow[x] = (light * inv).to_array();
+                brow[x] = any_blocked;
+            }
         }
-        count += 1;
+    });
+    let Some(pl) = direct else {
+        return (Image { width: w, height: h, pixels }, None);
+    };
+    // The second pass, into the direct light: each pixel reads the first
+    // pass's marks of its neighbours only.
+    let near_blocked = |x: u32, y: u32| {
+        let (x0, x1) = (x.saturating_sub(1), (x + 1).min(w - 1));
+        let (y0, y1) = (y.saturating_sub(1), (y + 1).min(h - 1));
+        (y0..=y1).any(|j| (x0..=x1).any(|i| (i, j) != (x, y) && blocked[(j * w + i) as usize]))
+    };
+    direct_pixels.par_chunks_mut(w as usize).enumerate().for_each(|(y, drow)| {
+        let (mut scratch, mut hits) = (PixelScratch::default(), Vec::new());
+        for (x, d) in drow.iter_mut().enumerate() {
+            if near_blocked(x as u32, y as u32) {
+                hits_of(x as u32, y as u32, &mut hits);
+                let (light, _) = pixel_direct(&hits, pl, (x as u32, y as u32), &mut scratch, true);
+                *d = (light / hits.len().max(1) as f32).to_array();
+            }
+        }
+    });
+    for (p, d) in pixels.iter_mut().zip(&direct_pixels) {
+        *p = [0, 1, 2].map(|c| p[c] + d[c]);
     }
-    let inv = 1.0 / count.max(1) as f32;
-    match direct {
-        None => ((acc * inv).to_array(), [0.0; 3]),
-        Some(_) => (((acc + light) * inv).to_array(), (light * inv).to_array()),
+    (Image { width: w, height: h, pixels }, Some(Image { width: w, height: h, pixels: direct_pixels }))
+}
+
+/// The summed direct light of a pixel's samples `hits` (its first
+/// estimate, or the refined one), computed once per primitive the samples
+/// see and weighted by how many see it; and whether a first-estimate
+/// shadow ray was blocked.
+fn pixel_direct(
+    hits: &[SampleHit],
+    pl: &PixelLight<'_>,
+    (x, y): (u32, u32),
+    scratch: &mut PixelScratch,
+    refined: bool,
+) -> (Vec3, bool) {
+    scratch.lit.clear();
+    for (k, hit) in hits.iter().enumerate() {
+        if hit.primitive != u32::MAX
+            && let Some(p) = (pl.point)(x, y, k as u32, hit)
+        {
+            scratch.lit.push((hit.primitive, p));
+        }
     }
+    // Stable: each primitive's samples stay in sample order.
+    scratch.lit.sort_by_key(|&(prim, _)| prim);
+    let pixel = direct::pixel_key(pl.frame, x, y);
+    let (mut light, mut blocked) = (Vec3::ZERO, false);
+    for run in scratch.lit.chunk_by(|a, b| a.0 == b.0) {
+        let prim = run[0].0;
+        scratch.points.clear();
+        scratch.points.extend(run.iter().map(|r| r.1));
+        let key = pixel ^ (prim as u64 + 1).wrapping_mul(0xa076_1d64_78bd_642f);
+        let (n, points) = (pl.normals[prim as usize], &scratch.points);
+        let rays = if refined { pl.light.refined_rays() } else { direct::FIRST_RAYS };
+        // The refined estimate's rays are drawn afresh (another key).
+        let key = if refined { !key } else { key };
+        let (l, b) = pl.light.estimate(points, n, prim, pl.bvh, key, rays, &mut scratch.emitters);
+        blocked |= b;
+        light += l * run.len() as f32;
+    }
+    (light, blocked)
 }
 
 const NO_HIT: SampleHit =
@@ -280,18 +383,18 @@ impl<'a> Renderer<'a> {
             }
             SampleHit { t: hit.hit.t, primitive: pi as u32, vertices, weights }
         };
-        // The direct light of sample k of pixel (x, y), which saw `hit`.
-        let sample_light = |x: u32, y: u32, k: u32, hit: &SampleHit, light: &DirectLight| -> Vec3 {
-            if hit.primitive == u32::MAX {
-                return Vec3::ZERO;
-            }
+        // Where sample k of pixel (x, y), which saw `hit`, lies.
+        let sample_point = |x: u32, y: u32, k: u32, hit: &SampleHit| -> Option<Vec3> {
             let (o, d) = sample_ray(x, y, k % n, k / n);
-            let normal = self.normals[hit.primitive as usize];
-            if normal.dot(d) >= 0.0 {
-                return Vec3::ZERO; // a back face: black
-            }
-            light.radiance(o + d * hit.t, normal, hit.primitive, &bvh, direct::pixel_key(frame, x, y), (k, n))
+            (self.normals[hit.primitive as usize].dot(d) < 0.0).then(|| o + d * hit.t)
         };
+        let pixel_light = direct.map(|light| PixelLight {
+            light,
+            bvh: &bvh,
+            normals: &self.normals,
+            point: &sample_point as &SamplePoint<'_>,
+            frame,
+        });
         // Images whose samples would not fit the cache budget are shaded
         // directly, sample by sample, keeping nothing.
         let sample_count = (w as u64) * (h as u64) * per_pixel as u64;
@@ -303,24 +406,11 @@ impl<'a> Renderer<'a> {
             } else {
                 vertex_radiance(v, patch_radiance)
             };
-            let mut pixels = vec![[0.0f32; 3]; (w * h) as usize];
-            let mut direct_pixels = vec![[0.0f32; 3]; (w * h) as usize];
-            let rows = direct_pixels.par_chunks_mut(w as usize);
-            pixels.par_chunks_mut(w as usize).zip(rows).enumerate().for_each(|(y, (row, drow))| {
-                for (x, px) in row.iter_mut().enumerate() {
-                    let hits = (0..per_pixel as u32).map(|k| trace(x as u32, y as u32, k % n, k / n));
-                    let (total, d) = shade_pixel(
-                        hits,
-                        &vrad,
-                        direct.map(|l| (l, &sample_light as &SampleLight<'_>)),
-                        (x as u32, y as u32),
-                    );
-                    *px = total;
-                    drow[x] = d;
-                }
-            });
-            let direct = direct.map(|_| Image { width: w, height: h, pixels: direct_pixels });
-            return (Image { width: w, height: h, pixels }, direct);
+            let hits_of = |x: u32, y: u32, buf: &mut Vec<SampleHit>| {
+                buf.clear();
+                buf.extend((0..per_pixel as u32).map(|k| trace(x, y, k % n, k / n)));
+            };
+            return shade_image((w, h), &hits_of, &vrad, pixel_light.as_ref());
         }
         // Reuse what the samples saw last frame when the camera is the same.
         let mut samples = match self.cache.take() {
@@ -397,28 +487,13 @@ impl<'a> Renderer<'a> {
         self.retraced = retraced.into_inner();
         let vrad =
             if direct.is_some() { vertex_radiance_seen(v, patch_radiance) } else { vertex_radiance(v, patch_radiance) };
-        let mut pixels = vec![[0.0f32; 3]; (w * h) as usize];
-        let mut direct_pixels = vec![[0.0f32; 3]; (w * h) as usize];
-        let rows = direct_pixels.par_chunks_mut(w as usize);
-        pixels
-            .par_chunks_mut(w as usize)
-            .zip(samples.par_chunks(w as usize * per_pixel))
-            .zip(rows)
-            .enumerate()
-            .for_each(|(y, ((row, hits), drow))| {
-                for (x, (px, pixel_hits)) in row.iter_mut().zip(hits.chunks_exact(per_pixel)).enumerate() {
-                    let (total, d) = shade_pixel(
-                        pixel_hits.iter().copied(),
-                        &vrad,
-                        direct.map(|l| (l, &sample_light as &SampleLight<'_>)),
-                        (x as u32, y as u32),
-                    );
-                    *px = total;
-                    drow[x] = d;
-                }
-            });
+        let hits_of = |x: u32, y: u32, buf: &mut Vec<SampleHit>| {
+            let at = (y as usize * w as usize + x as usize) * per_pixel;
+            buf.clear();
+            buf.extend_from_slice(&samples[at..at + per_pixel]);
+        };
+        let images = shade_image((w, h), &hits_of, &vrad, pixel_light.as_ref());
         self.cache = Some((record, samples));
-        let direct = direct.map(|_| Image { width: w, height: h, pixels: direct_pixels });
-        (Image { width: w, height: h, pixels }, direct)
+        images
     }
 }
