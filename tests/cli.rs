@@ -177,6 +177,23 @@ fn sequence_archives_render_frame_ranges() {
     fail(&["render", a, "--frames", "2..9", "-o", pattern.to_str().unwrap()], "outside the archive's sequence 0..4");
     fail(&["render", a, "--frames", "0..2", "-o", dir.path().join("x.png").to_str().unwrap()], "frame number pattern");
     fail(&["build", s, "--frame", "4", "-o", a], "outside the sequence 0..4");
+    // Without --frames a sequence renders all its frames, so one file name
+    // without a pattern is refused, saying how many frames there are.
+    fail(&["render", a, "-o", dir.path().join("x.png").to_str().unwrap()], "the 4 frames 0..4");
+    let all = dir.path().join("all_%d.png");
+    illumnet(&["render", "-q", a, "-o", all.to_str().unwrap(), "--samples", "1"]);
+    assert!((0..4).all(|f| dir.path().join(format!("all_{f}.png")).exists()));
+    // Open and inclusive ranges.
+    for (range, want) in [("2..", vec![2, 3]), ("0..=1", vec![0, 1]), ("..1", vec![0])] {
+        let sub = dir.path().join(range.replace('.', "d").replace('=', "e"));
+        std::fs::create_dir(&sub).unwrap();
+        let pattern = sub.join("f_%d.png");
+        illumnet(&["render", "-q", a, "--frames", range, "-o", pattern.to_str().unwrap(), "--samples", "1"]);
+        let got: Vec<u32> = (0..4).filter(|f| sub.join(format!("f_{f}.png")).exists()).collect();
+        assert_eq!(got, want, "--frames {range}");
+    }
+    fail(&["render", a, "--frames", "3..=2", "-o", pattern.to_str().unwrap()], "is empty");
+    fail(&["render", a, "--frames", "two", "-o", pattern.to_str().unwrap()], "expected a range like 0..60");
     fail(&["render", a, "--frames", "4294967295", "-o", pattern.to_str().unwrap()], "out of range");
     fail(
         &["render", a, "--frames", "0..2", "-o", dir.path().join("f_%0999999d.png").to_str().unwrap()],
@@ -272,4 +289,52 @@ fn brushed_plate_turns_relights_and_reports_its_reflectance() {
     assert!(e.contains("diffuse"), "{e}");
     let e = fail(&["render", "-q", a, "-o", p, "--set", "brushed.specular=2,1,1"]);
     assert!(e.contains("[0, 1]"), "{e}");
+}
+
+#[test]
+fn a_new_users_mistakes_get_plain_answers() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = |name: &str| dir.path().join(name).to_str().unwrap().to_string();
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/cornell_box.toml");
+    let scene = scene.to_str().unwrap();
+    // A scene given to render or inspect: say to build it.
+    let (code, err) = failing(&["render", scene, "-o", &path("x.png")]);
+    assert_eq!(code, 3, "{err}");
+    assert!(err.contains("is a scene, not an archive") && err.contains("illumnet build"), "{err}");
+    std::fs::copy(scene, path("room.txt")).unwrap();
+    let (code, err) = failing(&["inspect", &path("room.txt")]);
+    assert!(code == 3 && err.contains("is a scene"), "{err}");
+    illumnet(&["build", "-q", scene, "-o", &path("box.inet"), "--frequency", "4", "--patch-size", "0.1"]);
+    // Image formats follow the option, not the file name: refused, not mislabelled.
+    let (code, err) = failing(&["render", &path("box.inet"), "-o", &path("x.exr")]);
+    assert!(code == 3 && err.contains("--exr"), "{err}");
+    assert!(!dir.path().join("x.exr").exists());
+    let (code, err) = failing(&["render", &path("box.inet"), "-o", &path("x.png"), "--exr", &path("y.png")]);
+    assert!(code == 3 && err.contains("name it .exr"), "{err}");
+    // compare judges linear radiance only.
+    illumnet(&["render", "-q", &path("box.inet"), "-o", &path("a.png"), "--exr", &path("a.exr"), "--samples", "1"]);
+    let (code, err) = failing(&["compare", &path("a.png"), &path("a.exr")]);
+    assert!(code == 3 && err.contains("sRGB"), "{err}");
+    illumnet(&["compare", &path("a.exr"), &path("a.exr")]);
+
+    // A scene without light, and one whose lamp faces away: rendered, with
+    // a warning that says why the picture is dark.
+    let base = "[camera]\nposition = [0, 1, -3]\nlook_at = [0, 0, 0]\nfov_y_deg = 40\nwidth = 8\nheight = 8\n\
+        [[material]]\nname = 'grey'\ntype = 'diffuse'\nreflectance = [0.5, 0.5, 0.5]\n\
+        [[surface]]\nname = 'floor'\nmaterial = 'grey'\nquad = [[-1, 0, -1], [-1, 0, 1], [1, 0, 1], [1, 0, -1]]\n";
+    let lamp_up = "[[surface]]\nname = 'lamp'\nmaterial = 'grey'\nemission = [5, 5, 5]\n\
+        quad = [[-0.2, 1, 0.2], [0.2, 1, 0.2], [0.2, 1, -0.2], [-0.2, 1, -0.2]]\n";
+    for (name, text, needle) in
+        [("dark", base.to_string(), "emits no light"), ("away", format!("{base}{lamp_up}"), "face away")]
+    {
+        std::fs::write(path(&format!("{name}.toml")), text).unwrap();
+        let archive = path(&format!("{name}.inet"));
+        illumnet(&["build", "-q", &path(&format!("{name}.toml")), "-o", &archive, "--frequency", "4"]);
+        let out = illumnet(&["render", "-q", &archive, "-o", &path(&format!("{name}.png")), "--samples", "1"]);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(err.contains("warning") && err.contains(needle), "{name}: {err}");
+    }
+    // A lit scene gives no such warning.
+    let out = illumnet(&["render", "-q", &path("box.inet"), "-o", &path("b.png"), "--samples", "1"]);
+    assert!(!String::from_utf8_lossy(&out.stderr).contains("warning"));
 }

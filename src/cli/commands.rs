@@ -107,27 +107,79 @@ fn frame_path(pattern: &Path, frame: u32) -> Option<std::path::PathBuf> {
     if !rest[digits.len()..].starts_with('d') {
         return None;
     }
-    let width: usize = digits.parse().ok().filter(|&w| w <= 16)?;
+    let width: usize = if digits.is_empty() { 0 } else { digits.parse().ok().filter(|&w| w <= 16)? };
     let number = format!("{frame:0width$}");
     Some(format!("{}{}{}", &text[..start], number, &rest[digits.len() + 1..]).into())
 }
 
-/// Parses `A..B` (B exclusive) or a single frame `A`.
-pub fn parse_frames(text: &str) -> Result<std::ops::Range<u32>> {
-    let parse = |t: &str| t.trim().parse::<u32>().input(|| format!("`{text}` is not a frame range like 0..60"));
-    match text.split_once("..") {
+/// Parses a frame range of a sequence of `total` frames: `A..B` (B
+/// excluded), `A..=B`, `A..` (to the end), `..B`, or a single frame `A`.
+pub fn parse_frames(text: &str, total: u32) -> Result<std::ops::Range<u32>> {
+    let parse = |t: &str| {
+        t.trim()
+            .parse::<u32>()
+            .input(|| format!("--frames `{text}`: expected a range like 0..60, 2.., 0..=4 or one frame like 7"))
+    };
+    let (a, b) = match text.split_once("..") {
         Some((a, b)) => {
-            let (a, b) = (parse(a)?, parse(b)?);
-            if a >= b {
-                bail_input!("frame range `{text}` is empty");
-            }
-            Ok(a..b)
+            let a = if a.trim().is_empty() { 0 } else { parse(a)? };
+            let b = match b.strip_prefix('=') {
+                Some(b) => parse(b)?.checked_add(1).input(|| format!("--frames `{text}`: frame out of range"))?,
+                None if b.trim().is_empty() => total,
+                None => parse(b)?,
+            };
+            (a, b)
         }
         None => {
             let a = parse(text)?;
-            Ok(a..a.checked_add(1).input(|| format!("frame {a} is out of range"))?)
+            (a, a.checked_add(1).input(|| format!("frame {a} is out of range"))?)
         }
+    };
+    if a >= b {
+        bail_input!("--frames `{text}` is empty (the archive has frames 0..{total})");
     }
+    Ok(a..b)
+}
+
+/// Refuses an output (or input) path whose extension is not `ext`, naming
+/// the option and what to do instead.
+fn require_extension(path: &Path, ext: &str, option: &str, hint: &str) -> Result<()> {
+    let given = path.extension().and_then(|e| e.to_str()).unwrap_or("");
+    if !given.eq_ignore_ascii_case(ext) {
+        bail_input!("{option} {}: {hint}", path.display());
+    }
+    Ok(())
+}
+
+/// Opens an archive, telling a scene file given in its place apart from a
+/// corrupt archive.
+fn open_archive(path: &Path) -> Result<Archive> {
+    match Archive::open(path) {
+        Ok(a) => Ok(a),
+        Err(illumnet::archive::ArchiveError::Corrupt(_)) if looks_like_scene(path) => {
+            let stem = path.file_stem().and_then(|s| s.to_str()).unwrap_or("scene");
+            bail_input!(
+                "{} is a scene, not an archive: build it first with `illumnet build {} -o {stem}.inet`",
+                path.display(),
+                path.display()
+            )
+        }
+        Err(e) => Err(anyhow::Error::new(e)).with_context(|| format!("cannot open {}", path.display())),
+    }
+}
+
+/// Whether `path` names a TOML scene: a `.toml` extension, or text that
+/// starts like one.
+fn looks_like_scene(path: &Path) -> bool {
+    if path.extension().is_some_and(|e| e.eq_ignore_ascii_case("toml")) {
+        return true;
+    }
+    let mut head = [0u8; 256];
+    let n = std::fs::File::open(path).and_then(|mut f| std::io::Read::read(&mut f, &mut head)).unwrap_or(0);
+    std::str::from_utf8(&head[..n]).is_ok_and(|t| {
+        let t = t.trim_start();
+        t.starts_with('[') || t.starts_with('#')
+    })
 }
 
 /// Applies `--set NAME.FIELD=R,G,B` changes to `lighting`.
@@ -234,14 +286,30 @@ pub fn render(
     if args.layers && (exr.is_none() || !direct_shading) {
         bail_input!("--layers writes EXR layers of direct and indirect light: it needs --exr and --shading direct");
     }
+    require_extension(
+        png,
+        "png",
+        "-o",
+        "-o writes a PNG image (sRGB, 8-bit): name it .png (linear OpenEXR is --exr IMAGE.exr)",
+    )?;
+    if let Some(exr) = exr {
+        require_extension(exr, "exr", "--exr", "--exr writes OpenEXR: name it .exr")?;
+    }
+    if let Some(gif) = extras.gif {
+        require_extension(gif, "gif", "--gif", "--gif writes an animated GIF: name it .gif")?;
+    }
+    if let Some(sheet) = extras.contact_sheet {
+        require_extension(sheet, "png", "--contact-sheet", "--contact-sheet writes a PNG: name it .png")?;
+    }
     let t = Instant::now();
-    let archive = Archive::open(path).with_context(|| format!("cannot open {}", path.display()))?;
+    let archive = open_archive(path)?;
     let view = archive.view();
     let t_open = t.elapsed().as_secs_f64();
     let total_frames = view.sequence.map_or(1, |s| s.frames());
+    // All frames of a sequence unless told otherwise.
     let range = match frames {
-        Some(f) => parse_frames(f)?,
-        None => 0..1,
+        Some(f) => parse_frames(f, total_frames)?,
+        None => 0..total_frames,
     };
     if range.end > total_frames {
         bail_input!("frames {}..{} are outside the archive's sequence 0..{total_frames}", range.start, range.end);
@@ -252,11 +320,20 @@ pub fn render(
             Some(p) => Ok(p),
             None if !sequence_output => Ok(pattern.to_path_buf()),
             None => bail_input!(
-                "{} needs a frame number pattern such as frame_%04d.png to render several frames",
-                pattern.display()
+                "{} needs a frame number pattern such as frame_%04d.png to render the {} frames {}..{} \
+                 (or --frames N for one frame)",
+                pattern.display(),
+                range.len(),
+                range.start,
+                range.end
             ),
         }
     };
+    // Check the pattern before any work.
+    out_path(png, range.start)?;
+    if let Some(exr) = exr {
+        out_path(exr, range.start)?;
+    }
     let opts = DistributeOptions {
         tolerance: args.tolerance,
         buckets: !args.no_buckets,
@@ -277,6 +354,7 @@ pub fn render(
     let keep_images = extras.gif.is_some() || extras.contact_sheet.is_some();
     let mut images = Vec::new();
     let mut iterations = 0;
+    let mut warned_dark = false;
     for f in range.clone() {
         let t1 = Instant::now();
         let start = if args.cold { None } else { previous.as_ref() };
@@ -297,6 +375,21 @@ pub fn render(
             b.iterations,
             if b.converged { "" } else { " (NOT converged: raise the iteration limit or the tolerance)" }
         );
+        let (emitted, absorbed) = (sum(&b.emitted), sum(&b.absorbed));
+        if emitted <= 0.0 && !warned_dark {
+            warned_dark = true;
+            eprintln!(
+                "illumnet: warning: frame {f} emits no light (0 W), so only emitters seen directly will show: \
+                 the scene has no surface with `emission`, or --set made them black"
+            );
+        } else if emitted > 0.0 && absorbed < 1e-3 * emitted && !warned_dark {
+            warned_dark = true;
+            eprintln!(
+                "illumnet: warning: frame {f}: {:.1}% of the {emitted:.4} W emitted reaches no surface that \
+                 absorbs it: does an emitter face away from the scene?",
+                100.0 * (1.0 - absorbed / emitted)
+            );
+        }
         let t2 = Instant::now();
         let (image, direct) = if direct_shading {
             let light = render::DirectLight::new(
@@ -366,7 +459,7 @@ pub fn render(
 }
 
 pub fn inspect(path: &Path, json: bool) -> Result<()> {
-    let archive = Archive::open(path).with_context(|| format!("cannot open {}", path.display()))?;
+    let archive = open_archive(path)?;
     let v = archive.view();
     let h = archive.header();
     let b = v.build;
@@ -504,6 +597,18 @@ pub fn inspect(path: &Path, json: bool) -> Result<()> {
 }
 
 pub fn compare(image: &Path, reference: &Path, heatmap: Option<&Path>, full_scale: f32) -> Result<()> {
+    for (path, what) in [(image, "IMAGE"), (reference, "REFERENCE")] {
+        require_extension(
+            path,
+            "exr",
+            what,
+            "compare measures linear radiance and takes OpenEXR images; PNG and other 8-bit formats hold \
+             sRGB-encoded values (write linear images with `render --exr`)",
+        )?;
+    }
+    if let Some(map) = heatmap {
+        require_extension(map, "png", "--heatmap", "--heatmap writes a PNG: name it .png")?;
+    }
     let a = image_io::read_exr(image).map_err(IoFailure)?;
     let r = image_io::read_exr(reference).map_err(IoFailure)?;
     let (err, map) = image_io::compare(&a, &r).map_err(BadInput)?;

@@ -156,8 +156,9 @@ enum Command {
         /// Also write linear radiance as OpenEXR.
         #[arg(long, value_name = "IMAGE.exr")]
         exr: Option<PathBuf>,
-        /// Frames of a sequence archive to render, `A..B` (B excluded) or `N`;
-        /// outputs then need a frame number pattern, e.g. out/frame_%04d.png.
+        /// Frames of a sequence archive to render: `A..B` (B excluded),
+        /// `A..=B`, `A..` (to the end), `..B` or one frame `N`; default all.
+        /// Several frames need a frame number pattern, e.g. out/frame_%04d.png.
         #[arg(long, value_name = "A..B")]
         frames: Option<String>,
         /// Also write the rendered frames as a looping animated GIF preview.
