@@ -311,6 +311,11 @@ fn a_new_users_mistakes_get_plain_answers() {
     assert!(!dir.path().join("x.exr").exists());
     let (code, err) = failing(&["render", &path("box.inet"), "-o", &path("x.png"), "--exr", &path("y.png")]);
     assert!(code == 3 && err.contains("name it .exr"), "{err}");
+    // --set of a field fixed at build time, or of no field.
+    let (code, err) = failing(&["render", &path("box.inet"), "-o", &path("x.png"), "--set", "light.alpha=0.5"]);
+    assert!(code == 3 && err.contains("rebuild"), "{err}");
+    let (code, err) = failing(&["render", &path("box.inet"), "-o", &path("x.png"), "--set", "light.colour=1,1,1"]);
+    assert!(code == 3 && err.contains("unknown field `colour`"), "{err}");
     // compare judges linear radiance only.
     illumnet(&["render", "-q", &path("box.inet"), "-o", &path("a.png"), "--exr", &path("a.exr"), "--samples", "1"]);
     let (code, err) = failing(&["compare", &path("a.png"), &path("a.exr")]);

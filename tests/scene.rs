@@ -120,3 +120,44 @@ fn glossy_materials_parse_and_bad_keys_name_their_field() {
     .unwrap_err();
     assert_eq!(e.field, "surface[0].grain", "{e}");
 }
+
+#[test]
+fn parser_errors_name_the_field_in_plain_words() {
+    let parse =
+        |text: &str| Scene::from_toml(text, std::path::Path::new("s.toml"), std::path::Path::new(".")).unwrap_err();
+    let surface = "[[surface]]\nname = 's'\nmaterial = 'w'\n";
+    for (text, line, field, says) in [
+        (
+            HEAD.replace("position = [0, 0, -3]", "position = [0, 0]"),
+            2,
+            "camera.position",
+            "expected a list of 3 numbers",
+        ),
+        (HEAD.replace("width = 8", "width = 200.0"), 5, "camera.width", "expected a whole number, got 200.0"),
+        (format!("{HEAD}[camera]\n"), 11, "camera", "camera"),
+        (HEAD.replace("height = 8", "height = 8\nwidth = 9"), 7, "camera.width", "`width` is given twice"),
+        (
+            HEAD.replace("reflectance = [0.5, 0.5, 0.5]", "reflectance = 'grey'"),
+            10,
+            "material[0].reflectance",
+            "got \"grey\"",
+        ),
+        (
+            format!("{HEAD}{surface}box = {{ min = [0, 0], max = [1, 1, 1] }}\n"),
+            14,
+            "surface[0].box.min",
+            "got 2 values",
+        ),
+        (
+            format!("{HEAD}[[material]]\nname = 'v'\ntype = 'diffuse'\nreflectance = [0.5,\n  0.5]\n"),
+            14,
+            "material[1].reflectance",
+            "got 2 values",
+        ),
+    ] {
+        let e = parse(&text);
+        assert_eq!((e.line, e.field.as_str()), (line, field), "{e}");
+        assert!(e.message.contains(says), "{e}");
+        assert!(!e.message.contains("u32") && !e.message.contains("invalid length"), "{e}");
+    }
+}

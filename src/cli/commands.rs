@@ -189,6 +189,19 @@ fn relight(lighting: &mut distribute::Lighting, archive: &Archive, sets: &[Strin
     for set in sets {
         let (target, value) = set.split_once('=').input(|| format!("--set `{set}`: expected NAME.FIELD=R,G,B"))?;
         let (name, field) = target.rsplit_once('.').input(|| format!("--set `{set}`: expected NAME.FIELD=R,G,B"))?;
+        // Fields fixed at build time, or not fields at all: say so before
+        // judging the value.
+        match field {
+            "emission" | "reflectance" | "specular" => {}
+            "alpha" | "alpha_u" | "alpha_v" | "ior" | "type" => bail_input!(
+                "--set `{set}`: `{field}` shapes the material's reflectance tables, which are built into the \
+                 archive: change it in the scene and rebuild (--set changes emission, reflectance and specular)"
+            ),
+            _ => bail_input!(
+                "--set `{set}`: unknown field `{field}`: --set changes SURFACE.emission, SURFACE.reflectance or \
+                 MATERIAL.reflectance, and .specular of glossy materials"
+            ),
+        }
         let v: Vec<f32> = value
             .split(',')
             .map(|x| x.trim().parse::<f32>())

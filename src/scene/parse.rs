@@ -232,6 +232,143 @@ fn line_col(text: &str, offset: usize) -> (usize, usize) {
     (line, column)
 }
 
+/// The dotted path of the key whose value is at byte `offset` of `text`
+/// (e.g. `surface[2].box.min`), from the table headers above it and the
+/// keys on its line; empty when none is found. The TOML parser's errors
+/// give a position only, and users look for a field.
+fn field_at(text: &str, offset: usize) -> String {
+    let offset = offset.min(text.len());
+    let line_start = text[..offset].rfind('\n').map_or(0, |p| p + 1);
+    // The table header in force, with the index of array tables.
+    let mut header = String::new();
+    let mut counts: Vec<(String, usize)> = Vec::new();
+    for line in text[..line_start].lines().map(str::trim) {
+        if let Some(name) = line.strip_prefix("[[").and_then(|l| l.split("]]").next()) {
+            let name = name.trim().to_string();
+            let n = match counts.iter_mut().find(|(k, _)| *k == name) {
+                Some((_, n)) => {
+                    *n += 1;
+                    *n
+                }
+                None => {
+                    counts.push((name.clone(), 0));
+                    0
+                }
+            };
+            header = format!("{name}[{n}]");
+        } else if let Some(name) = line.strip_prefix('[').and_then(|l| l.split(']').next()) {
+            header = name.trim().to_string();
+        }
+    }
+    // Keys on the line up to the offset, nested by inline tables; if none
+    // comes before it (a duplicate key is reported at the line's start),
+    // the line's first key; if the line has none (a value continued from
+    // the line above), the nearest key above.
+    let keys = |segment: &str| -> Vec<String> {
+        let (mut stack, mut last): (Vec<String>, Option<String>) = (Vec::new(), None);
+        let mut word = String::new();
+        let mut in_string = None;
+        for c in segment.chars() {
+            match (in_string, c) {
+                (Some(q), c) if c == q => in_string = None,
+                (Some(_), _) => {}
+                (None, '"' | '\'') => in_string = Some(c),
+                (None, c) if c.is_alphanumeric() || c == '_' || c == '-' => word.push(c),
+                (None, '=') => {
+                    if !word.is_empty() {
+                        last = Some(std::mem::take(&mut word));
+                    }
+                }
+                (None, '{') => {
+                    if let Some(k) = last.take() {
+                        stack.push(k);
+                    }
+                }
+                (None, '}') => {
+                    stack.pop();
+                    last = None;
+                }
+                (None, c) if c.is_whitespace() => {}
+                _ => word.clear(),
+            }
+            if !(c.is_alphanumeric() || c == '_' || c == '-') && c != '=' && !c.is_whitespace() {
+                word.clear();
+            }
+        }
+        stack.extend(last);
+        stack
+    };
+    let line_end = text[offset..].find('\n').map_or(text.len(), |p| offset + p);
+    // The error is in a table header itself (a table given twice).
+    if let Some(name) = text[line_start..line_end].trim().strip_prefix('[') {
+        return name.trim_start_matches('[').split(']').next().unwrap_or("").trim().to_string();
+    }
+    let mut path = keys(&text[line_start..offset]);
+    if path.is_empty() {
+        path = keys(&text[line_start..line_end]).into_iter().take(1).collect();
+    }
+    if path.is_empty() {
+        path = text[..line_start]
+            .lines()
+            .rev()
+            .take_while(|l| !l.trim_start().starts_with('['))
+            .map(keys)
+            .find(|k| !k.is_empty())
+            .map(|k| k.into_iter().take(1).collect())
+            .unwrap_or_default();
+    }
+    let tail = path.join(".");
+    match (header.is_empty(), tail.is_empty()) {
+        (true, _) => tail,
+        (false, true) => header,
+        (false, false) => format!("{header}.{tail}"),
+    }
+}
+
+/// The TOML parser's message in plain words: no Rust type names.
+fn plain_message(message: &str, key: &str) -> String {
+    if message == "duplicate key" {
+        return if key.is_empty() { "a key is given twice".into() } else { format!("`{key}` is given twice") };
+    }
+    let words = |expected: &str| -> String {
+        let e = expected.trim();
+        match e {
+            "u8" | "u16" | "u32" | "u64" | "usize" | "i32" | "i64" => "a whole number".into(),
+            "f32" | "f64" => "a number".into(),
+            "a sequence" => "a list in brackets, like [1, 2, 3]".into(),
+            "a boolean" => "true or false".into(),
+            "a string" => "a quoted string".into(),
+            _ if e.starts_with("an array of length ") => {
+                format!("a list of {} numbers, like [1, 2, 3]", e.trim_start_matches("an array of length "))
+            }
+            _ if e.starts_with("struct ") || e == "a map" || e.starts_with("a map") => "a table".into(),
+            _ => e.to_string(),
+        }
+    };
+    if let Some(rest) = message.strip_prefix("invalid length ")
+        && let Some((got, expected)) = rest.split_once(", expected ")
+    {
+        return format!("expected {}, got {got} values", words(expected));
+    }
+    if let Some(rest) = message.strip_prefix("invalid type: ")
+        && let Some((got, expected)) = rest.split_once(", expected ")
+    {
+        let got = got
+            .replace("floating point ", "")
+            .replace("integer ", "")
+            .replace("string ", "")
+            .replace("boolean ", "")
+            .replace('`', "");
+        let got = match got.as_str() {
+            "sequence" => "a list".to_string(),
+            "map" => "a table".to_string(),
+            other => other.to_string(),
+        };
+        return format!("expected {}, got {got}", words(expected));
+    }
+    message.to_string()
+}
+
 fn finite3(v: &[f32; 3]) -> bool {
     v.iter().all(|x| x.is_finite())
 }
@@ -240,8 +377,9 @@ pub(super) fn parse(text: &str, file: &Path, base_dir: &Path, name: String) -> R
     let cx = Ctx { text, file };
     let raw: RawScene = toml::from_str(text).map_err(|e| {
         let span = e.span().unwrap_or(0..0);
-        let msg = e.message().trim().to_string();
-        cx.err(span, "", msg)
+        let field = field_at(text, span.start);
+        let key = field.rsplit(['.', ']']).next().unwrap_or("").to_string();
+        cx.err(span, field, plain_message(e.message().trim(), &key))
     })?;
 
     // Camera.
