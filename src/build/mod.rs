@@ -19,7 +19,7 @@ mod trace;
 
 use std::time::Instant;
 
-pub use settings::{BuildSettings, DEFAULT_MAX_BUCKET, MAX_BUCKET, ray_space_divisions};
+pub use settings::{BuildSettings, DEFAULT_MAX_BUCKET, MAX_BUCKET, Quality, ray_space_divisions};
 pub use trace::BundleStats;
 
 use crate::archive::layout::{

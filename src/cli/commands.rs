@@ -20,7 +20,12 @@ fn hints(a: &BuildArgs) -> BuildHints {
 }
 
 fn build_scene(scene: &Scene, output: &Path, args: &BuildArgs, progress: &dyn Progress) -> Result<()> {
-    let mut settings = BuildSettings::resolve(scene, hints(args));
+    let quality = match args.quality {
+        super::Quality::Draft => build::Quality::Draft,
+        super::Quality::Default => build::Quality::Default,
+        super::Quality::High => build::Quality::High,
+    };
+    let mut settings = BuildSettings::resolve_with(scene, hints(args), quality);
     if args.ray_space {
         settings.direction_set = DirectionSetKind::RaySpace;
     }

@@ -30,6 +30,11 @@ struct Cli {
 /// frequency 16).
 #[derive(Args, Clone, Default)]
 struct BuildArgs {
+    /// Resolution relative to the scene's size: `draft` (about 8× faster
+    /// than default), `default`, `high` (about 7× slower). --patch-size,
+    /// --ray-spacing, --frequency and the scene's [build] table override it.
+    #[arg(long, value_enum, default_value_t = Quality::Default)]
+    quality: Quality,
     /// Target patch edge length in metres.
     #[arg(long, value_name = "M")]
     patch_size: Option<f32>,
@@ -111,10 +116,22 @@ struct RenderArgs {
     layers: bool,
 }
 
+/// Build resolution presets (see `--quality`).
+#[derive(Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
+enum Quality {
+    /// Frequency 11, patches of diagonal/48, rays diagonal/64 apart.
+    Draft,
+    /// Frequency 16, patches of diagonal/64, rays diagonal/128 apart.
+    #[default]
+    Default,
+    /// Frequency 24, patches of diagonal/64, rays diagonal/256 apart.
+    High,
+}
+
 /// How images are shaded (see `--shading`).
 #[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 enum Shading {
-    /// Direct light per image sample, indirect light from the I-net.
+    /// Direct light per pixel, indirect light from the I-net.
     Direct,
     /// All light from the I-net (the paper's §3.5).
     Inet,
