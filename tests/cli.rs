@@ -65,8 +65,23 @@ fn build_inspect_render_with_json() {
     assert!(json["links"].as_u64().unwrap() > 1000);
     assert!(json["sections"].as_array().unwrap().iter().any(|s| s["tag"] == "LOTH"));
     let png = dir.path().join("img.png");
-    illumnet(&["render", "-q", a, "-o", png.to_str().unwrap(), "--samples", "1"]);
+    let render = illumnet(&["render", "-q", a, "-o", png.to_str().unwrap(), "--samples", "1"]);
     assert!(png.exists());
+    // The text view names the camera, materials, surfaces and emitters, and
+    // its emitted power (π·L·area) is the energy balance's.
+    let text = String::from_utf8(illumnet(&["inspect", a]).stdout).unwrap();
+    for needle in
+        ["camera: at [0.278, 0.273, -0.8]", "red: diffuse", "tall_block: white, 5 primitives", "emitters: 1 surface"]
+    {
+        assert!(text.contains(needle), "{needle}: {text}");
+    }
+    let number_after = |text: &str, key: &str| -> f64 {
+        let rest = &text[text.find(key).unwrap_or_else(|| panic!("{key}: {text}")) + key.len()..];
+        rest.split_whitespace().next().unwrap().parse().unwrap()
+    };
+    let listed = number_after(&text, "emitting ");
+    let balance = number_after(&String::from_utf8_lossy(&render.stdout), "emitted ");
+    assert!((listed - balance).abs() < 1e-3 * balance, "inspect {listed} W vs energy balance {balance} W");
 }
 
 #[test]
@@ -339,6 +354,25 @@ fn a_new_users_mistakes_get_plain_answers() {
         let err = String::from_utf8_lossy(&out.stderr);
         assert!(err.contains("warning") && err.contains(needle), "{name}: {err}");
     }
+    // Seen from below, the floor and lamp show their backs: said so.
+    let below = base
+        .replace("position = [0, 1, -3]", "position = [0, -1, -0.5]")
+        .replace("look_at = [0, 0, 0]", "look_at = [0, 0, 0.1]");
+    std::fs::write(
+        path("below.toml"),
+        format!(
+            "{below}{}",
+            lamp_up.replace(
+                "[-0.2, 1, 0.2], [0.2, 1, 0.2], [0.2, 1, -0.2], [-0.2, 1, -0.2]",
+                "[-0.2, 1, -0.2], [0.2, 1, -0.2], [0.2, 1, 0.2], [-0.2, 1, 0.2]"
+            )
+        ),
+    )
+    .unwrap();
+    illumnet(&["build", "-q", &path("below.toml"), "-o", &path("below.inet"), "--frequency", "4"]);
+    let out = illumnet(&["render", "-q", &path("below.inet"), "-o", &path("below.png"), "--samples", "1"]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("back faces"), "{err}");
     // A lit scene gives no such warning.
     let out = illumnet(&["render", "-q", &path("box.inet"), "-o", &path("b.png"), "--samples", "1"]);
     assert!(!String::from_utf8_lossy(&out.stderr).contains("warning"));

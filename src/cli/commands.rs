@@ -8,6 +8,7 @@ use illumnet::archive::{self, Archive, tag_name};
 use illumnet::build::{self, BuildSettings};
 use illumnet::distribute::{self, DistributeOptions};
 use illumnet::geodesic::DirectionSetKind;
+use illumnet::geometry;
 use illumnet::progress::Progress;
 use illumnet::render::{self, RenderOptions, image_io};
 use illumnet::scene::{BuildHints, Scene};
@@ -424,6 +425,15 @@ pub fn render(
             (renderer.frame(f, &render::frame_radiance(&view, f, &solution)), None)
         };
         t_render += t2.elapsed().as_secs_f64();
+        let samples = image.pixels.len() as f64 * (args.samples * args.samples) as f64;
+        if f == range.start && renderer.back_faces as f64 > 0.5 * samples {
+            eprintln!(
+                "illumnet: warning: {:.0}% of the image shows back faces, which render black (surfaces are \
+                 one-sided: their front is where the right-hand rule's normal points); is the camera inside \
+                 a closed box or are some quads wound the wrong way?",
+                100.0 * renderer.back_faces as f64 / samples
+            );
+        }
         image_io::write_png(&image, &out_path(png, f)?, args.exposure).map_err(IoFailure)?;
         if let Some(exr) = exr {
             let path = out_path(exr, f)?;
@@ -475,6 +485,9 @@ pub fn render(
     );
     Ok(())
 }
+
+/// Most materials and surfaces the text `inspect` lists one by one.
+const LIST_LIMIT: usize = 24;
 
 pub fn inspect(path: &Path, json: bool) -> Result<()> {
     let archive = open_archive(path)?;
@@ -554,6 +567,69 @@ pub fn inspect(path: &Path, json: bool) -> Result<()> {
         b.link_end_count / 2,
         b.link_count,
         b.link_end_count
+    );
+    let c = v.camera;
+    println!(
+        "  camera: at {:?} looking at {:?}, up {:?}, {}° vertical field of view, {} × {} pixels",
+        c.position, c.look_at, c.up, c.fov_y_deg, c.width, c.height
+    );
+    let model_name = |m: u32| match m {
+        archive::layout::model::DIFFUSE => "diffuse",
+        archive::layout::model::ROUGH_CONDUCTOR => "rough_conductor",
+        archive::layout::model::BROAD_SPECULAR => "broad_specular",
+        _ => "unknown",
+    };
+    let name_or = |names: &[String], i: usize| names.get(i).cloned().unwrap_or_else(|| format!("#{i}"));
+    println!("  materials:");
+    for (i, m) in v.materials.iter().enumerate().take(LIST_LIMIT) {
+        println!("    {}: {}", name_or(&meta.material_names, i), model_name(m.model));
+    }
+    if v.materials.len() > LIST_LIMIT {
+        println!("    … and {} more (--json lists all)", v.materials.len() - LIST_LIMIT);
+    }
+    println!("  surfaces (material, primitives, patches; emitters with their power, π·L·area):");
+    let (mut emitters, mut power) = (0usize, [0.0f64; 3]);
+    for (i, sf) in v.surfaces.iter().enumerate() {
+        let prims = &v.primitives[sf.first_primitive as usize..][..sf.primitive_count as usize];
+        let patches: u64 = prims.iter().map(|p| (p.grid_u as u64) * (p.grid_v as u64)).sum();
+        let area: f64 = prims
+            .iter()
+            .map(|p| {
+                let kind = if p.kind == 0 { geometry::PrimitiveKind::Quad } else { geometry::PrimitiveKind::Triangle };
+                geometry::Primitive { kind, p: p.corners.map(glam::Vec3::from) }.area() as f64
+            })
+            .sum();
+        let emits = sf.emission.iter().any(|&e| e > 0.0);
+        let watts = sf.emission.map(|e| std::f64::consts::PI * e as f64 * area);
+        if emits {
+            emitters += 1;
+            (0..3).for_each(|k| power[k] += watts[k]);
+        }
+        if i < LIST_LIMIT {
+            let light = if emits {
+                format!(", emits {:?} W·sr⁻¹·m⁻² over {area:.4} m²: {:.3} W", sf.emission, watts.iter().sum::<f64>())
+            } else {
+                String::new()
+            };
+            println!(
+                "    {}: {}, {} primitive{}, {patches} patches{light}",
+                name_or(&meta.surface_names, i),
+                name_or(&meta.material_names, sf.material as usize),
+                sf.primitive_count,
+                if sf.primitive_count == 1 { "" } else { "s" },
+            );
+        }
+    }
+    if v.surfaces.len() > LIST_LIMIT {
+        println!("    … and {} more (--json lists all)", v.surfaces.len() - LIST_LIMIT);
+    }
+    println!(
+        "  emitters: {emitters} surface{} emitting {:.3} W in all at frame 0 ({:.3}, {:.3}, {:.3} W per channel)",
+        if emitters == 1 { "" } else { "s" },
+        power.iter().sum::<f64>(),
+        power[0],
+        power[1],
+        power[2]
     );
     if let Some(s) = v.sequence {
         let changes: u64 = s.index.iter().map(|i| i.count).sum();

@@ -196,7 +196,8 @@ fn shade_image(
     hits_of: &PixelHits<'_>,
     vrad: &[[f32; 3]],
     direct: Option<&PixelLight<'_>>,
-) -> (Image, Option<Image>) {
+) -> (Image, Option<Image>, usize) {
+    let back_faces = std::sync::atomic::AtomicUsize::new(0);
     let mut pixels = vec![[0.0f32; 3]; (w * h) as usize];
     let mut direct_pixels = vec![[0.0f32; 3]; (w * h) as usize];
     let mut blocked = vec![false; (w * h) as usize];
@@ -206,8 +207,13 @@ fn shade_image(
         for (x, px) in row.iter_mut().enumerate() {
             hits_of(x as u32, y as u32, &mut hits);
             let mut acc = Vec3::ZERO;
+            let mut back = 0;
             for hit in &hits {
                 hit.add_radiance(vrad, &mut acc);
+                back += usize::from(hit.primitive != u32::MAX && hit.vertices == [NO_VERTEX; 4]);
+            }
+            if back > 0 {
+                back_faces.fetch_add(back, std::sync::atomic::Ordering::Relaxed);
             }
             let inv = 1.0 / hits.len().max(1) as f32;
             *px = (acc * inv).to_array();
@@ -218,8 +224,9 @@ fn shade_image(
             }
         }
     });
+    let back_faces = back_faces.into_inner();
     let Some(pl) = direct else {
-        return (Image { width: w, height: h, pixels }, None);
+        return (Image { width: w, height: h, pixels }, None, back_faces);
     };
     // The second pass, into the direct light: each pixel reads the first
     // pass's marks of its neighbours only.
@@ -241,7 +248,7 @@ fn shade_image(
     for (p, d) in pixels.iter_mut().zip(&direct_pixels) {
         *p = [0, 1, 2].map(|c| p[c] + d[c]);
     }
-    (Image { width: w, height: h, pixels }, Some(Image { width: w, height: h, pixels: direct_pixels }))
+    (Image { width: w, height: h, pixels }, Some(Image { width: w, height: h, pixels: direct_pixels }), back_faces)
 }
 
 /// The summed direct light of a pixel's samples `hits` (its first
@@ -305,6 +312,9 @@ pub struct Renderer<'a> {
     cache_budget: u64,
     /// Samples traced against the whole scene in the last frame.
     pub retraced: usize,
+    /// Samples of the last frame that saw a back face (shown black:
+    /// surfaces are one-sided).
+    pub back_faces: usize,
 }
 
 impl<'a> Renderer<'a> {
@@ -313,7 +323,18 @@ impl<'a> Renderer<'a> {
         let (all_prims, grids): (Vec<Primitive>, Vec<PatchGrid>) = v.primitives.iter().map(primitive_of).unzip();
         let normals = all_prims.iter().map(|p| p.normal()).collect();
         let temporal = v.temporal_primitives();
-        Self { v: *v, opts, all_prims, grids, normals, temporal, cache: None, cache_budget: CACHE_BUDGET, retraced: 0 }
+        Self {
+            v: *v,
+            opts,
+            all_prims,
+            grids,
+            normals,
+            temporal,
+            cache: None,
+            cache_budget: CACHE_BUDGET,
+            retraced: 0,
+            back_faces: 0,
+        }
     }
 
     /// Sets the largest sample cache kept, in bytes (default 1 GiB); 0 traces
@@ -410,7 +431,9 @@ impl<'a> Renderer<'a> {
                 buf.clear();
                 buf.extend((0..per_pixel as u32).map(|k| trace(x, y, k % n, k / n)));
             };
-            return shade_image((w, h), &hits_of, &vrad, pixel_light.as_ref());
+            let (image, direct, back) = shade_image((w, h), &hits_of, &vrad, pixel_light.as_ref());
+            self.back_faces = back;
+            return (image, direct);
         }
         // Reuse what the samples saw last frame when the camera is the same.
         let mut samples = match self.cache.take() {
@@ -492,7 +515,9 @@ impl<'a> Renderer<'a> {
             buf.clear();
             buf.extend_from_slice(&samples[at..at + per_pixel]);
         };
-        let images = shade_image((w, h), &hits_of, &vrad, pixel_light.as_ref());
+        let (image, direct_image, back) = shade_image((w, h), &hits_of, &vrad, pixel_light.as_ref());
+        self.back_faces = back;
+        let images = (image, direct_image);
         self.cache = Some((record, samples));
         images
     }
