@@ -10,18 +10,9 @@ use illumnet::progress::NoProgress;
 use illumnet::render::{self, DirectLight, PinholeCamera, RenderOptions, Renderer};
 use illumnet::scene::BuildHints;
 
-/// A 1 m² emitter (radiance 10, facing down) 1 m over a 4 m grey floor
-/// (ρ 0.5), open to the sky, and a black 0.2 m blocker at half height.
-fn scene(blocker: bool) -> String {
-    let mut s = String::from(
-        r#"
-[camera]
-position = [0, 0.6, -2.2]
-look_at = [0.1, 0, 0.3]
-fov_y_deg = 40
-width = 64
-height = 64
-
+/// The grey (ρ 0.5) and black materials and the 4 m grey floor of both
+/// scenes below.
+const FLOOR: &str = r#"
 [[material]]
 name = "grey"
 type = "diffuse"
@@ -36,7 +27,20 @@ reflectance = [0, 0, 0]
 name = "floor"
 material = "grey"
 quad = [[-2, 0, -2], [-2, 0, 2], [2, 0, 2], [2, 0, -2]]
+"#;
 
+/// A 1 m² emitter (radiance 10, facing down) 1 m over a 4 m grey floor
+/// (ρ 0.5), open to the sky, and a black 0.2 m blocker at half height.
+fn scene(blocker: bool) -> String {
+    let mut s = format!(
+        r#"
+[camera]
+position = [0, 0.6, -2.2]
+look_at = [0.1, 0, 0.3]
+fov_y_deg = 40
+width = 64
+height = 64
+{FLOOR}
 [[surface]]
 name = "light"
 material = "black"
@@ -163,33 +167,19 @@ fn direct_light_from_a_square_emitter_matches_the_closed_form() {
 /// but the floor reflects, so its radiance is ρ/π · L · π·F exactly.
 #[test]
 fn a_ceiling_light_in_a_black_room_gives_the_exact_floor_radiance() {
-    let text = r#"
+    let camera = r#"
 [camera]
 position = [0.3, 2.6, -1.2]
 look_at = [0, 0, 0.3]
 fov_y_deg = 70
 width = 48
 height = 48
-
-[[material]]
-name = "grey"
-type = "diffuse"
-reflectance = [0.5, 0.5, 0.5]
-
-[[material]]
-name = "black"
-type = "diffuse"
-reflectance = [0, 0, 0]
-
+"#;
+    let room = r#"
 [[surface]]
 name = "room"
 material = "black"
 box = { min = [-2, 0, -2], max = [2, 3, 2], inward = true, omit = ["-y"] }
-
-[[surface]]
-name = "floor"
-material = "grey"
-quad = [[-2, 0, -2], [-2, 0, 2], [2, 0, 2], [2, 0, -2]]
 
 [[surface]]
 name = "light"
@@ -197,6 +187,7 @@ material = "black"
 emission = [10, 10, 10]
 quad = [[-0.5, 2.999, -0.5], [0.5, 2.999, -0.5], [0.5, 2.999, 0.5], [-0.5, 2.999, 0.5]]
 "#;
+    let text = format!("{camera}{FLOOR}{room}");
     let exact = |points: &[Vec3]| {
         let e = |p: &Vec3| {
             let (px, pz) = (p.x as f64, p.z as f64);
@@ -205,7 +196,7 @@ quad = [[-0.5, 2.999, -0.5], [0.5, 2.999, -0.5], [0.5, 2.999, 0.5], [-0.5, 2.999
         points.iter().map(e).sum::<f64>() / points.len() as f64
     };
     let hints = BuildHints { frequency: Some(8), patch_size: Some(0.25), ..Default::default() };
-    let pixels = floor_pixels_of(text, hints, true, 1.95);
+    let pixels = floor_pixels_of(&text, hints, true, 1.95);
     assert!(pixels.len() > 1000, "{} floor pixels", pixels.len());
     let (mut num, mut den, mut worst) = (0.0f64, 0.0f64, 0.0f64);
     for (points, got) in &pixels {
