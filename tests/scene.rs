@@ -154,9 +154,20 @@ fn parser_errors_name_the_field_in_plain_words() {
             "material[1].reflectance",
             "got 2 values",
         ),
+        // A list of lists over several lines (the style of
+        // scenes/cornell_box.toml): the lines inside are not table headers.
+        (
+            format!(
+                "{HEAD}{surface}quads = [\n  [[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]],\n  [[0, 0, 1], [1, 0, 1], [1, 1], [0, 1, 1]],\n]\n"
+            ),
+            16,
+            "surface[0].quads",
+            "got 2 values",
+        ),
     ] {
         let e = parse(&text);
         assert_eq!((e.line, e.field.as_str()), (line, field), "{e}");
+        assert!(!e.to_string().is_empty());
         assert!(e.message.contains(says), "{e}");
         assert!(!e.message.contains("u32") && !e.message.contains("invalid length"), "{e}");
     }

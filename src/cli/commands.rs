@@ -174,18 +174,27 @@ fn open_archive(path: &Path) -> Result<Archive> {
     }
 }
 
-/// Whether `path` names a TOML scene: a `.toml` extension, or text that
-/// starts like one.
+/// Whether `path` holds a TOML scene rather than an archive: no archive
+/// magic, and a `.toml` name or text that starts like TOML (a table, a
+/// comment or a `key =` line).
 fn looks_like_scene(path: &Path) -> bool {
+    let mut head = [0u8; 256];
+    let n = std::fs::File::open(path).and_then(|mut f| std::io::Read::read(&mut f, &mut head)).unwrap_or(0);
+    let head = &head[..n];
+    if head.starts_with(b"ILLUMNET") {
+        return false;
+    }
     if path.extension().is_some_and(|e| e.eq_ignore_ascii_case("toml")) {
         return true;
     }
-    let mut head = [0u8; 256];
-    let n = std::fs::File::open(path).and_then(|mut f| std::io::Read::read(&mut f, &mut head)).unwrap_or(0);
-    std::str::from_utf8(&head[..n]).is_ok_and(|t| {
-        let t = t.trim_start();
-        t.starts_with('[') || t.starts_with('#')
-    })
+    // The text up to the first byte that is not UTF-8 (the read may cut a
+    // character in two).
+    let text = match std::str::from_utf8(head) {
+        Ok(t) => t,
+        Err(e) => std::str::from_utf8(&head[..e.valid_up_to()]).unwrap_or(""),
+    };
+    let first = text.lines().map(str::trim).find(|l| !l.is_empty()).unwrap_or("");
+    first.starts_with('[') || first.starts_with('#') || first.split_once('=').is_some_and(|(k, _)| !k.trim().is_empty())
 }
 
 /// Applies `--set NAME.FIELD=R,G,B` changes to `lighting`.
@@ -394,19 +403,19 @@ pub fn render(
             b.iterations,
             if b.converged { "" } else { " (NOT converged: raise the iteration limit or the tolerance)" }
         );
-        let (emitted, absorbed) = (sum(&b.emitted), sum(&b.absorbed));
+        let emitted = sum(&b.emitted);
         if emitted <= 0.0 && !warned_dark {
             warned_dark = true;
             eprintln!(
                 "illumnet: warning: frame {f} emits no light (0 W), so only emitters seen directly will show: \
                  the scene has no surface with `emission`, or --set made them black"
             );
-        } else if emitted > 0.0 && absorbed < 1e-3 * emitted && !warned_dark {
+        } else if emitted > 0.0 && sum(&b.escaped) > 0.999 * emitted && !warned_dark {
             warned_dark = true;
             eprintln!(
-                "illumnet: warning: frame {f}: {:.1}% of the {emitted:.4} W emitted reaches no surface that \
-                 absorbs it: does an emitter face away from the scene?",
-                100.0 * (1.0 - absorbed / emitted)
+                "illumnet: warning: frame {f}: {:.1}% of the {emitted:.4} W emitted escapes the scene without \
+                 reaching a surface that absorbs it: does an emitter face away from the scene?",
+                100.0 * sum(&b.escaped) / emitted
             );
         }
         let t2 = Instant::now();

@@ -105,9 +105,9 @@ struct RenderArgs {
     /// patches (§3.5).
     #[arg(long, value_enum, default_value_t = Shading::Direct)]
     shading: Shading,
-    /// Shadow rays per emitter and pixel where its shadow is partial,
-    /// along each axis (N×N, stratified; elsewhere four rays decide;
-    /// `--shading direct`).
+    /// Shadow rays, N×N per pixel and primitive, that pixels next to a
+    /// blocked first ray take again, shared by all emitters in proportion
+    /// to their light (`--shading direct`; every pixel first takes four).
     #[arg(long, default_value_t = illumnet::render::direct::DEFAULT_LIGHT_SAMPLES, value_name = "N")]
     light_samples: u32,
     /// With --exr and `--shading direct`: also write the direct and the

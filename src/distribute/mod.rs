@@ -27,13 +27,11 @@
 //! The pieces: this file is the public API ([`Distributor`], options,
 //! [`Solution`]); `setup` makes a frame's view (presence, emission, the
 //! `overlay` of its link changes); `warm` chooses how its iteration starts
-//! ([`Cold`, `Guess` or `SparseJump`]); `step` is the iteration, a loop of
+//! (`Cold`, `Guess` or `SparseJump`); `step` is the iteration, a loop of
 //! small steps; `kernels` are the inner loops (the only `unsafe`);
 //! `anderson`, `buckets` and `nondiffuse` are the acceleration, the
-//! spreading of §3.4 and the reflectance tables of §3.6. [`reference`] is a
+//! spreading of §3.4 and the reflectance tables of §3.6. [`reference`](mod@reference) is a
 //! plain solver over the same links that tests hold the fast path to.
-//!
-//! [`Cold`, `Guess` or `SparseJump`]: warm
 
 mod anderson;
 mod buckets;

@@ -13,15 +13,18 @@
 //! part `Σ f_j (1 − V_j) / N` (f the unshadowed integrand over its
 //! density, V the ray's visibility), which is subtracted from the closed
 //! form, so the result is exact wherever the emitter is wholly visible and
-//! only penumbrae carry noise. A diffuse point then reflects `k_d/π · E`.
+//! only shadows carry noise. A diffuse point then reflects `k_d/π · E`.
 //!
 //! The work is per pixel and primitive, not per image sample: a pixel's
-//! samples on one primitive share one closed form (at their mean) and one
-//! set of shadow rays (leaving from the samples in turn), and four rays
-//! decide whether the rest of the set is needed (see
-//! [`DirectLight::radiance`]). Rays are seeded by frame, pixel and
-//! primitive, so images are deterministic and do not depend on the
-//! thread count.
+//! samples on one primitive share one closed form (at their centre) and
+//! one set of shadow rays (leaving from the samples in turn), shared by all
+//! the emitters. Four rays give every pixel a first estimate; pixels next
+//! to one whose first rays were blocked are estimated again with many
+//! (the renderer's two passes). Where every ray is blocked (umbrae) the
+//! estimate is noise around zero clamped at zero: a slight lift, where the
+//! per-sample version returned exactly zero. Rays are seeded by frame,
+//! pixel and primitive, so images are deterministic and do not depend on
+//! the thread count.
 
 use glam::{Vec2, Vec3};
 
@@ -29,8 +32,9 @@ use crate::archive::InetView;
 use crate::geometry::accel::PrimitiveBvh;
 use crate::geometry::{Primitive, PrimitiveKind};
 
-/// Default shadow rays per emitter and pixel in and near penumbrae, along
-/// each axis of the emitter (`8 × 8`; elsewhere four serve all emitters).
+/// Default light samples: `8 × 8` shadow rays per pixel and primitive in
+/// the second pass (pixels next to a blocked first ray), shared by all
+/// emitters in proportion to their light; the first pass takes four.
 pub const DEFAULT_LIGHT_SAMPLES: u32 = 8;
 
 /// Largest spread of a pixel's points, relative to their distance from an
@@ -63,7 +67,7 @@ pub struct DirectLight {
     emitters: Vec<Emitter>,
     /// `k_d` per primitive (archive order).
     kd: Vec<Vec3>,
-    /// Shadow rays per emitter and pixel in penumbrae, along each axis.
+    /// Second-pass shadow rays per pixel and primitive: this squared.
     samples: u32,
     /// Offset of shadow-ray origins along the normal (scale of the scene).
     epsilon: f32,
@@ -71,8 +75,8 @@ pub struct DirectLight {
 
 impl DirectLight {
     /// The emitters present at `frame` with `emission` (per surface) and
-    /// `reflectance` (`k_d` per surface), sampled `samples × samples`
-    /// times per pixel where shadows are partial (clamped to 1..=64).
+    /// `reflectance` (`k_d` per surface), with `samples × samples` shadow
+    /// rays per pixel and primitive in the second pass (clamped to 1..=64).
     pub fn new(v: &InetView<'_>, frame: u32, emission: &[[f32; 3]], reflectance: &[[f32; 3]], samples: u32) -> Self {
         let present = v.presence(frame).primitives;
         let mut emitters = Vec::new();

@@ -349,7 +349,7 @@ impl<'a> Renderer<'a> {
         self.shade(frame, patch_radiance, None).0
     }
 
-    /// Renders `frame` with direct light computed per image sample
+    /// Renders `frame` with direct light computed per pixel
     /// (`direct.rs`) added to `indirect`, the per-patch radiance without
     /// its direct part (see [`indirect_frame_radiance`]). Returns the
     /// image and its direct light alone (the indirect light is the

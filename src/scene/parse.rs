@@ -242,7 +242,40 @@ fn field_at(text: &str, offset: usize) -> String {
     // The table header in force, with the index of array tables.
     let mut header = String::new();
     let mut counts: Vec<(String, usize)> = Vec::new();
+    // Brackets open at the start of each line (outside strings and
+    // comments): a line inside a multi-line array is no table header.
+    let mut depth = 0i32;
+    // The key of the last line that began outside any bracket: the one a
+    // value continued over several lines belongs to.
+    let mut outer_key = String::new();
     for line in text[..line_start].lines().map(str::trim) {
+        let open = depth;
+        if open == 0
+            && let Some((k, _)) = line.split_once('=')
+            && !k.trim().is_empty()
+            && k.trim().chars().all(|c| c.is_alphanumeric() || c == '_' || c == '-')
+        {
+            outer_key = k.trim().to_string();
+        }
+        let mut quote = None;
+        for c in line.chars() {
+            match (quote, c) {
+                (Some(q), c) if c == q => quote = None,
+                (Some(_), _) => {}
+                (None, '"' | '\'') => quote = Some(c),
+                (None, '#') => break,
+                (None, '[' | '{') => depth += 1,
+                (None, ']' | '}') => depth -= 1,
+                _ => {}
+            }
+        }
+        if open > 0 {
+            continue;
+        }
+        // A header line's own brackets balance.
+        if line.starts_with('[') {
+            depth = 0;
+        }
         if let Some(name) = line.strip_prefix("[[").and_then(|l| l.split("]]").next()) {
             let name = name.trim().to_string();
             let n = match counts.iter_mut().find(|(k, _)| *k == name) {
@@ -300,10 +333,17 @@ fn field_at(text: &str, offset: usize) -> String {
     };
     let line_end = text[offset..].find('\n').map_or(text.len(), |p| offset + p);
     // The error is in a table header itself (a table given twice).
-    if let Some(name) = text[line_start..line_end].trim().strip_prefix('[') {
+    if depth <= 0
+        && let Some(name) = text[line_start..line_end].trim().strip_prefix('[')
+    {
         return name.trim_start_matches('[').split(']').next().unwrap_or("").trim().to_string();
     }
     let mut path = keys(&text[line_start..offset]);
+    if depth > 0 && !outer_key.is_empty() {
+        // Inside a value continued from above: its key, and any inline
+        // table keys before the error on this line.
+        path.insert(0, outer_key);
+    }
     if path.is_empty() {
         path = keys(&text[line_start..line_end]).into_iter().take(1).collect();
     }
