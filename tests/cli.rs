@@ -64,6 +64,10 @@ fn build_inspect_render_with_json() {
     assert!(json["patches"].as_u64().unwrap() > 500);
     assert!(json["links"].as_u64().unwrap() > 1000);
     assert!(json["sections"].as_array().unwrap().iter().any(|s| s["tag"] == "LOTH"));
+    assert_eq!(json["camera"]["width"], 256);
+    assert_eq!(json["material_models"][1], "diffuse");
+    let light = &json["surface_details"].as_array().unwrap().iter().find(|s| s["name"] == "light").unwrap().clone();
+    assert!(light["power_w"][0].as_f64().unwrap() > 0.0 && light["area_m2"].as_f64().unwrap() > 0.0);
     let png = dir.path().join("img.png");
     let render = illumnet(&["render", "-q", a, "-o", png.to_str().unwrap(), "--samples", "1"]);
     assert!(png.exists());
@@ -82,6 +86,8 @@ fn build_inspect_render_with_json() {
     let listed = number_after(&text, "emitting ");
     let balance = number_after(&String::from_utf8_lossy(&render.stdout), "emitted ");
     assert!((listed - balance).abs() < 1e-3 * balance, "inspect {listed} W vs energy balance {balance} W");
+    let json_w = json["emitted_w"].as_f64().unwrap();
+    assert!((json_w - balance).abs() < 1e-3 * balance, "--json {json_w} W vs energy balance {balance} W");
 }
 
 #[test]

@@ -495,6 +495,31 @@ pub fn render(
     Ok(())
 }
 
+/// What `inspect` says of one surface: its patches, area and emitted
+/// power (π·L·area per channel, W).
+fn surface_summary(v: &archive::InetView<'_>, sf: &archive::layout::SurfaceRecord) -> (u64, f64, [f64; 3]) {
+    let prims = &v.primitives[sf.first_primitive as usize..][..sf.primitive_count as usize];
+    let patches: u64 = prims.iter().map(|p| (p.grid_u as u64) * (p.grid_v as u64)).sum();
+    let area: f64 = prims
+        .iter()
+        .map(|p| {
+            let kind = if p.kind == 0 { geometry::PrimitiveKind::Quad } else { geometry::PrimitiveKind::Triangle };
+            geometry::Primitive { kind, p: p.corners.map(glam::Vec3::from) }.area() as f64
+        })
+        .sum();
+    (patches, area, sf.emission.map(|e| std::f64::consts::PI * e as f64 * area))
+}
+
+/// The scene-format name of a material model code.
+fn model_name(m: u32) -> &'static str {
+    match m {
+        archive::layout::model::DIFFUSE => "diffuse",
+        archive::layout::model::ROUGH_CONDUCTOR => "rough_conductor",
+        archive::layout::model::BROAD_SPECULAR => "broad_specular",
+        _ => "unknown",
+    }
+}
+
 /// Most materials and surfaces the text `inspect` lists one by one.
 const LIST_LIMIT: usize = 24;
 
@@ -518,6 +543,25 @@ pub fn inspect(path: &Path, json: bool) -> Result<()> {
                     "record_size": e.record_size,
                     "compression": match e.compression { 0 => "none", 1 => "zstd", _ => "unknown" },
                     "checksum": format!("{:016x}", e.checksum),
+                })
+            })
+            .collect();
+        let mut emitted_w = 0.0f64;
+        let details: Vec<serde_json::Value> = v
+            .surfaces
+            .iter()
+            .enumerate()
+            .map(|(i, sf)| {
+                let (patches, area, watts) = surface_summary(&v, sf);
+                emitted_w += watts.iter().sum::<f64>();
+                serde_json::json!({
+                    "name": meta.surface_names.get(i),
+                    "material": sf.material,
+                    "primitives": sf.primitive_count,
+                    "patches": patches,
+                    "area_m2": area,
+                    "emission": sf.emission,
+                    "power_w": watts,
                 })
             })
             .collect();
@@ -547,6 +591,17 @@ pub fn inspect(path: &Path, json: bool) -> Result<()> {
             "orientations": v.reflectance.map_or(0, |r| r.orientations.len()),
             "nondiffuse_patches": v.reflectance.map_or(0, |r| r.patches.len()),
             "sections": sections,
+            "camera": {
+                "position": v.camera.position,
+                "look_at": v.camera.look_at,
+                "up": v.camera.up,
+                "fov_y_deg": v.camera.fov_y_deg,
+                "width": v.camera.width,
+                "height": v.camera.height,
+            },
+            "material_models": v.materials.iter().map(|m| model_name(m.model)).collect::<Vec<_>>(),
+            "surface_details": details,
+            "emitted_w": emitted_w,
         });
         println!("{}", serde_json::to_string_pretty(&out)?);
         return Ok(());
@@ -582,12 +637,6 @@ pub fn inspect(path: &Path, json: bool) -> Result<()> {
         "  camera: at {:?} looking at {:?}, up {:?}, {}° vertical field of view, {} × {} pixels",
         c.position, c.look_at, c.up, c.fov_y_deg, c.width, c.height
     );
-    let model_name = |m: u32| match m {
-        archive::layout::model::DIFFUSE => "diffuse",
-        archive::layout::model::ROUGH_CONDUCTOR => "rough_conductor",
-        archive::layout::model::BROAD_SPECULAR => "broad_specular",
-        _ => "unknown",
-    };
     let name_or = |names: &[String], i: usize| names.get(i).cloned().unwrap_or_else(|| format!("#{i}"));
     println!("  materials:");
     for (i, m) in v.materials.iter().enumerate().take(LIST_LIMIT) {
@@ -599,17 +648,8 @@ pub fn inspect(path: &Path, json: bool) -> Result<()> {
     println!("  surfaces (material, primitives, patches; emitters with their power, π·L·area):");
     let (mut emitters, mut power) = (0usize, [0.0f64; 3]);
     for (i, sf) in v.surfaces.iter().enumerate() {
-        let prims = &v.primitives[sf.first_primitive as usize..][..sf.primitive_count as usize];
-        let patches: u64 = prims.iter().map(|p| (p.grid_u as u64) * (p.grid_v as u64)).sum();
-        let area: f64 = prims
-            .iter()
-            .map(|p| {
-                let kind = if p.kind == 0 { geometry::PrimitiveKind::Quad } else { geometry::PrimitiveKind::Triangle };
-                geometry::Primitive { kind, p: p.corners.map(glam::Vec3::from) }.area() as f64
-            })
-            .sum();
+        let (patches, area, watts) = surface_summary(&v, sf);
         let emits = sf.emission.iter().any(|&e| e > 0.0);
-        let watts = sf.emission.map(|e| std::f64::consts::PI * e as f64 * area);
         if emits {
             emitters += 1;
             (0..3).for_each(|k| power[k] += watts[k]);
