@@ -257,15 +257,10 @@ fn field_at(text: &str, offset: usize) -> String {
         {
             outer_key = k.trim().to_string();
         }
-        let mut quote = None;
-        for c in line.chars() {
-            match (quote, c) {
-                (Some(q), c) if c == q => quote = None,
-                (Some(_), _) => {}
-                (None, '"' | '\'') => quote = Some(c),
-                (None, '#') => break,
-                (None, '[' | '{') => depth += 1,
-                (None, ']' | '}') => depth -= 1,
+        for c in code_chars(line) {
+            match c {
+                '[' | '{' => depth += 1,
+                ']' | '}' => depth -= 1,
                 _ => {}
             }
         }
@@ -300,32 +295,27 @@ fn field_at(text: &str, offset: usize) -> String {
     let keys = |segment: &str| -> Vec<String> {
         let (mut stack, mut last): (Vec<String>, Option<String>) = (Vec::new(), None);
         let mut word = String::new();
-        let mut in_string = None;
-        for c in segment.chars() {
-            match (in_string, c) {
-                (Some(q), c) if c == q => in_string = None,
-                (Some(_), _) => {}
-                (None, '"' | '\'') => in_string = Some(c),
-                (None, c) if c.is_alphanumeric() || c == '_' || c == '-' => word.push(c),
-                (None, '=') => {
+        for c in code_chars(segment) {
+            match c {
+                c if c.is_alphanumeric() || c == '_' || c == '-' => word.push(c),
+                '=' => {
                     if !word.is_empty() {
                         last = Some(std::mem::take(&mut word));
                     }
                 }
-                (None, '{') => {
+                '{' => {
+                    word.clear();
                     if let Some(k) = last.take() {
                         stack.push(k);
                     }
                 }
-                (None, '}') => {
+                '}' => {
+                    word.clear();
                     stack.pop();
                     last = None;
                 }
-                (None, c) if c.is_whitespace() => {}
+                c if c.is_whitespace() => {}
                 _ => word.clear(),
-            }
-            if !(c.is_alphanumeric() || c == '_' || c == '-') && c != '=' && !c.is_whitespace() {
-                word.clear();
             }
         }
         stack.extend(last);
@@ -363,6 +353,26 @@ fn field_at(text: &str, offset: usize) -> String {
         (false, true) => header,
         (false, false) => format!("{header}.{tail}"),
     }
+}
+
+/// The characters of a TOML line outside strings (each string stands as
+/// one `"`) up to a `#` comment.
+fn code_chars(line: &str) -> impl Iterator<Item = char> + '_ {
+    let mut quote = None;
+    line.chars()
+        .filter_map(move |c| match (quote, c) {
+            (Some(q), c) if c == q => {
+                quote = None;
+                None
+            }
+            (Some(_), _) => None,
+            (None, '"' | '\'') => {
+                quote = Some(c);
+                Some('"')
+            }
+            _ => Some(c),
+        })
+        .take_while(|&c| c != '#')
 }
 
 /// The TOML parser's message in plain words: no Rust type names.
