@@ -30,8 +30,9 @@ fn round_trip_through_a_file_and_memory() {
     for a in [&mapped, &owned] {
         let v = a.view();
         assert_eq!(*v.build, contents.build);
-        assert_eq!(v.link_other, &contents.link_other[..]);
-        assert_eq!(v.link_weight, &contents.link_weight[..]);
+        let l = v.links.resident().expect("open and from_bytes hold the link ends");
+        assert_eq!(l.other.ids(), &contents.link_other[..]);
+        assert_eq!(l.weight, &contents.link_weight[..]);
         assert_eq!(v.link_offsets, &contents.link_offsets[..]);
         assert_eq!(v.patch_hits, &contents.patch_hits[..]);
         assert_eq!(v.primitives, &contents.primitives[..]);
@@ -110,7 +111,7 @@ fn versions_follow_the_compatibility_rule() {
     let bytes = archive::write_to_vec(&small_contents()).unwrap();
     let a = Archive::from_bytes(&bytes).unwrap();
     assert_eq!((a.header().version_write, a.header().version_read), (6, 1));
-    assert!(a.view().link_bucket.is_some());
+    assert!(a.view().links.has_bucket());
     // Ray-space baseline archives would be misread by version 1 readers.
     let scene = Scene::cornell_box();
     let hints = BuildHints { patch_size: Some(0.08), frequency: Some(4), ray_spacing: Some(0.02), buckets: None };
@@ -135,21 +136,26 @@ fn absurd_resolutions_are_errors_not_overflows() {
 }
 
 #[test]
-fn a_view_with_link_ends_to_missing_patches_is_refused_by_the_distributor() {
+fn link_ends_to_missing_patches_cannot_reach_the_distributor() {
     // The gather reads per-patch state without a bounds check per end, over
-    // indices checked once: a view that did not come through validation
-    // (InetView's fields are public) must be refused, not read out of bounds.
+    // indices checked once: the only way to hand it link ends (`PatchIds`)
+    // checks them, so a view that did not come through validation cannot
+    // carry an out-of-range patch.
+    use illumnet::archive::{LinkSlices, Links, PatchIds};
     use illumnet::distribute::{DistributeOptions, Distributor, Lighting};
     let bytes = archive::write_to_vec(&small_contents()).unwrap();
     let a = Archive::from_bytes(&bytes).unwrap();
     let v = a.view();
     let opts = DistributeOptions::default();
     assert!(Distributor::new(&v, &opts, &Lighting::from_view(&v)).is_ok());
-    let mut other = v.link_other.to_vec();
+    let l = *v.links.resident().unwrap();
+    let mut other = l.other.ids().to_vec();
     let middle = other.len() / 2;
     other[middle] = v.patch_count() as u32;
-    let mut bad = v;
-    bad.link_other = &other;
-    let err = Distributor::new(&bad, &opts, &Lighting::from_view(&bad)).err().unwrap().to_string();
-    assert!(err.contains("LOTH"), "{err}");
+    assert!(PatchIds::check(&other, v.patch_count()).is_none());
+    other[middle] = v.patch_count() as u32 - 1;
+    let checked = PatchIds::check(&other, v.patch_count()).unwrap();
+    let mut changed = v;
+    changed.links = Links::Resident(LinkSlices { other: checked, ..l });
+    assert!(Distributor::new(&changed, &opts, &Lighting::from_view(&changed)).is_ok());
 }

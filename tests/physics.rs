@@ -100,8 +100,10 @@ fn links_are_reciprocal_on_the_cornell_box() {
     let mut af = vec![vec![0.0f64; ns]; ns];
     let mut worst_patch = 0.0f64;
     let mut checked_pairs = 0;
+    let all: Vec<u32> = (0..v.patch_count() as u32).collect();
+    let rows = v.link_rows(&all).unwrap();
     for i in 0..v.patch_count() {
-        let (other, w, _) = v.link_ends(i);
+        let (other, w, _) = rows.ends(i);
         let a_over_h = v.patch_area[i] as f64 / v.patch_hits[i] as f64;
         // Merge this patch's ends by partner.
         let mut per: std::collections::BTreeMap<u32, f64> = Default::default();

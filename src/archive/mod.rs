@@ -19,14 +19,18 @@
 
 pub mod deltas;
 pub mod layout;
+mod links;
 pub mod presence;
 mod read;
+mod stream;
 mod write;
 
 use std::fmt;
 use std::path::PathBuf;
 
-pub use read::{Archive, InetView, ReflectanceView, SequenceView};
+pub use links::{Columns, LinkRows, LinkSlices, LinkWindow, Links, PatchIds};
+pub use read::{Archive, ArchiveSummary, InetView, ReflectanceView, SequenceView};
+pub use stream::{CHUNK_ENDS, LinkStream, bytes_per_end};
 pub use write::{write, write_to_vec};
 
 use layout::{BuildRecord, CameraRecord, DirectionRecord, MaterialRecord, PrimitiveRecord, SurfaceRecord, Tag};

@@ -10,23 +10,42 @@ use super::layout::{
     InstanceRecord, MaterialRecord, NonDiffusePatchRecord, OrientationRecord, PrimitiveRecord, PrototypeRecord,
     SectionEntry, SurfaceRecord, Tag, compression, tag,
 };
+use super::links::{LinkRows, LinkSlices, Links, PatchIds};
 use super::presence::{self, FramePresence, FrameSpan};
+use super::stream::{self, LinkStream};
 use super::{ArchiveError, ArchiveMeta, tag_name};
 
 enum Storage {
     Mapped(memmap2::Mmap),
     /// `u64` words keep owned bytes 8-byte aligned, as mapped pages are.
     Owned(Vec<u64>, usize),
+    /// Every section but the link-end columns, copied out of the file
+    /// (streamed archives): per section, its file offset and where its
+    /// bytes start in `words`.
+    Sparse {
+        words: Vec<u64>,
+        spans: Vec<(u64, usize)>,
+    },
 }
 
 impl Storage {
-    fn bytes(&self) -> &[u8] {
+    /// The bytes of the section stored at `offset`, `len` long (already
+    /// checked to lie in the file).
+    fn section(&self, offset: u64, len: u64) -> &[u8] {
         match self {
-            Storage::Mapped(m) => m,
-            Storage::Owned(words, len) => &bytemuck::cast_slice(words)[..*len],
+            Storage::Mapped(m) => &m[offset as usize..(offset + len) as usize],
+            Storage::Owned(words, _) => &bytemuck::cast_slice(words)[offset as usize..(offset + len) as usize],
+            Storage::Sparse { words, spans } => {
+                let at = spans.iter().find(|s| s.0 == offset).map_or(usize::MAX, |s| s.1);
+                // A section not copied (a link column) has no bytes here.
+                bytemuck::cast_slice(words).get(at..at + len as usize).unwrap_or(&[])
+            }
         }
     }
 }
+
+/// Tags of the link-end columns a streamed archive reads from disk.
+const LINK_COLUMNS: [Tag; 4] = [tag::LINK_OTHER, tag::LINK_WEIGHT, tag::LINK_DIRECTION, tag::LINK_BUCKET];
 
 /// An opened, fully validated archive.
 pub struct Archive {
@@ -34,6 +53,43 @@ pub struct Archive {
     header: HeaderRecord,
     entries: Vec<SectionEntry>,
     meta: ArchiveMeta,
+    /// The link ends, when they are streamed rather than held.
+    stream: Option<LinkStream>,
+}
+
+/// What an archive's header, section table and build record say, read
+/// without reading the sections (to plan how to open it).
+#[derive(Clone, Debug)]
+pub struct ArchiveSummary {
+    /// Total file size in bytes.
+    pub file_length: u64,
+    /// The section table.
+    pub sections: Vec<SectionEntry>,
+    /// `BILD`, checked against its section checksum.
+    pub build: BuildRecord,
+}
+
+impl ArchiveSummary {
+    /// Stored bytes of the sections with tag `t` (0 when absent).
+    pub fn section_bytes(&self, t: Tag) -> u64 {
+        self.sections.iter().filter(|e| e.tag == t).map(|e| e.stored_length).sum()
+    }
+
+    /// Records in the section `t` (0 when absent).
+    pub fn section_count(&self, t: Tag) -> u64 {
+        self.sections.iter().filter(|e| e.tag == t).map(|e| e.count).sum()
+    }
+
+    /// Stored bytes of the link-end columns, the part a streamed archive
+    /// leaves on disk.
+    pub fn link_bytes(&self) -> u64 {
+        LINK_COLUMNS.iter().map(|&t| self.section_bytes(t)).sum()
+    }
+
+    /// Stored bytes of every other section: what a streamed archive holds.
+    pub fn held_bytes(&self) -> u64 {
+        self.sections.iter().map(|e| e.stored_length).sum::<u64>() - self.link_bytes()
+    }
 }
 
 /// Zero-copy, typed views of a validated archive's sections.
@@ -73,15 +129,10 @@ pub struct InetView<'a> {
     pub adjacency: &'a [u32],
     /// `LOFF`.
     pub link_offsets: &'a [u64],
-    /// `LOTH`.
-    pub link_other: &'a [u32],
-    /// `LWGT`.
-    pub link_weight: &'a [f32],
-    /// `LDIR`.
-    pub link_direction: &'a [u32],
-    /// `LBKT`, when present (written since version 2): the bucket of the
-    /// light each link end's owner receives.
-    pub link_bucket: Option<&'a [u8]>,
+    /// `LOTH`, `LWGT`, `LDIR` and `LBKT` (when present, written since
+    /// version 2: the bucket of the light each link end's owner
+    /// receives), in memory or streamed from disk.
+    pub links: Links<'a>,
     /// The animation sections of a sequence archive.
     pub sequence: Option<SequenceView<'a>>,
     /// The reflectance sections, when some material is not diffuse.
@@ -236,10 +287,14 @@ impl<'a> InetView<'a> {
         self.primitive_spans().iter().map(|s| s.is_temporal(frames)).collect()
     }
 
-    /// Link ends of patch `p`: `(other patch, weight, outgoing direction)` columns.
-    pub fn link_ends(&self, p: usize) -> (&'a [u32], &'a [f32], &'a [u32]) {
-        let (a, b) = (self.link_offsets[p] as usize, self.link_offsets[p + 1] as usize);
-        (&self.link_other[a..b], &self.link_weight[a..b], &self.link_direction[a..b])
+    /// Link ends in all.
+    pub fn link_end_count(&self) -> usize {
+        self.link_offsets.last().map_or(0, |&e| e as usize)
+    }
+
+    /// The link ends of `patches` (see [`Links::rows`]).
+    pub fn link_rows(&self, patches: &[u32]) -> Result<LinkRows<'a>, ArchiveError> {
+        self.links.rows(self.link_offsets, patches)
     }
 }
 
@@ -313,6 +368,66 @@ impl Archive {
         Self::from_storage(Storage::Mapped(map))
     }
 
+    /// Opens the archive at `path` with its link ends streamed from disk
+    /// in windows of about `window_ends` ends (see [`LinkStream`]): memory
+    /// holds every other section, two windows, and one checksum per column
+    /// per 65 536 ends. Validation is that of [`Self::open`], the link
+    /// columns read once, in chunks, without mapping the file.
+    pub fn open_streamed(path: &Path, window_ends: usize) -> Result<Self, ArchiveError> {
+        let io = |e: std::io::Error| ArchiveError::Io { path: path.into(), source: e };
+        let file = std::fs::File::open(path).map_err(io)?;
+        let (header, entries) = read_structure(&file, path)?;
+        let mut words = Vec::new();
+        let mut spans = Vec::new();
+        for e in entries.iter().filter(|e| !LINK_COLUMNS.contains(&e.tag)) {
+            let at = words.len() * 8;
+            words.resize(words.len() + (e.stored_length as usize).div_ceil(8), 0u64);
+            let buf = &mut bytemuck::cast_slice_mut::<u64, u8>(&mut words)[at..at + e.stored_length as usize];
+            stream_read(&file, buf, e.offset).map_err(io)?;
+            check_sum(e, buf)?;
+            spans.push((e.offset, at));
+        }
+        let mut archive = Self {
+            storage: Storage::Sparse { words, spans },
+            header,
+            entries,
+            meta: ArchiveMeta::default(),
+            stream: None,
+        };
+        archive.meta = archive.read_meta()?;
+        let b: BuildRecord = *archive.one(tag::BUILD)?;
+        let offsets: &[u64] = archive.column(tag::LINK_OFFSETS)?;
+        check(offsets.len() == b.patch_count as usize + 1, || {
+            format!("section LOFF: {} records, expected {}", offsets.len(), b.patch_count as u64 + 1)
+        })?;
+        csr("LOFF", offsets.iter().copied(), b.link_end_count as usize)?;
+        let limits = stream::Limits {
+            patches: b.patch_count as usize,
+            directions: b.direction_count as usize,
+            max_bucket: b.max_bucket.min(255) as u8,
+        };
+        let columns = LINK_COLUMNS.map(|t| archive.entries.iter().find(|e| e.tag == t));
+        let links = LinkStream::open(file, path, columns, offsets, &limits, window_ends)?;
+        archive.stream = Some(links);
+        validate_contents(&archive.view_unchecked()?, &archive.meta)?;
+        Ok(archive)
+    }
+
+    /// Reads what the header, the section table and `BILD` of the archive
+    /// at `path` say, checking their checksums and bounds, without reading
+    /// the other sections: enough to plan how to open it.
+    pub fn summary(path: &Path) -> Result<ArchiveSummary, ArchiveError> {
+        let io = |e: std::io::Error| ArchiveError::Io { path: path.into(), source: e };
+        let file = std::fs::File::open(path).map_err(io)?;
+        let (header, entries) = read_structure(&file, path)?;
+        let e = entries.iter().find(|e| e.tag == tag::BUILD).ok_or_else(|| bad("section BILD is missing"))?;
+        let mut buf = vec![0u8; e.stored_length as usize];
+        stream_read(&file, &mut buf, e.offset).map_err(io)?;
+        check_sum(e, &buf)?;
+        let build: BuildRecord = pod_read_unaligned(&buf);
+        Ok(ArchiveSummary { file_length: header.file_length, sections: entries, build })
+    }
+
     /// Validates an archive held in memory (the bytes are copied once into
     /// an aligned buffer).
     pub fn from_bytes(bytes: &[u8]) -> Result<Self, ArchiveError> {
@@ -322,12 +437,31 @@ impl Archive {
     }
 
     fn from_storage(storage: Storage) -> Result<Self, ArchiveError> {
-        let bytes = storage.bytes();
+        let bytes = match &storage {
+            Storage::Mapped(m) => &m[..],
+            Storage::Owned(words, len) => &bytemuck::cast_slice(words)[..*len],
+            Storage::Sparse { .. } => unreachable!("sparse storage is made by open_streamed"),
+        };
         let (header, entries) = validate_structure(bytes)?;
-        let mut archive = Self { storage, header, entries, meta: ArchiveMeta::default() };
+        let mut archive = Self { storage, header, entries, meta: ArchiveMeta::default(), stream: None };
         archive.meta = archive.read_meta()?;
         validate_contents(&archive.view_unchecked()?, &archive.meta)?;
         Ok(archive)
+    }
+
+    /// The link-end stream, when the archive was opened with
+    /// [`Self::open_streamed`].
+    pub fn link_stream(&self) -> Option<&LinkStream> {
+        self.stream.as_ref()
+    }
+
+    /// Heap bytes the archive holds: the copied sections of a streamed
+    /// archive (a mapped one holds none; its pages are the kernel's).
+    pub fn held_bytes(&self) -> usize {
+        match &self.storage {
+            Storage::Mapped(_) => 0,
+            Storage::Owned(words, _) | Storage::Sparse { words, .. } => words.len() * 8,
+        }
     }
 
     /// The header.
@@ -355,7 +489,7 @@ impl Archive {
     }
 
     fn stored(&self, e: &SectionEntry) -> &[u8] {
-        &self.storage.bytes()[e.offset as usize..(e.offset + e.stored_length) as usize]
+        self.storage.section(e.offset, e.stored_length)
     }
 
     fn column<T: Pod>(&self, t: Tag) -> Result<&[T], ArchiveError> {
@@ -403,12 +537,23 @@ impl Archive {
             adjacency_offsets: self.column(tag::ADJACENCY_OFFSETS)?,
             adjacency: self.column(tag::ADJACENCY)?,
             link_offsets: self.column(tag::LINK_OFFSETS)?,
-            link_other: self.column(tag::LINK_OTHER)?,
-            link_weight: self.column(tag::LINK_WEIGHT)?,
-            link_direction: self.column(tag::LINK_DIRECTION)?,
-            link_bucket: match self.entries.iter().any(|e| e.tag == tag::LINK_BUCKET) {
-                true => Some(self.column(tag::LINK_BUCKET)?),
-                false => None,
+            links: match &self.stream {
+                Some(stream) => Links::Streamed(stream),
+                None => {
+                    let b: &BuildRecord = self.one(tag::BUILD)?;
+                    let other: &[u32] = self.column(tag::LINK_OTHER)?;
+                    Links::Resident(LinkSlices {
+                        // Checked below the patch count by
+                        // `validate_contents` before any view leaves `open`.
+                        other: PatchIds::validated(other, b.patch_count as usize),
+                        weight: self.column(tag::LINK_WEIGHT)?,
+                        direction: self.column(tag::LINK_DIRECTION)?,
+                        bucket: match self.entries.iter().any(|e| e.tag == tag::LINK_BUCKET) {
+                            true => Some(self.column(tag::LINK_BUCKET)?),
+                            false => None,
+                        },
+                    })
+                }
             },
             sequence: match self.entries.iter().any(|e| e.tag == tag::ANIMATION) {
                 false => None,
@@ -457,11 +602,61 @@ impl Archive {
     }
 }
 
+/// The header, table and section bounds of an archive held in `bytes`,
+/// every section's checksum verified.
 fn validate_structure(bytes: &[u8]) -> Result<(HeaderRecord, Vec<SectionEntry>), ArchiveError> {
     let len = bytes.len() as u64;
     if bytes.len() < layout::HEADER_SIZE {
         return Err(bad(format!("file is {len} bytes, shorter than the header (truncated?)")));
     }
+    let header = parse_header(&bytes[..layout::HEADER_SIZE], len)?;
+    let table_end = header.table_offset + header.section_count as u64 * layout::ENTRY_SIZE as u64;
+    let entries = parse_table(&header, &bytes[header.table_offset as usize..table_end as usize])?;
+    check_entries(&header, &entries)?;
+    for e in &entries {
+        check_sum(e, &bytes[e.offset as usize..(e.offset + e.stored_length) as usize])?;
+    }
+    Ok((header, entries))
+}
+
+/// Like [`validate_structure`], read from `file` without the sections
+/// (their checksums are the caller's to verify as it reads them).
+fn read_structure(file: &std::fs::File, path: &Path) -> Result<(HeaderRecord, Vec<SectionEntry>), ArchiveError> {
+    let io = |e: std::io::Error| ArchiveError::Io { path: path.into(), source: e };
+    let len = file.metadata().map_err(io)?.len();
+    if len < layout::HEADER_SIZE as u64 {
+        return Err(bad(format!("file is {len} bytes, shorter than the header (truncated?)")));
+    }
+    let mut head = [0u8; layout::HEADER_SIZE];
+    stream_read(file, &mut head, 0).map_err(io)?;
+    let header = parse_header(&head, len)?;
+    let mut table = vec![0u8; header.section_count as usize * layout::ENTRY_SIZE];
+    stream_read(file, &mut table, header.table_offset).map_err(io)?;
+    let entries = parse_table(&header, &table)?;
+    check_entries(&header, &entries)?;
+    Ok((header, entries))
+}
+
+fn stream_read(file: &std::fs::File, buf: &mut [u8], offset: u64) -> std::io::Result<()> {
+    stream::read_at(file, buf, offset)
+}
+
+/// Verifies a section's stored bytes against the table's checksum.
+fn check_sum(e: &SectionEntry, stored: &[u8]) -> Result<(), ArchiveError> {
+    let sum = xxh3_64(stored);
+    if sum != e.checksum {
+        return Err(bad(format!(
+            "section {}: checksum mismatch (stored {:#018x}, computed {sum:#018x})",
+            tag_name(e.tag),
+            e.checksum
+        )));
+    }
+    Ok(())
+}
+
+/// The header's rules (§7, step 1, bar the checksums of sections) for a
+/// file of `len` bytes, and that its table lies in the file.
+fn parse_header(bytes: &[u8], len: u64) -> Result<HeaderRecord, ArchiveError> {
     let header: HeaderRecord = pod_read_unaligned(&bytes[..layout::HEADER_SIZE]);
     if header.magic != layout::MAGIC {
         return Err(bad(format!("not an illumnet archive (magic {:02x?})", header.magic)));
@@ -496,7 +691,11 @@ fn validate_structure(bytes: &[u8]) -> Result<(HeaderRecord, Vec<SectionEntry>),
             header.section_count, header.table_offset
         )));
     }
-    let table = &bytes[header.table_offset as usize..table_end as usize];
+    Ok(header)
+}
+
+/// The section table's checksum (§7, step 2) and its entries.
+fn parse_table(header: &HeaderRecord, table: &[u8]) -> Result<Vec<SectionEntry>, ArchiveError> {
     let sum = xxh3_64(table);
     if sum != header.table_checksum {
         return Err(bad(format!(
@@ -504,8 +703,11 @@ fn validate_structure(bytes: &[u8]) -> Result<(HeaderRecord, Vec<SectionEntry>),
             header.table_checksum
         )));
     }
-    let entries: Vec<SectionEntry> =
-        table.chunks_exact(layout::ENTRY_SIZE).map(pod_read_unaligned::<SectionEntry>).collect();
+    Ok(table.chunks_exact(layout::ENTRY_SIZE).map(pod_read_unaligned::<SectionEntry>).collect())
+}
+
+/// The table's rules for every entry (§7, steps 3 and 4, bar checksums).
+fn check_entries(header: &HeaderRecord, entries: &[SectionEntry]) -> Result<(), ArchiveError> {
     let mut spans: Vec<(u64, u64, Tag)> = Vec::new();
     for (i, e) in entries.iter().enumerate() {
         let name = tag_name(e.tag);
@@ -543,13 +745,6 @@ fn validate_structure(bytes: &[u8]) -> Result<(HeaderRecord, Vec<SectionEntry>),
             return Err(bad(format!(
                 "section {name}: {} records of {} bytes ≠ length {}",
                 e.count, e.record_size, e.length
-            )));
-        }
-        let sum = xxh3_64(&bytes[e.offset as usize..end as usize]);
-        if sum != e.checksum {
-            return Err(bad(format!(
-                "section {name}: checksum mismatch (stored {:#018x}, computed {sum:#018x})",
-                e.checksum
             )));
         }
         spans.push((e.offset, end, e.tag));
@@ -603,7 +798,7 @@ fn validate_structure(bytes: &[u8]) -> Result<(HeaderRecord, Vec<SectionEntry>),
             )));
         }
     }
-    Ok((header, entries))
+    Ok(())
 }
 
 fn check(ok: bool, msg: impl FnOnce() -> String) -> Result<(), ArchiveError> {
@@ -742,18 +937,29 @@ fn validate_contents(v: &InetView<'_>, meta: &ArchiveMeta) -> Result<(), Archive
             format!("ADJI[{q}]: adjacency not symmetric")
         })?;
     }
-    let ends = v.link_other.len();
-    count("LWGT", v.link_weight.len(), ends)?;
-    count("LDIR", v.link_direction.len(), ends)?;
-    check(b.link_end_count == ends as u64, || "BILD: link end count disagrees with LOTH".into())?;
-    csr("LOFF", v.link_offsets.iter().copied(), ends)?;
-    check(v.link_other.iter().all(|&o| (o as usize) < p), || "LOTH: patch id out of range".into())?;
-    check(v.link_weight.iter().all(|&w| w.is_finite() && w >= 0.0), || "LWGT: weight negative or non-finite".into())?;
-    check(v.link_direction.iter().all(|&d| (d as usize) < nd), || "LDIR: direction out of range".into())?;
-    if let Some(buckets) = v.link_bucket {
-        count("LBKT", buckets.len(), ends)?;
-        let max = b.max_bucket as u8;
-        check(buckets.iter().all(|&k| k <= max), || format!("LBKT: bucket above BILD.max_bucket {max}"))?;
+    match v.links {
+        Links::Resident(l) => {
+            let ends = l.other.ids().len();
+            count("LWGT", l.weight.len(), ends)?;
+            count("LDIR", l.direction.len(), ends)?;
+            check(b.link_end_count == ends as u64, || "BILD: link end count disagrees with LOTH".into())?;
+            csr("LOFF", v.link_offsets.iter().copied(), ends)?;
+            check(l.other.ids().iter().all(|&o| (o as usize) < p), || "LOTH: patch id out of range".into())?;
+            check(l.weight.iter().all(|&w| w.is_finite() && w >= 0.0), || {
+                "LWGT: weight negative or non-finite".into()
+            })?;
+            check(l.direction.iter().all(|&d| (d as usize) < nd), || "LDIR: direction out of range".into())?;
+            if let Some(buckets) = l.bucket {
+                count("LBKT", buckets.len(), ends)?;
+                let max = b.max_bucket as u8;
+                check(buckets.iter().all(|&k| k <= max), || format!("LBKT: bucket above BILD.max_bucket {max}"))?;
+            }
+        }
+        // The stream checked its columns' lengths and content as it
+        // opened them (`LinkStream::open`), and `LOFF` before that.
+        Links::Streamed(s) => {
+            check(b.link_end_count == s.ends() as u64, || "BILD: link end count disagrees with LOFF".into())?;
+        }
     }
     if let Some(r) = &v.reflectance {
         validate_reflectance(v, r)?;

@@ -8,6 +8,7 @@ use rayon::prelude::*;
 
 use super::nondiffuse::NonDiffuse;
 use super::overlay::Ends;
+use crate::archive::{LinkWindow, PatchIds};
 
 /// Patches per parallel task: large enough to amortise scheduling, small
 /// enough to balance two to dozens of cores.
@@ -23,14 +24,15 @@ pub(super) struct Bounded<'a> {
 }
 
 impl<'a> Bounded<'a> {
-    /// `None` unless every index is below `bound`.
-    pub(super) fn new(other: &'a [u32], bound: usize) -> Option<Self> {
-        other.iter().all(|&o| (o as usize) < bound).then_some(Self { other, bound })
-    }
-
     /// The indices in `range` (which must lie within them).
     pub(super) fn slice(self, range: std::ops::Range<usize>) -> Self {
         Self { other: &self.other[range], bound: self.bound }
+    }
+}
+
+impl<'a> From<PatchIds<'a>> for Bounded<'a> {
+    fn from(ids: PatchIds<'a>) -> Self {
+        Self { other: ids.ids(), bound: ids.bound() }
     }
 }
 
@@ -76,27 +78,29 @@ pub(super) fn weighted_sum(other: Bounded<'_>, weight: &[f32], shoot: &[[f32; 4]
     [0, 1, 2, 3].map(|c| (acc[0][c] + acc[1][c]) + (acc[2][c] + acc[3][c]))
 }
 
-/// Gathers `recv[q] = Σ w·shoot[other]` over each patch's link ends;
+/// Gathers `recv[q] = Σ w·shoot[other]` over the link ends of the
+/// window's patches (`offsets` is `LOFF`, `recv` has one entry per patch);
 /// patches not `present` (temporal instances absent from the frame)
 /// receive nothing.
 pub(super) fn gather(
+    w: &LinkWindow<'_>,
     offsets: &[u64],
-    other: Bounded<'_>,
-    weight: &[f32],
     present: Option<&[bool]>,
     shoot: &[[f32; 4]],
     recv: &mut [[f32; 4]],
 ) {
-    recv.par_chunks_mut(BLOCK).enumerate().for_each(|(block, out)| {
-        let first = block * BLOCK;
+    let other = Bounded::from(w.other);
+    let base = w.patches.start;
+    recv[w.patches.clone()].par_chunks_mut(BLOCK).enumerate().for_each(|(block, out)| {
+        let first = base + block * BLOCK;
         for (i, r) in out.iter_mut().enumerate() {
             let q = first + i;
             if present.is_some_and(|p| !p[q]) {
                 *r = [0.0; 4];
                 continue;
             }
-            let (a, b) = (offsets[q] as usize, offsets[q + 1] as usize);
-            *r = weighted_sum(other.slice(a..b), &weight[a..b], shoot);
+            let e = w.local(offsets[q] as usize..offsets[q + 1] as usize);
+            *r = weighted_sum(other.slice(e.clone()), &w.weight[e], shoot);
         }
     });
 }
@@ -114,23 +118,27 @@ pub(super) struct BucketRuns {
 }
 
 impl BucketRuns {
-    /// The runs of `bucket` (one entry per link end) within each patch's
-    /// ends `link_offsets[q]..link_offsets[q + 1]`.
-    pub(super) fn new(link_offsets: &[u64], bucket: &[u8]) -> Self {
-        let n = link_offsets.len().saturating_sub(1);
-        let mut runs = Self { offsets: Vec::with_capacity(n + 1), end: Vec::new(), bucket: Vec::new() };
-        runs.offsets.push(0);
-        for q in 0..n {
+    /// An empty set, to which [`Self::add`] appends patches in order.
+    pub(super) fn with_patches(patches: usize) -> Self {
+        let mut offsets = Vec::with_capacity(patches + 1);
+        offsets.push(0);
+        Self { offsets, end: Vec::new(), bucket: Vec::new() }
+    }
+
+    /// Appends the runs of the window's patches (`LOFF` is `link_offsets`;
+    /// the window holds `LBKT`).
+    pub(super) fn add(&mut self, link_offsets: &[u64], w: &LinkWindow<'_>) {
+        for q in w.patches.clone() {
             let (a, b) = (link_offsets[q] as usize, link_offsets[q + 1] as usize);
-            for (i, k) in bucket[a..b].iter().enumerate() {
-                if i + 1 == b - a || bucket[a + i + 1] != *k {
-                    runs.end.push((a + i + 1) as u64);
-                    runs.bucket.push(*k);
+            let bucket = &w.bucket[w.local(a..b)];
+            for (i, k) in bucket.iter().enumerate() {
+                if i + 1 == b - a || bucket[i + 1] != *k {
+                    self.end.push((a + i + 1) as u64);
+                    self.bucket.push(*k);
                 }
             }
-            runs.offsets.push(runs.end.len() as u64);
+            self.offsets.push(self.end.len() as u64);
         }
-        runs
     }
 }
 
@@ -138,17 +146,19 @@ impl BucketRuns {
 /// holds the light patch `q` received over ends of bucket `k` (B = buckets).
 #[allow(clippy::too_many_arguments)]
 pub(super) fn gather_buckets(
+    w: &LinkWindow<'_>,
     offsets: &[u64],
-    other: Bounded<'_>,
-    weight: &[f32],
     runs: &BucketRuns,
     buckets: usize,
     present: Option<&[bool]>,
     shoot: &[[f32; 4]],
     recv: &mut [[f32; 4]],
 ) {
-    recv.par_chunks_mut(BLOCK * buckets).enumerate().for_each(|(block, out)| {
-        let first = block * BLOCK;
+    let other = Bounded::from(w.other);
+    let base = w.patches.start;
+    let window = &mut recv[w.patches.start * buckets..w.patches.end * buckets];
+    window.par_chunks_mut(BLOCK * buckets).enumerate().for_each(|(block, out)| {
+        let first = base + block * BLOCK;
         for (i, r) in out.chunks_exact_mut(buckets).enumerate() {
             let q = first + i;
             r.fill([0.0; 4]);
@@ -156,10 +166,10 @@ pub(super) fn gather_buckets(
                 continue;
             }
             // Buckets are validated to be < `buckets`.
-            let mut e = offsets[q] as usize;
+            let mut e = offsets[q] as usize - w.first_end;
             for run in runs.offsets[q] as usize..runs.offsets[q + 1] as usize {
-                let end = runs.end[run] as usize;
-                let acc = weighted_sum(other.slice(e..end), &weight[e..end], shoot);
+                let end = runs.end[run] as usize - w.first_end;
+                let acc = weighted_sum(other.slice(e..end), &w.weight[e..end], shoot);
                 let slot = &mut r[runs.bucket[run] as usize];
                 for c in 0..4 {
                     slot[c] += acc[c];
@@ -313,12 +323,33 @@ mod tests {
             offsets.push(other.len() as u64);
         }
         let shoot: Vec<[f32; 4]> = (0..n).map(|p| [p as f32 + 1.0, 0.5, 2.0 - p as f32, 0.0]).collect();
-        let runs = BucketRuns::new(&offsets, &bucket);
+        let window = |patches: std::ops::Range<usize>| {
+            let ends = offsets[patches.start] as usize..offsets[patches.end] as usize;
+            LinkWindow {
+                first_end: ends.start,
+                other: PatchIds::check(&other[ends.clone()], n).unwrap(),
+                weight: &weight[ends.clone()],
+                direction: &[],
+                bucket: &bucket[ends],
+                patches,
+            }
+        };
+        let mut runs = BucketRuns::with_patches(n);
+        runs.add(&offsets, &window(0..n));
         assert_eq!(runs.offsets.len(), n + 1);
+        assert!(PatchIds::check(&other, n - 1).is_none(), "the test reaches the last patch");
         let mut recv = vec![[0.0f32; 4]; n * 2];
-        let bounded = Bounded::new(&other, n).unwrap();
-        assert!(Bounded::new(&other, n - 1).is_none(), "the test reaches the last patch");
-        gather_buckets(&offsets, bounded, &weight, &runs, 2, None, &shoot, &mut recv);
+        gather_buckets(&window(0..n), &offsets, &runs, 2, None, &shoot, &mut recv);
+        // The same in three windows, runs found window by window too.
+        let mut split = vec![[0.0f32; 4]; n * 2];
+        let mut split_runs = BucketRuns::with_patches(n);
+        for w in [0..2, 2..3, 3..n] {
+            split_runs.add(&offsets, &window(w.clone()));
+        }
+        for w in [0..2, 2..3, 3..n] {
+            gather_buckets(&window(w), &offsets, &split_runs, 2, None, &shoot, &mut split);
+        }
+        assert_eq!(split, recv, "windows give the same sums bit for bit");
         let mut want = vec![[0.0f64; 4]; n * 2];
         for q in 0..n {
             for e in offsets[q] as usize..offsets[q + 1] as usize {

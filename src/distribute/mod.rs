@@ -50,9 +50,9 @@ pub use error::DistributeError;
 use std::sync::Arc;
 
 use crate::archive::layout::model;
-use crate::archive::{ArchiveError, InetView};
+use crate::archive::{ArchiveError, Columns, InetView, LinkRows};
 use crate::progress::Progress;
-use kernels::{Bounded, BucketRuns};
+use kernels::BucketRuns;
 
 /// Options for [`distribute`].
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -285,8 +285,6 @@ pub struct Distributor<'a> {
     area_eff: Vec<f32>,
     linked: Vec<f64>,
     bucket_runs: Option<BucketRuns>,
-    /// `LOTH`, checked below the patch count once.
-    link_other: Bounded<'a>,
     /// Per patch, whether frame 0's links reach it (see [`Self::sparse_jump`]).
     in_base: Vec<bool>,
     nb: usize,
@@ -301,6 +299,8 @@ pub struct Distributor<'a> {
     /// with the last frame they are present in: their frame 0 link ends
     /// are not links of the later frames.
     leaving: Vec<(u32, u32)>,
+    /// Their frame 0 link ends.
+    leaving_rows: LinkRows<'a>,
 }
 
 impl<'a> Distributor<'a> {
@@ -316,7 +316,6 @@ impl<'a> Distributor<'a> {
         // Share of a patch's power each link end carries, and the area used for irradiance.
         let mut share = vec![0.0f32; n];
         let mut area_eff = vec![0.0f32; n];
-        let mut linked = vec![0.0f64; n];
         for p in 0..n {
             let (h, hx, a) = (v.patch_hits[p] as f32, v.patch_expected_hits[p], v.patch_area[p]);
             if opts.patch_size_correction {
@@ -326,28 +325,37 @@ impl<'a> Distributor<'a> {
                 share[p] = if hx > 0.0 { 1.0 / hx } else { 0.0 };
                 area_eff[p] = a;
             }
-            let (_, w, _) = v.link_ends(p);
-            linked[p] = w.iter().map(|&x| x as f64).sum();
         }
-        // Buckets (§3.4): rings of neighbours to spread light over.
-        let bucket_column = v.link_bucket.filter(|_| opts.buckets && v.build.max_bucket > 0);
-        let bucket_runs = bucket_column.map(|b| BucketRuns::new(v.link_offsets, b));
-        let link_other = Bounded::new(v.link_other, n).ok_or_else(|| {
-            DistributeError::Archive(ArchiveError::Corrupt("LOTH: a link end's patch is out of range".into()))
-        })?;
+        // One pass over the link ends: per patch the rays that link, which
+        // patches frame 0's links reach, and the runs of equal bucket.
+        let use_buckets = v.links.has_bucket() && opts.buckets && v.build.max_bucket > 0;
+        let mut linked = vec![0.0f64; n];
         // Patches with frame 0 link ends of their own or at another's end
         // (the same, when every link is stored at both ends).
-        let mut in_base: Vec<bool> = linked.iter().map(|&l| l > 0.0).collect();
-        for &o in v.link_other {
-            in_base[o as usize] = true;
-        }
-        let nb = bucket_column.map_or(1, |_| v.build.max_bucket as usize + 1);
-        let rings = match bucket_column {
-            Some(_) => Some(
+        let mut in_base = vec![false; n];
+        let mut bucket_runs = use_buckets.then(|| BucketRuns::with_patches(n));
+        let columns = Columns { bucket: use_buckets, ..Columns::GATHER };
+        v.links.for_each_window(columns, n, |w| {
+            for q in w.patches.clone() {
+                let e = w.local(v.link_offsets[q] as usize..v.link_offsets[q + 1] as usize);
+                linked[q] = w.weight[e].iter().map(|&x| x as f64).sum();
+                in_base[q] |= linked[q] > 0.0;
+            }
+            for &o in w.other.ids() {
+                in_base[o as usize] = true;
+            }
+            if let Some(runs) = &mut bucket_runs {
+                runs.add(v.link_offsets, &w);
+            }
+            Ok::<(), ArchiveError>(())
+        })?;
+        let nb = if use_buckets { v.build.max_bucket as usize + 1 } else { 1 };
+        let rings = match use_buckets {
+            true => Some(
                 buckets::Rings::new(v.adjacency_offsets, v.adjacency, nb - 1)
                     .map_err(|e| DistributeError::Archive(ArchiveError::Corrupt(e)))?,
             ),
-            None => None,
+            false => None,
         };
         let patch_surface = v.patch_primitive.iter().map(|&p| v.primitives[p as usize].surface).collect();
         let emission_fixed = lighting.emission_fixed.clone();
@@ -360,22 +368,24 @@ impl<'a> Distributor<'a> {
                 v.directions.len()
             )));
         }
-        let nd = nondiffuse::NonDiffuse::new(v, &lighting.specular);
+        let nd = nondiffuse::NonDiffuse::new(v, &lighting.specular)?;
         // Patches of instances present at frame 0 but not in every frame,
         // with the last frame they are present in.
-        let leaving = match &v.sequence {
+        let leaving: Vec<(u32, u32)> = match &v.sequence {
             Some(s) => {
                 let spans = v.primitive_spans();
                 (0..n as u32)
                     .filter_map(|p| {
                         let span = spans[v.patch_primitive[p as usize] as usize];
                         let leaves = span.first == 0 && span.last + 1 < s.frames();
-                        (leaves && !v.link_ends(p as usize).0.is_empty()).then_some((p, span.last))
+                        let ends = v.link_offsets[p as usize + 1] - v.link_offsets[p as usize];
+                        (leaves && ends > 0).then_some((p, span.last))
                     })
                     .collect()
             }
             None => Vec::new(),
         };
+        let leaving_rows = v.link_rows(&leaving.iter().map(|l| l.0).collect::<Vec<_>>())?;
         static NEXT_ID: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
         Ok(Self {
             id: NEXT_ID.fetch_add(1, std::sync::atomic::Ordering::Relaxed),
@@ -387,7 +397,6 @@ impl<'a> Distributor<'a> {
             area_eff,
             linked,
             bucket_runs,
-            link_other,
             in_base,
             nb,
             rings,
@@ -397,6 +406,7 @@ impl<'a> Distributor<'a> {
             surface_reflectance: lighting.reflectance.clone(),
             nd,
             leaving,
+            leaving_rows,
         })
     }
 
@@ -413,10 +423,10 @@ impl<'a> Distributor<'a> {
         let mut iteration = step::Iteration::new(self, &setup, warm, start);
         progress.start("distributing light", 0);
         while iteration.wants_step() {
-            iteration.step();
+            iteration.step()?;
             progress.advance(1);
         }
         progress.finish();
-        Ok(iteration.finish(frame))
+        iteration.finish(frame)
     }
 }

@@ -39,7 +39,7 @@
 use rayon::prelude::*;
 
 use super::kernels::{BATCH, BLOCK, LANES, Lanes, scatter_table_rows};
-use crate::archive::{InetView, ReflectanceView};
+use crate::archive::{ArchiveError, Columns, InetView, LinkRows, ReflectanceView};
 
 /// Per-archive state of the non-diffuse patches.
 pub(super) struct NonDiffuse<'a> {
@@ -72,6 +72,8 @@ pub(super) struct NonDiffuse<'a> {
     /// Rays of each direction leaving each non-diffuse patch that reach a
     /// facing patch (frame 0's links).
     pub linked: Vec<f32>,
+    /// Frame 0's link ends of each non-diffuse patch, walked every step.
+    rows: LinkRows<'a>,
     /// Runs of at most [`BATCH`] consecutive non-diffuse patches with the
     /// same table and orientation: `(first, len)`.
     batches: Vec<(usize, usize)>,
@@ -88,9 +90,10 @@ pub(super) struct StepTotals {
 }
 
 impl<'a> NonDiffuse<'a> {
-    /// Prepares the reflectance sections of `v`, with `ks` per surface.
-    pub fn new(v: &InetView<'a>, ks_of_surface: &[[f32; 3]]) -> Option<Self> {
-        let r = v.reflectance?;
+    /// Prepares the reflectance sections of `v`, with `ks` per surface
+    /// (`None` for an archive without them).
+    pub fn new(v: &InetView<'a>, ks_of_surface: &[[f32; 3]]) -> Result<Option<Self>, ArchiveError> {
+        let Some(r) = v.reflectance else { return Ok(None) };
         let n = v.directions.len();
         let np = v.patch_count();
         let mut nd_of = vec![u32::MAX; np];
@@ -130,22 +133,25 @@ impl<'a> NonDiffuse<'a> {
         let mut corr_offsets = Vec::with_capacity(np + 1);
         let (mut corr_weight, mut corr_slot, mut corr_bucket) = (Vec::new(), Vec::new(), Vec::new());
         corr_offsets.push(0u64);
-        for q in 0..np {
-            let (a, b) = (v.link_offsets[q] as usize, v.link_offsets[q + 1] as usize);
-            for e in a..b {
-                let k = nd_of[v.link_other[e] as usize];
-                if k != u32::MAX {
-                    corr_weight.push(v.link_weight[e]);
-                    // The sender sends along the antipode of the receiver's direction.
-                    corr_slot.push(k * n as u32 + (v.link_direction[e] ^ 1));
-                    corr_bucket.push(v.link_bucket.map_or(0, |bk| bk[e]));
+        v.links.for_each_window(Columns::ALL, np, |w| {
+            for q in w.patches.clone() {
+                for e in w.local(v.link_offsets[q] as usize..v.link_offsets[q + 1] as usize) {
+                    let k = nd_of[w.other.ids()[e] as usize];
+                    if k != u32::MAX {
+                        corr_weight.push(w.weight[e]);
+                        // The sender sends along the antipode of the receiver's direction.
+                        corr_slot.push(k * n as u32 + (w.direction[e] ^ 1));
+                        corr_bucket.push(w.bucket.get(e).copied().unwrap_or(0));
+                    }
                 }
+                corr_offsets.push(corr_weight.len() as u64);
             }
-            corr_offsets.push(corr_weight.len() as u64);
-        }
+            Ok::<(), ArchiveError>(())
+        })?;
+        let rows = v.link_rows(&patches)?;
         let mut linked = vec![0.0f32; patches.len() * n];
-        for (k, &q) in patches.iter().enumerate() {
-            let (_, w, d) = v.link_ends(q as usize);
+        for k in 0..patches.len() {
+            let (_, w, d) = rows.ends(k);
             for (&w, &d) in w.iter().zip(d) {
                 linked[k * n + d as usize] += w;
             }
@@ -179,7 +185,7 @@ impl<'a> NonDiffuse<'a> {
             k += len;
         }
         let in_scale = incoming_scales(&r, n, &batches, &inverse, &rays, &inv_weight, &albedo);
-        Some(Self {
+        Ok(Some(Self {
             r,
             n,
             nd_of,
@@ -195,8 +201,9 @@ impl<'a> NonDiffuse<'a> {
             corr_slot,
             corr_bucket,
             linked,
+            rows,
             batches,
-        })
+        }))
     }
 
     /// Index into the per-ray directional power (`phi`) of non-diffuse patch
@@ -237,7 +244,6 @@ impl<'a> NonDiffuse<'a> {
     /// of once per patch, and the inner loop is 24 independent lanes.
     pub fn step(
         &self,
-        v: &InetView<'_>,
         shoot: &[[f32; 4]],
         phi: &[[f32; 4]],
         extra: &ExtraEnds<'_>,
@@ -277,7 +283,7 @@ impl<'a> NonDiffuse<'a> {
                                 slot[c] += w * s[c];
                             }
                         };
-                        let (o, w, d) = v.link_ends(q);
+                        let (o, w, d) = self.rows.ends(first + b);
                         for e in 0..o.len() {
                             add(o[e], w[e], d[e]);
                         }

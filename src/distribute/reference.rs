@@ -13,7 +13,7 @@
 
 use super::buckets::Rings;
 use super::{DistributeError, DistributeOptions, Lighting, patch_materials};
-use crate::archive::{ArchiveError, InetView};
+use crate::archive::{ArchiveError, Columns, InetView};
 
 /// What the reference solver found.
 #[derive(Debug, Clone, PartialEq)]
@@ -68,17 +68,19 @@ pub fn solve(
             }
         }
     }
-    let use_buckets = opts.buckets && v.build.max_bucket > 0 && v.link_bucket.is_some();
+    let use_buckets = opts.buckets && v.build.max_bucket > 0 && v.links.has_bucket();
     let buckets = if use_buckets { v.build.max_bucket as usize + 1 } else { 1 };
     let mut ends = Vec::new();
-    for q in 0..n {
-        let (other, weight, _) = v.link_ends(q);
-        let a = v.link_offsets[q] as usize;
-        for (i, (&o, &w)) in other.iter().zip(weight).enumerate() {
-            let bucket = if use_buckets { v.link_bucket.map_or(0, |b| b[a + i]) } else { 0 };
-            ends.push(End { owner: q as u32, other: o, weight: w as f64, bucket });
+    let columns = Columns { bucket: use_buckets, ..Columns::GATHER };
+    v.links.for_each_window(columns, n, |w| {
+        for q in w.patches.clone() {
+            for e in w.local(v.link_offsets[q] as usize..v.link_offsets[q + 1] as usize) {
+                let bucket = if use_buckets { w.bucket[e] } else { 0 };
+                ends.push(End { owner: q as u32, other: w.other.ids()[e], weight: w.weight[e] as f64, bucket });
+            }
         }
-    }
+        Ok::<(), ArchiveError>(())
+    })?;
     if let Some(s) = v.sequence {
         for d in s.frame_delta(frame)? {
             let (ba, bb) = if use_buckets { (d.bucket_a, d.bucket_b) } else { (0, 0) };

@@ -146,9 +146,9 @@ impl<'a> Distributor<'a> {
     /// direction `d` that no longer link (§5.13: a link with an end at an
     /// absent patch is not a link of the frame).
     pub(super) fn absent_ends(&self, frame: u32, mut out: impl FnMut(usize, f32, u32)) {
-        for &(t, last) in &self.leaving {
+        for (k, &(_, last)) in self.leaving.iter().enumerate() {
             if frame > last {
-                let (other, weight, direction) = self.v.link_ends(t as usize);
+                let (other, weight, direction) = self.leaving_rows.ends(k);
                 for ((&q, &w), &d) in other.iter().zip(weight).zip(direction) {
                     out(q as usize, w, d ^ 1);
                 }

@@ -16,7 +16,8 @@ use super::anderson::Anderson;
 use super::kernels::{BLOCK, add_ends, gather, gather_buckets, silence_absent};
 use super::setup::FrameSetup;
 use super::warm::{Carry, WarmStart};
-use super::{DirectionalRadiance, Distributor, EnergyBalance, Solution};
+use super::{DirectionalRadiance, DistributeError, Distributor, EnergyBalance, Solution};
+use crate::archive::Columns;
 
 /// Per-ray state of the non-diffuse patches (`nondiffuse.rs`).
 struct Glossy {
@@ -125,8 +126,8 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
         (!self.converged() || self.last_mixed) && self.bal.iterations < self.d.opts.max_iterations
     }
 
-    /// One iteration.
-    pub fn step(&mut self) {
+    /// One iteration (it fails only when streamed link ends cannot be read).
+    pub fn step(&mut self) -> Result<(), DistributeError> {
         let warm_jump = self.bal.iterations == 0 && self.warm.first_send().is_some();
         let converged = self.converged();
         self.choose_send(warm_jump, converged);
@@ -136,7 +137,7 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
         self.escape_directional();
         match self.warm.carry() {
             Some(c) if warm_jump => self.gather_sparse(c),
-            _ => self.gather_full(),
+            _ => self.gather_full()?,
         }
         self.spread();
         self.add_to_carry();
@@ -151,6 +152,7 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
             }
         }
         self.bal.iterations += 1;
+        Ok(())
     }
 
     /// Sets `send`: the warm start's first send, the residual (a plain
@@ -247,26 +249,27 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
             .sum::<u64>();
     }
 
+    /// Gathers `shoot` over frame 0's links into `recv`, window by window.
+    fn gather_base(&mut self, present: Option<&[bool]>) -> Result<(), DistributeError> {
+        let (d, nb) = (self.d, self.d.nb);
+        let (offsets, shoot, recv) = (d.v.link_offsets, &self.shoot, &mut self.recv);
+        d.v.links.for_each_window(Columns::GATHER, d.v.patch_count(), |w| {
+            match &d.bucket_runs {
+                Some(runs) => gather_buckets(&w, offsets, runs, nb, present, shoot, recv),
+                None => gather(&w, offsets, present, shoot, recv),
+            }
+            Ok::<(), DistributeError>(())
+        })
+    }
+
     /// The full gather: frame 0's links, the frame's overlay, and what
     /// non-diffuse senders send along their ends.
-    fn gather_full(&mut self) {
+    fn gather_full(&mut self) -> Result<(), DistributeError> {
         let (d, s, nb) = (self.d, self.s, self.d.nb);
         let v = &d.v;
         let present = s.absent_mask();
+        self.gather_base(present)?;
         let nd_phi = d.nd.as_ref().zip(self.glossy.as_ref()).map(|(x, g)| (x, &g.phi[..]));
-        match &d.bucket_runs {
-            Some(runs) => gather_buckets(
-                v.link_offsets,
-                d.link_other,
-                v.link_weight,
-                runs,
-                nb,
-                present,
-                &self.shoot,
-                &mut self.recv,
-            ),
-            None => gather(v.link_offsets, d.link_other, v.link_weight, present, &self.shoot, &mut self.recv),
-        }
         if let Some(o) = &s.overlay {
             add_ends(&o.gather, nb, &self.shoot, 1.0, nd_phi, &mut self.recv);
         }
@@ -274,7 +277,8 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
             x.gather_corrections(nb, d.bucket_runs.is_some(), phi, &mut self.recv);
             silence_absent(present, nb, &mut self.recv);
         }
-        self.bal.ends_gathered += (v.link_other.len() + s.overlay.as_ref().map_or(0, |o| o.gather.other.len())) as u64;
+        self.bal.ends_gathered += (v.link_end_count() + s.overlay.as_ref().map_or(0, |o| o.gather.other.len())) as u64;
+        Ok(())
     }
 
     /// Light that arrived in wide buckets, spread over rings of neighbours
@@ -308,7 +312,6 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
     /// through their tables (Figure 9) into the next step's per-ray power.
     fn reflect_directional(&mut self) {
         let (Some(x), Some(g)) = (self.d.nd.as_ref(), self.glossy.as_mut()) else { return };
-        let v = &self.d.v;
         let all_ends = self.s.overlay.as_ref().and_then(|o| o.all.as_ref());
         let overlay_ends = |q: usize, add: &mut dyn FnMut(u32, f32, u32)| {
             if let Some(o) = all_ends {
@@ -317,7 +320,7 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
                 }
             }
         };
-        let totals = x.step(v, &self.shoot, &g.phi, &overlay_ends, &mut g.phi_next);
+        let totals = x.step(&self.shoot, &g.phi, &overlay_ends, &mut g.phi_next);
         std::mem::swap(&mut g.phi, &mut g.phi_next);
         // Absent non-diffuse patches keep nothing to send: `step` walks
         // their frame 0 ends too, and what it finds there is not light of
@@ -394,44 +397,32 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
     /// emitted power over the frame's links (frame 0's, the overlay; the
     /// non-diffuse senders' directional light is not emission), spread
     /// over the rings like any other step's.
-    fn first_bounce(&mut self) -> Vec<[f32; 3]> {
+    fn first_bounce(&mut self) -> Result<Vec<[f32; 3]>, DistributeError> {
         let (d, s, nb) = (self.d, self.s, self.d.nb);
         let v = &d.v;
         let present = s.absent_mask();
         for ((sh, e), &k) in self.shoot.iter_mut().zip(&s.emitted_power).zip(&d.share) {
             *sh = [e[0] * k, e[1] * k, e[2] * k, 0.0];
         }
-        match &d.bucket_runs {
-            Some(runs) => gather_buckets(
-                v.link_offsets,
-                d.link_other,
-                v.link_weight,
-                runs,
-                nb,
-                present,
-                &self.shoot,
-                &mut self.recv,
-            ),
-            None => gather(v.link_offsets, d.link_other, v.link_weight, present, &self.shoot, &mut self.recv),
-        }
+        self.gather_base(present)?;
         if let Some(o) = &s.overlay {
             add_ends(&o.gather, nb, &self.shoot, 1.0, None, &mut self.recv);
         }
         self.spread();
         let inv_pi = 1.0 / std::f32::consts::PI;
-        (0..v.patch_count())
+        Ok((0..v.patch_count())
             .map(|p| {
                 let kd = if d.area_eff[p] > 0.0 { inv_pi / d.area_eff[p] } else { 0.0 };
                 let ks = if v.patch_area[p] > 0.0 { inv_pi / v.patch_area[p] } else { 0.0 };
                 [0, 1, 2].map(|c| d.rho[p][c] * (self.recv[p * nb][c] * kd + self.spread[p][c] * ks))
             })
-            .collect()
+            .collect())
     }
 
     /// The frame's solution: radiance from the received totals, the
     /// balance with what is left unshot, and what the next frame's warm
     /// start reuses.
-    pub fn finish(mut self, frame: u32) -> Solution {
+    pub fn finish(mut self, frame: u32) -> Result<Solution, DistributeError> {
         let (d, s) = (self.d, self.s);
         let v = &d.v;
         let n = v.patch_count();
@@ -460,7 +451,10 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
             })
             .collect();
         let received = (0..n).map(|p| [0, 1, 2].map(|c| total_direct[p][c] + total_spread[p][c])).collect();
-        let direct = d.opts.split_direct.then(|| self.first_bounce());
+        let direct = match d.opts.split_direct {
+            true => Some(self.first_bounce()?),
+            false => None,
+        };
         // Per-ray power → radiance: one ray stands for the étendue
         // π·A_p/E[H_p] of its patch (as for the diffuse radiance above).
         let directional = d.nd.as_ref().zip(self.glossy.as_ref()).map(|(x, g)| {
@@ -488,7 +482,7 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
                 overlay: s.overlay.as_ref().map(|o| o.gather.clone()),
             })
         });
-        Solution {
+        Ok(Solution {
             radiance,
             received,
             balance: bal,
@@ -500,6 +494,6 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
             history: self.anderson,
             carry,
             frame,
-        }
+        })
     }
 }

@@ -1,0 +1,399 @@
+//! Streaming frame 0's link ends from disk: the columns of §5.10 read in
+//! windows of consecutive patches into reused buffers, so that memory
+//! holds two windows, not the archive, whatever its size.
+//!
+//! Reads are `pread`s into owned buffers, not a mapping: a file truncated
+//! or rewritten under a running render is an error (a short read, a
+//! checksum that no longer matches), never a SIGBUS or undefined
+//! behaviour. Opening reads every column once, checks it against its
+//! section checksum and its content rules (§7), and keeps one XXH3-64 per
+//! column per chunk of [`CHUNK_ENDS`] ends; every window read later is
+//! checked against those before use, and its patch ids checked in range.
+
+use std::fs::File;
+use std::ops::Range;
+use std::path::{Path, PathBuf};
+use std::sync::Mutex;
+use std::sync::mpsc::sync_channel;
+
+use xxhash_rust::xxh3::{Xxh3, xxh3_64};
+
+use super::ArchiveError;
+use super::layout::SectionEntry;
+use super::links::{Columns, LinkWindow, PatchIds};
+
+/// Link ends per checked chunk: windows are read in whole chunks.
+pub const CHUNK_ENDS: usize = 1 << 16;
+
+/// Bytes per link end of each column: `LOTH`, `LWGT`, `LDIR`, `LBKT`.
+const WIDTH: [usize; 4] = [4, 4, 4, 1];
+
+/// Chunks read per `pread` when opening (4 MiB of `LOTH`).
+const OPEN_READ_CHUNKS: usize = 16;
+
+/// What the content rules of §7 bound the columns by.
+pub(super) struct Limits {
+    pub patches: usize,
+    pub directions: usize,
+    pub max_bucket: u8,
+}
+
+/// The link-end columns of an archive on disk, read window by window.
+pub struct LinkStream {
+    file: File,
+    path: PathBuf,
+    patches: usize,
+    ends: usize,
+    /// File offset of each column (`LOTH`, `LWGT`, `LDIR`, `LBKT`), `None`
+    /// for an absent `LBKT`.
+    at: [Option<u64>; 4],
+    /// Per chunk, each column's XXH3-64.
+    sums: Vec<[u64; 4]>,
+    windows: Vec<Window>,
+    /// The most ends a window's buffers hold (whole chunks).
+    capacity: usize,
+    /// Buffers kept between passes.
+    pool: Mutex<Vec<Buffers>>,
+}
+
+struct Window {
+    patches: Range<usize>,
+    ends: Range<usize>,
+}
+
+#[derive(Default)]
+struct Buffers {
+    other: Vec<u32>,
+    weight: Vec<f32>,
+    direction: Vec<u32>,
+    bucket: Vec<u8>,
+}
+
+impl Buffers {
+    fn bytes(&self) -> usize {
+        self.other.capacity() * 4 + self.weight.capacity() * 4 + self.direction.capacity() * 4 + self.bucket.capacity()
+    }
+}
+
+fn short(path: &Path, what: &str, e: std::io::Error) -> ArchiveError {
+    let source = if e.kind() == std::io::ErrorKind::UnexpectedEof {
+        std::io::Error::new(e.kind(), format!("{what}: the file ended early (truncated while in use?)"))
+    } else {
+        std::io::Error::new(e.kind(), format!("{what}: {e}"))
+    };
+    ArchiveError::Io { path: path.into(), source }
+}
+
+#[cfg(unix)]
+pub(super) fn read_at(file: &File, buf: &mut [u8], offset: u64) -> std::io::Result<()> {
+    std::os::unix::fs::FileExt::read_exact_at(file, buf, offset)
+}
+
+#[cfg(not(unix))]
+pub(super) fn read_at(file: &File, mut buf: &mut [u8], mut offset: u64) -> std::io::Result<()> {
+    while !buf.is_empty() {
+        match std::os::windows::fs::FileExt::seek_read(file, buf, offset)? {
+            0 => return Err(std::io::ErrorKind::UnexpectedEof.into()),
+            n => {
+                buf = &mut buf[n..];
+                offset += n as u64;
+            }
+        }
+    }
+    Ok(())
+}
+
+impl LinkStream {
+    /// Reads and checks the columns `entries` (`LOTH`, `LWGT`, `LDIR`,
+    /// optional `LBKT`, already checked to lie in the file) of the archive
+    /// open as `file`, against their checksums and `limits`, and plans
+    /// windows of at most `window_ends` ends (more for a patch with more).
+    pub(super) fn open(
+        file: File,
+        path: &Path,
+        entries: [Option<&SectionEntry>; 4],
+        offsets: &[u64],
+        limits: &Limits,
+        window_ends: usize,
+    ) -> Result<Self, ArchiveError> {
+        let ends = offsets.last().copied().unwrap_or(0) as usize;
+        let chunks = ends.div_ceil(CHUNK_ENDS);
+        let mut sums = vec![[0u64; 4]; chunks];
+        let names = ["LOTH", "LWGT", "LDIR", "LBKT"];
+        let mut buf = Vec::new();
+        for (c, e) in entries.iter().enumerate() {
+            let Some(e) = e else { continue };
+            if e.length != (ends * WIDTH[c]) as u64 {
+                return Err(ArchiveError::corrupt(format!(
+                    "section {}: {} bytes, expected {} for {ends} link ends",
+                    names[c],
+                    e.length,
+                    ends * WIDTH[c]
+                )));
+            }
+            let mut section = Xxh3::new();
+            for first in (0..chunks).step_by(OPEN_READ_CHUNKS) {
+                let a = first * CHUNK_ENDS;
+                let b = ((first + OPEN_READ_CHUNKS) * CHUNK_ENDS).min(ends);
+                buf.resize((b - a) * WIDTH[c], 0u8);
+                read_at(&file, &mut buf, e.offset + (a * WIDTH[c]) as u64).map_err(|x| short(path, names[c], x))?;
+                section.update(&buf);
+                for (i, chunk) in buf.chunks(CHUNK_ENDS * WIDTH[c]).enumerate() {
+                    sums[first + i][c] = xxh3_64(chunk);
+                }
+                check_column(c, &buf, limits)?;
+            }
+            let sum = section.digest();
+            if sum != e.checksum {
+                return Err(ArchiveError::corrupt(format!(
+                    "section {}: checksum mismatch (stored {:#018x}, computed {sum:#018x})",
+                    names[c], e.checksum
+                )));
+            }
+        }
+        let at = entries.map(|e| e.map(|e| e.offset));
+        let (windows, capacity) = plan(offsets, window_ends.max(1));
+        Ok(Self {
+            file,
+            path: path.into(),
+            patches: limits.patches,
+            ends,
+            at,
+            sums,
+            windows,
+            capacity,
+            pool: Mutex::new(Vec::new()),
+        })
+    }
+
+    /// Link ends in all.
+    pub fn ends(&self) -> usize {
+        self.ends
+    }
+
+    /// Whether the archive has `LBKT`.
+    pub fn has_bucket(&self) -> bool {
+        self.at[3].is_some()
+    }
+
+    /// Windows a full pass reads.
+    pub fn window_count(&self) -> usize {
+        self.windows.len()
+    }
+
+    /// The most ends one window's buffers hold.
+    pub fn window_capacity(&self) -> usize {
+        self.capacity
+    }
+
+    /// The most heap a pass reading `columns` holds (two windows'
+    /// buffers: one in use, one being read).
+    pub fn pass_bytes(&self, columns: Columns) -> usize {
+        2 * self.capacity * bytes_per_end(columns)
+    }
+
+    /// Heap held now by buffers kept between passes.
+    pub fn pooled_bytes(&self) -> usize {
+        self.pool.lock().map_or(0, |p| p.iter().map(Buffers::bytes).sum())
+    }
+
+    /// Calls `f` on every window in patch order (only those holding a
+    /// patch of the ascending list `wanted`, when given), reading the next
+    /// on a second thread while `f` works on one.
+    pub(super) fn for_each_window<E: From<ArchiveError>>(
+        &self,
+        columns: Columns,
+        wanted: Option<&[u32]>,
+        mut f: impl FnMut(LinkWindow<'_>) -> Result<(), E>,
+    ) -> Result<(), E> {
+        let selected: Vec<usize> = match wanted {
+            None => (0..self.windows.len()).collect(),
+            Some(w) => (0..self.windows.len())
+                .filter(|&i| {
+                    let r = &self.windows[i].patches;
+                    let k = w.partition_point(|&q| (q as usize) < r.start);
+                    k < w.len() && (w[k] as usize) < r.end
+                })
+                .collect(),
+        };
+        if selected.is_empty() {
+            return Ok(());
+        }
+        std::thread::scope(|scope| -> Result<(), E> {
+            let (full_tx, full_rx) = sync_channel::<Result<Buffers, ArchiveError>>(1);
+            let (free_tx, free_rx) = sync_channel::<Buffers>(2);
+            for _ in 0..2 {
+                let b = self.pool.lock().ok().and_then(|mut p| p.pop()).unwrap_or_default();
+                free_tx.send(b).expect("the channel holds two buffers");
+            }
+            let order = &selected;
+            // The reader hands its receiver back, so that the buffers
+            // returned to it are kept for the next pass.
+            let reader = scope.spawn(move || {
+                for &i in order {
+                    let Ok(mut b) = free_rx.recv() else { break };
+                    let read = self.read_window(i, columns, &mut b).map(|()| b);
+                    let failed = read.is_err();
+                    if full_tx.send(read).is_err() || failed {
+                        break;
+                    }
+                }
+                free_rx
+            });
+            for &i in &selected {
+                let b = full_rx.recv().map_err(|_| ArchiveError::Io {
+                    path: self.path.clone(),
+                    source: std::io::Error::other("the link reader stopped"),
+                })??;
+                let w = &self.windows[i];
+                let first_chunk_end = (w.ends.start / CHUNK_ENDS) * CHUNK_ENDS;
+                let local = w.ends.start - first_chunk_end..w.ends.end - first_chunk_end;
+                let pick = |len: usize| if len == 0 { 0..0 } else { local.clone() };
+                // `read_window` checked every id of the buffer.
+                let other = PatchIds::validated(&b.other[pick(b.other.len())], self.patches);
+                f(LinkWindow {
+                    patches: w.patches.clone(),
+                    first_end: w.ends.start,
+                    other,
+                    weight: &b.weight[pick(b.weight.len())],
+                    direction: &b.direction[pick(b.direction.len())],
+                    bucket: &b.bucket[pick(b.bucket.len())],
+                })?;
+                // Two buffers and room for two: this never blocks.
+                let _ = free_tx.send(b);
+            }
+            if let (Ok(free_rx), Ok(mut pool)) = (reader.join(), self.pool.lock()) {
+                pool.extend(free_rx.try_iter());
+            }
+            Ok(())
+        })
+    }
+
+    /// Reads window `i`'s `columns` into `b` in whole chunks, each checked
+    /// against the checksum taken when the archive was opened, and checks
+    /// its patch ids.
+    fn read_window(&self, i: usize, columns: Columns, b: &mut Buffers) -> Result<(), ArchiveError> {
+        let w = &self.windows[i];
+        let c0 = w.ends.start / CHUNK_ENDS;
+        let c1 = w.ends.end.div_ceil(CHUNK_ENDS).max(c0);
+        let (a, e) = (c0 * CHUNK_ENDS, (c1 * CHUNK_ENDS).min(self.ends));
+        let want = [columns.other, columns.weight, columns.direction, columns.bucket && self.at[3].is_some()];
+        let n = |c: usize| if want[c] { e - a } else { 0 };
+        b.other.resize(n(0), 0);
+        b.weight.resize(n(1), 0.0);
+        b.direction.resize(n(2), 0);
+        b.bucket.resize(n(3), 0);
+        let bytes: [&mut [u8]; 4] = [
+            bytemuck::cast_slice_mut(&mut b.other),
+            bytemuck::cast_slice_mut(&mut b.weight),
+            bytemuck::cast_slice_mut(&mut b.direction),
+            &mut b.bucket,
+        ];
+        let names = ["LOTH", "LWGT", "LDIR", "LBKT"];
+        for (c, buf) in bytes.into_iter().enumerate() {
+            let Some(at) = self.at[c].filter(|_| want[c]) else { continue };
+            read_at(&self.file, buf, at + (a * WIDTH[c]) as u64).map_err(|x| short(&self.path, names[c], x))?;
+            for (k, chunk) in buf.chunks(CHUNK_ENDS * WIDTH[c]).enumerate() {
+                if xxh3_64(chunk) != self.sums[c0 + k][c] {
+                    return Err(ArchiveError::corrupt(format!(
+                        "{}: chunk {} of {} changed on disk while in use (was the archive rewritten?)",
+                        self.path.display(),
+                        c0 + k,
+                        names[c]
+                    )));
+                }
+            }
+        }
+        if want[0] && PatchIds::check(&b.other, self.patches).is_none() {
+            return Err(ArchiveError::corrupt("LOTH: a link end's patch is out of range"));
+        }
+        Ok(())
+    }
+}
+
+/// Heap bytes per link end of a window reading `columns`.
+pub fn bytes_per_end(columns: Columns) -> usize {
+    [columns.other, columns.weight, columns.direction, columns.bucket]
+        .iter()
+        .zip(WIDTH)
+        .map(|(&on, w)| if on { w } else { 0 })
+        .sum()
+}
+
+/// Windows of consecutive patches with at most `window_ends` ends each (a
+/// patch with more has a window of its own), and the most ends a window's
+/// buffers need in whole chunks.
+fn plan(offsets: &[u64], window_ends: usize) -> (Vec<Window>, usize) {
+    let patches = offsets.len().saturating_sub(1);
+    let mut windows = Vec::new();
+    let mut start = 0;
+    for q in 0..patches {
+        if offsets[q + 1] - offsets[start] > window_ends as u64 && q > start {
+            windows.push(start..q);
+            start = q;
+        }
+    }
+    if patches > start || windows.is_empty() {
+        windows.push(start..patches);
+    }
+    let windows: Vec<Window> = windows
+        .into_iter()
+        .map(|r| Window { ends: offsets[r.start] as usize..offsets[r.end] as usize, patches: r })
+        .collect();
+    let capacity = windows
+        .iter()
+        .map(|w| (w.ends.end.div_ceil(CHUNK_ENDS) - w.ends.start / CHUNK_ENDS) * CHUNK_ENDS)
+        .max()
+        .unwrap_or(0);
+    (windows, capacity)
+}
+
+/// The content rules of §7 for column `c` of some link ends.
+fn check_column(c: usize, bytes: &[u8], limits: &Limits) -> Result<(), ArchiveError> {
+    let ok = match c {
+        0 => bytes.chunks_exact(4).all(|x| (u32::from_le_bytes(x.try_into().unwrap()) as usize) < limits.patches),
+        1 => bytes.chunks_exact(4).all(|x| {
+            let w = f32::from_le_bytes(x.try_into().unwrap());
+            w.is_finite() && w >= 0.0
+        }),
+        2 => bytes.chunks_exact(4).all(|x| (u32::from_le_bytes(x.try_into().unwrap()) as usize) < limits.directions),
+        _ => bytes.iter().all(|&k| k <= limits.max_bucket),
+    };
+    if ok {
+        return Ok(());
+    }
+    Err(ArchiveError::corrupt(match c {
+        0 => "LOTH: patch id out of range".to_string(),
+        1 => "LWGT: weight negative or non-finite".into(),
+        2 => "LDIR: direction out of range".into(),
+        _ => format!("LBKT: bucket above BILD.max_bucket {}", limits.max_bucket),
+    }))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn windows_cover_every_patch_once_within_the_limit() {
+        let rows = [0u64, 3, 0, 70_000, 5, 5, 1, 200_000, 2];
+        let mut offsets = vec![0u64];
+        for r in rows {
+            offsets.push(offsets.last().unwrap() + r);
+        }
+        let (w, cap) = plan(&offsets, 10);
+        let mut next = 0;
+        for x in &w {
+            assert_eq!(x.patches.start, next);
+            assert!(x.patches.end > x.patches.start);
+            let n = x.ends.end - x.ends.start;
+            assert!(n <= 10 || x.patches.len() == 1, "{n} ends in {:?}", x.patches);
+            next = x.patches.end;
+        }
+        assert_eq!(next, rows.len());
+        assert!(cap >= 200_000 && cap % CHUNK_ENDS == 0);
+        // No ends at all: one empty window.
+        let (w, cap) = plan(&[0, 0, 0], 10);
+        assert_eq!((w.len(), cap), (1, 0));
+    }
+}

@@ -1,0 +1,131 @@
+//! Streamed link ends (`Archive::open_streamed`): the same light as a
+//! mapped archive bit for bit, whatever the window size, and a file cut or
+//! rewritten under a running distribution is an error, not a crash.
+
+use std::path::{Path, PathBuf};
+
+use illumnet::archive::{self, Archive, layout::tag};
+use illumnet::build::{self, BuildSettings};
+use illumnet::distribute::{DistributeOptions, Distributor, Lighting, Solution};
+use illumnet::progress::NoProgress;
+use illumnet::scene::{BuildHints, Scene};
+
+fn scene_file(name: &str) -> Scene {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes").join(name);
+    Scene::from_file(&path).unwrap()
+}
+
+/// Builds `scene` (a sequence when animated) at `hints` into `dir`.
+fn write(scene: &Scene, hints: BuildHints, dir: &Path) -> PathBuf {
+    let mut settings = BuildSettings::resolve(scene, hints);
+    settings.prototype_library = None;
+    let contents = match scene.frame_count() > 1 {
+        true => build::build_sequence(scene, &settings, &NoProgress).unwrap().contents,
+        false => build::build(scene, &settings, &NoProgress).unwrap().0,
+    };
+    let path = dir.join("scene.inet");
+    archive::write(&path, &contents).unwrap();
+    path
+}
+
+/// Every frame of the archive, each warm-started from the last, as one
+/// distributor does them.
+fn solve_all(a: &Archive) -> Vec<Solution> {
+    let v = a.view();
+    let opts = DistributeOptions { tolerance: 1e-5, ..Default::default() };
+    let d = Distributor::new(&v, &opts, &Lighting::from_view(&v)).unwrap();
+    let frames = v.sequence.map_or(1, |s| s.frames());
+    let mut out: Vec<Solution> = Vec::new();
+    for k in 0..frames {
+        let s = d.frame(k, out.last(), &NoProgress).unwrap();
+        out.push(s);
+    }
+    out
+}
+
+fn assert_same(mapped: &[Solution], streamed: &[Solution], what: &str) {
+    assert_eq!(mapped.len(), streamed.len());
+    for (k, (m, s)) in mapped.iter().zip(streamed).enumerate() {
+        assert_eq!(m.balance.iterations, s.balance.iterations, "{what} frame {k}");
+        assert_eq!(m.balance.ends_gathered, s.balance.ends_gathered, "{what} frame {k}");
+        assert!(m.radiance == s.radiance, "{what} frame {k}: radiance differs");
+        assert!(m.direct == s.direct, "{what} frame {k}: first bounce differs");
+        let dir = |x: &Solution| x.directional.as_ref().map(|d| d.radiance.clone());
+        assert!(dir(m) == dir(s), "{what} frame {k}: directional radiance differs");
+    }
+}
+
+#[test]
+fn streamed_link_ends_give_the_mapped_light_bit_for_bit() {
+    // Windows of a few hundred ends cut patches' rows at every kind of
+    // boundary (chunks of 65 536 ends, bucket runs, patches with no ends).
+    let hints = |p: f32, f: u32, r: f32| BuildHints {
+        patch_size: Some(p),
+        frequency: Some(f),
+        ray_spacing: Some(r),
+        buckets: None,
+    };
+    let cases = [
+        ("cornell_box.toml", hints(0.1, 6, 0.02)),
+        ("glossy_floor.toml", hints(0.25, 5, 0.03)),
+        ("fan_room.toml", hints(0.4, 4, 0.06)),
+    ];
+    for (name, h) in cases {
+        let dir = tempfile::tempdir().unwrap();
+        let path = write(&scene_file(name), h, dir.path());
+        let mapped = Archive::open(&path).unwrap();
+        let want = solve_all(&mapped);
+        let ends = mapped.view().link_end_count();
+        for window in [300, 70_000, usize::MAX] {
+            let streamed = Archive::open_streamed(&path, window).unwrap();
+            let s = streamed.link_stream().expect("streamed");
+            assert!(window > ends || s.window_count() > 1, "{name}: {} windows", s.window_count());
+            assert_eq!(s.ends(), ends);
+            assert_same(&want, &solve_all(&streamed), &format!("{name} in windows of {window}"));
+        }
+        eprintln!("{name}: {ends} link ends, {} frames", want.len());
+    }
+}
+
+/// The file offset of section `t` of the archive at `path`.
+fn section_offset(path: &Path, t: archive::layout::Tag) -> u64 {
+    Archive::summary(path).unwrap().sections.iter().find(|e| e.tag == t).unwrap().offset
+}
+
+#[test]
+fn a_link_column_cut_or_rewritten_under_a_distribution_is_an_error() {
+    let scene = Scene::cornell_box();
+    let hints = BuildHints { patch_size: Some(0.1), frequency: Some(6), ray_spacing: Some(0.02), buckets: None };
+    let dir = tempfile::tempdir().unwrap();
+    let path = write(&scene, hints, dir.path());
+    let opts = DistributeOptions::default();
+    let run = |a: &Archive| {
+        let v = a.view();
+        Distributor::new(&v, &opts, &Lighting::from_view(&v)).and_then(|d| d.frame(0, None, &NoProgress)).map(|_| ())
+    };
+
+    // Rewritten in place after opening: the window's checksum catches it.
+    let a = Archive::open_streamed(&path, 1000).unwrap();
+    assert!(a.view().link_end_count() > 70_000, "the change lands in LWGT's second chunk");
+    let at = section_offset(&path, tag::LINK_WEIGHT);
+    let mut bytes = std::fs::read(&path).unwrap();
+    bytes[at as usize + 4 * 70_000] ^= 0x40;
+    std::fs::write(&path, &bytes).unwrap();
+    let err = run(&a).unwrap_err().to_string();
+    assert!(err.contains("changed on disk") && err.contains("LWGT"), "{err}");
+    // Opening it now fails on the section checksum, before any use.
+    let err = Archive::open_streamed(&path, 1000).err().unwrap().to_string();
+    assert!(err.contains("LWGT") && err.contains("checksum"), "{err}");
+
+    // Cut short after opening: a short read, never SIGBUS.
+    bytes[at as usize + 4 * 70_000] ^= 0x40;
+    std::fs::write(&path, &bytes).unwrap();
+    let a = Archive::open_streamed(&path, 1000).unwrap();
+    assert!(run(&a).is_ok());
+    let file = std::fs::OpenOptions::new().write(true).open(&path).unwrap();
+    file.set_len(section_offset(&path, tag::LINK_OTHER) + 4096).unwrap();
+    let err = run(&a).unwrap_err().to_string();
+    assert!(err.contains("ended early"), "{err}");
+    let err = Archive::open_streamed(&path, 1000).err().unwrap().to_string();
+    assert!(err.contains("truncated"), "{err}");
+}
