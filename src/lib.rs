@@ -52,6 +52,7 @@ pub mod flicker;
 pub mod geodesic;
 pub mod geometry;
 pub mod limits;
+pub mod memory;
 pub mod patch;
 pub mod progress;
 pub mod reflectance;

@@ -67,6 +67,11 @@ pub struct ArchiveSummary {
     pub sections: Vec<SectionEntry>,
     /// `BILD`, checked against its section checksum.
     pub build: BuildRecord,
+    /// `CAMR`, checked against its section checksum (not validated).
+    pub camera: CameraRecord,
+    /// The most delta records a frame of a sequence has (`DIDX`, checked
+    /// against its checksum; 0 for a still).
+    pub max_delta_records: u64,
 }
 
 impl ArchiveSummary {
@@ -420,12 +425,33 @@ impl Archive {
         let io = |e: std::io::Error| ArchiveError::Io { path: path.into(), source: e };
         let file = std::fs::File::open(path).map_err(io)?;
         let (header, entries) = read_structure(&file, path)?;
-        let e = entries.iter().find(|e| e.tag == tag::BUILD).ok_or_else(|| bad("section BILD is missing"))?;
-        let mut buf = vec![0u8; e.stored_length as usize];
-        stream_read(&file, &mut buf, e.offset).map_err(io)?;
-        check_sum(e, &buf)?;
-        let build: BuildRecord = pod_read_unaligned(&buf);
-        Ok(ArchiveSummary { file_length: header.file_length, sections: entries, build })
+        let record = |t: Tag, size: usize| -> Result<Vec<u8>, ArchiveError> {
+            let e = entries
+                .iter()
+                .find(|e| e.tag == t)
+                .ok_or_else(|| bad(format!("section {} is missing", tag_name(t))))?;
+            let mut buf = vec![0u8; e.stored_length as usize];
+            stream_read(&file, &mut buf, e.offset).map_err(io)?;
+            check_sum(e, &buf)?;
+            check(buf.len() >= size, || format!("section {} is shorter than its record", tag_name(t)))?;
+            Ok(buf)
+        };
+        let build: BuildRecord =
+            pod_read_unaligned(&record(tag::BUILD, size_of::<BuildRecord>())?[..size_of::<BuildRecord>()]);
+        let camera: CameraRecord =
+            pod_read_unaligned(&record(tag::CAMERA, size_of::<CameraRecord>())?[..size_of::<CameraRecord>()]);
+        let mut max_delta_records = 0;
+        if let Some(e) = entries.iter().find(|e| e.tag == tag::DELTA_INDEX) {
+            let mut buf = vec![0u8; e.stored_length as usize];
+            stream_read(&file, &mut buf, e.offset).map_err(io)?;
+            check_sum(e, &buf)?;
+            max_delta_records = buf
+                .chunks_exact(size_of::<DeltaIndexRecord>())
+                .map(|r| pod_read_unaligned::<DeltaIndexRecord>(r).count)
+                .max()
+                .unwrap_or(0);
+        }
+        Ok(ArchiveSummary { file_length: header.file_length, sections: entries, build, camera, max_delta_records })
     }
 
     /// Validates an archive held in memory (the bytes are copied once into

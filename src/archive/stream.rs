@@ -292,8 +292,10 @@ impl LinkStream {
         let names = ["LOTH", "LWGT", "LDIR", "LBKT"];
         for (c, buf) in bytes.into_iter().enumerate() {
             let Some(at) = self.at[c].filter(|_| want[c]) else { continue };
-            read_at(&self.file, buf, at + (a * WIDTH[c]) as u64).map_err(|x| short(&self.path, names[c], x))?;
-            for (k, chunk) in buf.chunks(CHUNK_ENDS * WIDTH[c]).enumerate() {
+            // A chunk at a time, checked while it is in the cache.
+            for (k, chunk) in buf.chunks_mut(CHUNK_ENDS * WIDTH[c]).enumerate() {
+                let offset = at + ((a + k * CHUNK_ENDS) * WIDTH[c]) as u64;
+                read_at(&self.file, chunk, offset).map_err(|x| short(&self.path, names[c], x))?;
                 if xxh3_64(chunk) != self.sums[c0 + k][c] {
                     return Err(ArchiveError::corrupt(format!(
                         "{}: chunk {} of {} changed on disk while in use (was the archive rewritten?)",
@@ -302,10 +304,10 @@ impl LinkStream {
                         names[c]
                     )));
                 }
+                if c == 0 && PatchIds::check(bytemuck::cast_slice(chunk), self.patches).is_none() {
+                    return Err(ArchiveError::corrupt("LOTH: a link end's patch is out of range"));
+                }
             }
-        }
-        if want[0] && PatchIds::check(&b.other, self.patches).is_none() {
-            return Err(ArchiveError::corrupt("LOTH: a link end's patch is out of range"));
         }
         Ok(())
     }

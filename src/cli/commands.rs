@@ -9,8 +9,9 @@ use illumnet::build::{self, BuildSettings};
 use illumnet::distribute::{self, DistributeOptions};
 use illumnet::geodesic::DirectionSetKind;
 use illumnet::geometry;
+use illumnet::memory::{self, BudgetSource, Bytes, MemoryBudget};
 use illumnet::progress::Progress;
-use illumnet::render::{self, RenderOptions, image_io};
+use illumnet::render::{self, RenderOptions, image_io, plan};
 use illumnet::scene::{BuildHints, Scene};
 
 use super::exit::{BadInput, InputContext, IoFailure, bail_input};
@@ -160,7 +161,13 @@ fn require_extension(path: &Path, ext: &str, option: &str, hint: &str) -> Result
 /// Opens an archive, telling a scene file given in its place apart from a
 /// corrupt archive.
 fn open_archive(path: &Path) -> Result<Archive> {
-    match Archive::open(path) {
+    opened(path, Archive::open(path))
+}
+
+/// `result` of opening `path`, a scene file given in its place told apart
+/// from a corrupt archive.
+fn opened<T>(path: &Path, result: Result<T, illumnet::archive::ArchiveError>) -> Result<T> {
+    match result {
         Ok(a) => Ok(a),
         Err(illumnet::archive::ArchiveError::Corrupt(_)) if looks_like_scene(path) => {
             let stem = path.file_stem().and_then(|s| s.to_str()).unwrap_or("scene");
@@ -329,11 +336,13 @@ pub fn render(
     if let Some(sheet) = extras.contact_sheet {
         require_extension(sheet, "png", "--contact-sheet", "--contact-sheet writes a PNG: name it .png")?;
     }
+    let budget = match args.memory_budget {
+        Some(bytes) => MemoryBudget { bytes, source: BudgetSource::Given },
+        None => MemoryBudget::default_for_machine(),
+    };
     let t = Instant::now();
-    let archive = open_archive(path)?;
-    let view = archive.view();
-    let t_open = t.elapsed().as_secs_f64();
-    let total_frames = view.sequence.map_or(1, |s| s.frames());
+    let summary = opened(path, Archive::summary(path))?;
+    let total_frames = summary.section_count(archive::layout::tag::DELTA_INDEX).max(1) as u32;
     // All frames of a sequence unless told otherwise.
     let range = match frames {
         Some(f) => parse_frames(f, total_frames)?,
@@ -342,6 +351,25 @@ pub fn render(
     if range.end > total_frames {
         bail_input!("frames {}..{} are outside the archive's sequence 0..{total_frames}", range.start, range.end);
     }
+    let job = plan::RenderJob {
+        width: summary.camera.width,
+        height: summary.camera.height,
+        samples_per_axis: args.samples,
+        frames: range.len() as u32,
+        keep_images: extras.gif.is_some() || extras.contact_sheet.is_some(),
+        anderson_depth: args.anderson as u32,
+        buckets: !args.no_buckets,
+    };
+    let memory = plan::plan(&summary, &job, budget)?;
+    let archive = match memory.access {
+        plan::LinkAccess::Mapped => open_archive(path)?,
+        plan::LinkAccess::Streamed { window_ends } => opened(path, Archive::open_streamed(path, window_ends))?,
+    };
+    if budget.source == BudgetSource::Given || memory.access != plan::LinkAccess::Mapped {
+        println!("memory: {memory}");
+    }
+    let view = archive.view();
+    let t_open = t.elapsed().as_secs_f64();
     let sequence_output = range.len() > 1;
     let out_path = |pattern: &Path, f: u32| -> Result<std::path::PathBuf> {
         match frame_path(pattern, f) {
@@ -378,7 +406,8 @@ pub fn render(
     let distributor = distribute::Distributor::new(&view, &opts, &lighting)?;
     let t_setup = t_s.elapsed().as_secs_f64();
     let mut previous: Option<distribute::Solution> = None;
-    let mut renderer = render::Renderer::new(&view, RenderOptions { samples_per_axis: args.samples });
+    let mut renderer = render::Renderer::new(&view, RenderOptions { samples_per_axis: args.samples })
+        .with_cache_budget(memory.cache_bytes);
     let keep_images = extras.gif.is_some() || extras.contact_sheet.is_some();
     let mut images = Vec::new();
     let mut iterations = 0;
@@ -477,7 +506,7 @@ pub fn render(
     }
     let c = view.camera;
     println!(
-        "rendered {} frame{} to {}{}: {}×{}, open {:.3} s, setup {:.3} s, delta apply {:.3} s, distribution {:.3} s ({} iterations, {:.0} M link ends/s), render {:.3} s",
+        "rendered {} frame{} to {}{}: {}×{}, open {:.3} s, setup {:.3} s, delta apply {:.3} s, distribution {:.3} s ({} iterations, {:.0} M link ends/s), render {:.3} s{}",
         range.len(),
         if range.len() == 1 { "" } else { "s" },
         png.display(),
@@ -490,7 +519,8 @@ pub fn render(
         t_dist - t_delta,
         iterations,
         ends / (t_dist - t_delta).max(1e-9) / 1e6,
-        t_render
+        t_render,
+        memory::peak_resident().map(|b| format!(", peak memory {}", Bytes(b))).unwrap_or_default()
     );
     Ok(())
 }
@@ -524,7 +554,9 @@ fn model_name(m: u32) -> &'static str {
 const LIST_LIMIT: usize = 24;
 
 pub fn inspect(path: &Path, json: bool) -> Result<()> {
-    let archive = open_archive(path)?;
+    // Inspecting reads no link end after validation: streamed, it holds a
+    // chunk of them at a time whatever the archive's size.
+    let archive = opened(path, Archive::open_streamed(path, archive::CHUNK_ENDS))?;
     let v = archive.view();
     let h = archive.header();
     let b = v.build;

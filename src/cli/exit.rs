@@ -8,7 +8,7 @@
 //! | 3 | bad input: a scene file, an option's value, a frame the archive does not have |
 //! | 4 | corrupt or unsupported archive |
 //! | 5 | I/O: a file could not be read or written |
-//! | 6 | reserved: the job does not fit the memory budget |
+//! | 6 | the job does not fit the memory budget (said before work starts) |
 //! | 7 | reserved: the result is not finite or did not converge |
 //! | 101 | internal error (a panic: a bug, please report it) |
 //!
@@ -21,6 +21,7 @@ use std::fmt;
 
 use illumnet::archive::ArchiveError;
 use illumnet::distribute::DistributeError;
+use illumnet::render::plan::BudgetError;
 use illumnet::scene::SceneError;
 
 /// Failure not covered by another code.
@@ -31,6 +32,8 @@ pub const BAD_INPUT: u8 = 3;
 pub const CORRUPT_ARCHIVE: u8 = 4;
 /// Reading or writing a file failed.
 pub const IO: u8 = 5;
+/// The job does not fit the memory budget.
+pub const BUDGET: u8 = 6;
 
 /// An option value or other input the CLI refuses.
 #[derive(Debug)]
@@ -96,6 +99,9 @@ pub fn code(err: &anyhow::Error) -> u8 {
         }
         if cause.is::<IoFailure>() || cause.is::<std::io::Error>() {
             return IO;
+        }
+        if cause.is::<BudgetError>() {
+            return BUDGET;
         }
         if let Some(e) = cause.downcast_ref::<ArchiveError>() {
             return archive_code(e);

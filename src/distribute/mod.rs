@@ -37,6 +37,7 @@ mod anderson;
 mod buckets;
 mod error;
 mod kernels;
+pub mod memory;
 mod nondiffuse;
 mod overlay;
 pub mod reference;

@@ -11,6 +11,7 @@
 mod camera;
 pub mod direct;
 pub mod image_io;
+pub mod plan;
 pub mod view;
 
 use glam::{Vec2, Vec3};

@@ -1,0 +1,210 @@
+//! Planning a render under a memory budget, from the archive's summary
+//! alone (header, table, `BILD`, `DIDX`): whether the archive can be
+//! mapped whole, or its link ends must be streamed and in windows of what
+//! size, and how large a sample cache fits; or, before any work, that the
+//! job cannot be done within the budget and what it would need.
+//!
+//! Everything resident counts: a mapped archive's pages (all of them: a
+//! distribution reads every link end each iteration), or a streamed one's
+//! copied sections, chunk checksums and two windows; the distribution's
+//! state ([`crate::distribute::memory`]); the images, vertex radiance,
+//! primitives and the sample cache of the renderer.
+
+use std::fmt;
+
+use crate::archive::{ArchiveSummary, CHUNK_ENDS, layout::tag};
+use crate::distribute::memory::{StateShape, state_bytes};
+use crate::memory::{Bytes, MemoryBudget};
+
+/// Bytes per link end a window's buffers hold at most (`LOTH`, `LWGT`,
+/// `LDIR`, `LBKT`).
+const WINDOW_BYTES_PER_END: u64 = 13;
+/// The largest window planned: 2 MiB of `LOTH` and `LWGT` stays in the
+/// cache between the reader and the gather (2^18 ends measured 1.5× the
+/// rate of 2^22, 1.3× that of 2^16, on the Cornell box).
+const MAX_WINDOW_ENDS: u64 = 1 << 18;
+/// The smallest window planned (a chunk).
+const MIN_WINDOW_ENDS: u64 = CHUNK_ENDS as u64;
+/// The buffer a streamed open reads its columns through (16 chunks of `LOTH`).
+const OPEN_BUFFER: u64 = 16 * CHUNK_ENDS as u64 * 4;
+/// Bytes a sample of the sample cache takes.
+const SAMPLE_BYTES: u64 = 40;
+/// The largest sample cache kept (as without a budget).
+const MAX_CACHE: u64 = 1 << 30;
+
+/// What will be rendered, as far as memory goes.
+#[derive(Clone, Copy, Debug)]
+pub struct RenderJob {
+    /// Image width and height.
+    pub width: u32,
+    /// Image height.
+    pub height: u32,
+    /// Samples per pixel along each axis.
+    pub samples_per_axis: u32,
+    /// Frames rendered.
+    pub frames: u32,
+    /// Whether every frame's image is kept (for a GIF or a contact sheet).
+    pub keep_images: bool,
+    /// Secant pairs of the distribution's acceleration.
+    pub anderson_depth: u32,
+    /// Whether the distribution uses the archive's buckets.
+    pub buckets: bool,
+}
+
+/// How the archive's link ends are held.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum LinkAccess {
+    /// The file mapped whole ([`crate::archive::Archive::open`]).
+    Mapped,
+    /// Read in windows of about this many ends
+    /// ([`crate::archive::Archive::open_streamed`]).
+    Streamed {
+        /// Link ends per window.
+        window_ends: usize,
+    },
+}
+
+/// A render's memory plan: how to open the archive, the sample cache, and
+/// what is expected resident, part by part.
+#[derive(Clone, Debug)]
+pub struct MemoryPlan {
+    /// How to open the archive.
+    pub access: LinkAccess,
+    /// The sample cache's budget (0: trace every sample every frame).
+    pub cache_bytes: u64,
+    /// The budget planned against.
+    pub budget: MemoryBudget,
+    /// Planned resident bytes, by part.
+    pub parts: Vec<(&'static str, u64)>,
+}
+
+impl MemoryPlan {
+    /// Planned resident bytes in all.
+    pub fn total(&self) -> u64 {
+        self.parts.iter().map(|p| p.1).sum()
+    }
+}
+
+impl fmt::Display for MemoryPlan {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self.access {
+            LinkAccess::Mapped => write!(f, "archive mapped whole")?,
+            LinkAccess::Streamed { window_ends } => write!(f, "link ends streamed in windows of {window_ends} ends")?,
+        }
+        write!(f, ", {} planned of a budget of {}", Bytes(self.total()), self.budget)?;
+        if self.cache_bytes == 0 {
+            write!(f, ", no sample cache")?;
+        }
+        Ok(())
+    }
+}
+
+/// A job that does not fit its budget: what it needs at least, by part.
+#[derive(Clone, Debug)]
+pub struct BudgetError {
+    /// The budget.
+    pub budget: MemoryBudget,
+    /// The least the job needs, by part.
+    pub parts: Vec<(&'static str, u64)>,
+}
+
+impl BudgetError {
+    /// The least the job needs in all.
+    pub fn needed(&self) -> u64 {
+        self.parts.iter().map(|p| p.1).sum()
+    }
+}
+
+impl fmt::Display for BudgetError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(
+            f,
+            "the render needs at least {} of memory, more than the budget of {} (",
+            Bytes(self.needed()),
+            self.budget
+        )?;
+        for (i, (name, b)) in self.parts.iter().filter(|p| p.1 > 0).enumerate() {
+            write!(f, "{}{name} {}", if i > 0 { ", " } else { "" }, Bytes(*b))?;
+        }
+        write!(f, "); raise --memory-budget, or render a smaller image or fewer samples")
+    }
+}
+
+impl std::error::Error for BudgetError {}
+
+/// The distribution's state for the archive `s` summarises.
+fn distribution_bytes(s: &ArchiveSummary, job: &RenderJob) -> u64 {
+    let b = &s.build;
+    let (p, e) = (b.patch_count as u64, b.link_end_count);
+    let nd = s.section_count(tag::NONDIFFUSE_PATCHES);
+    let buckets = if job.buckets && s.section_bytes(tag::LINK_BUCKET) > 0 { b.max_bucket as u64 + 1 } else { 1 };
+    state_bytes(&StateShape {
+        patches: p,
+        buckets,
+        anderson_depth: job.anderson_depth as u64,
+        sequence: s.section_count(tag::ANIMATION) > 0,
+        nondiffuse_slots: nd * b.direction_count as u64,
+        nondiffuse_ends: (e * nd).checked_div(p).unwrap_or(0),
+        max_delta_records: s.max_delta_records,
+    })
+}
+
+/// The renderer's own memory: images, vertex and patch radiance,
+/// primitives and their BVH (the sample cache apart).
+fn renderer_bytes(s: &ArchiveSummary, job: &RenderJob) -> u64 {
+    let pixels = job.width as u64 * job.height as u64;
+    let b = &s.build;
+    // Per pixel: the image and its direct part (12 each), the encoded
+    // PNG and EXR rows, the shading passes' per-pixel flags and samples.
+    let images = pixels * 64 + if job.keep_images { pixels * 12 * job.frames as u64 } else { 0 };
+    let radiance = b.vertex_count as u64 * 12 * 3 + b.patch_count as u64 * 12 * 2;
+    let primitives = b.primitive_count as u64 * 320;
+    images + radiance + primitives
+}
+
+/// Plans rendering `job` from the archive `s` summarises within `budget`.
+pub fn plan(s: &ArchiveSummary, job: &RenderJob, budget: MemoryBudget) -> Result<MemoryPlan, BudgetError> {
+    let distribution = distribution_bytes(s, job);
+    let renderer = renderer_bytes(s, job);
+    let samples = job.width as u64 * job.height as u64 * (job.samples_per_axis as u64).pow(2);
+    // The cache pays off only when a later frame reuses the samples.
+    let cache = if job.frames > 1 { (samples * SAMPLE_BYTES).min(MAX_CACHE) } else { 0 };
+    let fixed = [("distribution", distribution), ("images and radiance", renderer)];
+    let with = |mut parts: Vec<(&'static str, u64)>| {
+        parts.extend(fixed);
+        parts
+    };
+    let fits = |parts: &[(&'static str, u64)]| parts.iter().map(|p| p.1).sum::<u64>() <= budget.bytes;
+    // Mapped whole, with the cache, then without.
+    for cache in [cache, 0] {
+        let parts = with(vec![("archive (mapped)", s.file_length), ("sample cache", cache)]);
+        if fits(&parts) {
+            return Ok(MemoryPlan { access: LinkAccess::Mapped, cache_bytes: cache, budget, parts });
+        }
+    }
+    // Streamed: the copied sections, a checksum per column per chunk, the
+    // open's read buffer, two windows.
+    let ends = s.build.link_end_count;
+    let sums = ends.div_ceil(CHUNK_ENDS as u64) * 32;
+    let held = s.held_bytes() + sums + OPEN_BUFFER;
+    let window_bytes = |w: u64| 2 * (w + 2 * CHUNK_ENDS as u64) * WINDOW_BYTES_PER_END;
+    let base = with(vec![("archive sections held", held)]);
+    let base_total: u64 = base.iter().map(|p| p.1).sum();
+    let least = {
+        let mut parts = base.clone();
+        parts.push(("link windows", window_bytes(MIN_WINDOW_ENDS)));
+        parts
+    };
+    if !fits(&least) {
+        return Err(BudgetError { budget, parts: least });
+    }
+    let room = budget.bytes - base_total;
+    // The cache only where it leaves room for the largest windows.
+    let cache = if cache > 0 && room >= cache + window_bytes(MAX_WINDOW_ENDS) { cache } else { 0 };
+    let per_window = (room - cache) / (2 * WINDOW_BYTES_PER_END);
+    let window = per_window.saturating_sub(2 * CHUNK_ENDS as u64).clamp(MIN_WINDOW_ENDS, MAX_WINDOW_ENDS);
+    let mut parts = base;
+    parts.push(("link windows", window_bytes(window)));
+    parts.push(("sample cache", cache));
+    Ok(MemoryPlan { access: LinkAccess::Streamed { window_ends: window as usize }, cache_bytes: cache, budget, parts })
+}

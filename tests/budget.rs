@@ -1,0 +1,98 @@
+//! `render --memory-budget`: an archive several times the budget renders
+//! within it (peak resident memory, VmHWM, read by the child process
+//! itself) to the image an unbudgeted render gives; a budget too small is
+//! refused before work starts.
+
+use std::path::Path;
+use std::process::Command;
+
+use illumnet::memory::UNCOUNTED;
+use illumnet::render::image_io::read_exr;
+
+fn illumnet(args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_illumnet")).args(args).output().unwrap()
+}
+
+fn ok(args: &[&str]) -> String {
+    let out = illumnet(args);
+    let stdout = String::from_utf8_lossy(&out.stdout).to_string();
+    assert!(out.status.success(), "illumnet {args:?} failed:\n{stdout}\n{}", String::from_utf8_lossy(&out.stderr));
+    stdout
+}
+
+/// The "peak memory N MiB" the render reports, in bytes.
+fn peak(stdout: &str) -> u64 {
+    let at = stdout.find("peak memory ").unwrap_or_else(|| panic!("no peak memory in {stdout}"));
+    let rest = &stdout[at + "peak memory ".len()..];
+    let (number, unit) = rest.split_once(' ').unwrap();
+    let scale = match &unit[..3] {
+        "MiB" => 1u64 << 20,
+        "GiB" => 1 << 30,
+        "KiB" => 1 << 10,
+        u => panic!("unit {u}"),
+    };
+    (number.parse::<f64>().unwrap() * scale as f64) as u64
+}
+
+#[test]
+fn an_archive_over_four_times_the_budget_renders_within_it_to_the_same_image() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/cornell_box.toml");
+    let archive = d.join("box.inet");
+    let s = |p: &Path| p.to_str().unwrap().to_string();
+    ok(&["build", &s(&scene), "-q", "-o", &s(&archive)]);
+    let size = std::fs::metadata(&archive).unwrap().len();
+    let budget: u64 = 40 << 20;
+    assert!(size >= 4 * budget, "the archive ({size} bytes) is at least 4× the budget");
+    let render = |name: &str, extra: &[&str]| {
+        let png = d.join(format!("{name}.png"));
+        let exr = d.join(format!("{name}.exr"));
+        let mut args = vec!["render".to_string(), s(&archive), "-q".into(), "-o".into(), s(&png)];
+        args.extend(["--exr".into(), s(&exr), "--samples".into(), "4".into()]);
+        args.extend(extra.iter().map(|x| x.to_string()));
+        let refs: Vec<&str> = args.iter().map(String::as_str).collect();
+        let stdout = ok(&refs);
+        (stdout, std::fs::read(&png).unwrap(), read_exr(&exr).unwrap())
+    };
+    let (full_out, full_png, full_exr) = render("full", &[]);
+    let (out, png, exr) = render("budget", &["--memory-budget", "40M"]);
+    assert!(out.contains("link ends streamed in windows of"), "{out}");
+    let (full_peak, budget_peak) = (peak(&full_out), peak(&out));
+    eprintln!(
+        "archive {:.1} MiB; peak {:.1} MiB unbudgeted, {:.1} MiB under a budget of {:.0} MiB",
+        size as f64 / 1048576.0,
+        full_peak as f64 / 1048576.0,
+        budget_peak as f64 / 1048576.0,
+        budget as f64 / 1048576.0
+    );
+    assert!(full_peak > size, "the unbudgeted render maps the whole archive");
+    assert!(budget_peak <= budget + UNCOUNTED, "peak {budget_peak} above budget + {UNCOUNTED}");
+    assert_eq!((exr.width, exr.height), (256, 256));
+    assert!(exr.pixels == full_exr.pixels, "the budgeted render's pixels differ");
+    assert!(png == full_png, "the budgeted render's PNG differs");
+}
+
+#[test]
+fn a_budget_too_small_is_refused_before_work_with_what_the_job_needs() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path().to_str().unwrap();
+    let archive = format!("{d}/box.inet");
+    ok(&[
+        "build",
+        "-q",
+        "--quality",
+        "draft",
+        "-o",
+        &archive,
+        concat!(env!("CARGO_MANIFEST_DIR"), "/scenes/cornell_box.toml"),
+    ]);
+    let png = format!("{d}/out.png");
+    let out = illumnet(&["render", &archive, "-q", "-o", &png, "--memory-budget", "2M"]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(6), "{stderr}");
+    assert!(stderr.contains("needs at least") && stderr.contains("2.0 MiB (--memory-budget)"), "{stderr}");
+    assert!(!Path::new(&png).exists(), "nothing is written");
+    let out = illumnet(&["render", &archive, "-q", "-o", &png, "--memory-budget", "lots"]);
+    assert_eq!(out.status.code(), Some(2), "{}", String::from_utf8_lossy(&out.stderr));
+}
