@@ -96,3 +96,62 @@ fn a_budget_too_small_is_refused_before_work_with_what_the_job_needs() {
     let out = illumnet(&["render", &archive, "-q", "-o", &png, "--memory-budget", "lots"]);
     assert_eq!(out.status.code(), Some(2), "{}", String::from_utf8_lossy(&out.stderr));
 }
+
+/// Builds `scene` with `args` into `path`; the build's stdout.
+fn build(scene: &str, path: &Path, args: &[&str]) -> String {
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes").join(scene);
+    let mut all = vec!["build", scene.to_str().unwrap(), "-q", "-o", path.to_str().unwrap()];
+    all.extend(args);
+    ok(&all)
+}
+
+/// The "spilled N runs" a build reports.
+fn runs(stdout: &str) -> usize {
+    let at = stdout.find("spilled ").unwrap_or_else(|| panic!("no spill in {stdout}"));
+    stdout[at + 8..].split(' ').next().unwrap().parse().unwrap()
+}
+
+#[test]
+fn a_build_over_its_budget_spills_runs_and_writes_the_same_bytes() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    // A still four times the budget, and a sequence.
+    for (scene, args, budget) in
+        [("cornell_box.toml", vec![], 40u64 << 20), ("fan_room.toml", vec!["--quality", "draft"], 28 << 20)]
+    {
+        let (full, bounded) = (d.join("full.inet"), d.join("bounded.inet"));
+        build(scene, &full, &args);
+        let size = std::fs::metadata(&full).unwrap().len();
+        let text = format!("{}M", budget >> 20);
+        let mut with = args.clone();
+        with.extend(["--memory-budget", &text]);
+        let out = build(scene, &bounded, &with);
+        eprintln!(
+            "{scene}: archive {:.1} MiB, {} runs spilled, peak {:.1} MiB under a budget of {} MiB",
+            size as f64 / 1048576.0,
+            runs(&out),
+            peak(&out) as f64 / 1048576.0,
+            budget >> 20
+        );
+        assert!(runs(&out) >= 2, "{out}");
+        assert!(peak(&out) <= budget + UNCOUNTED, "{out}");
+        assert!(std::fs::read(&full).unwrap() == std::fs::read(&bounded).unwrap(), "{scene}: archives differ");
+        let left: Vec<_> = std::fs::read_dir(d).unwrap().map(|e| e.unwrap().file_name()).collect();
+        assert_eq!(left.len(), 2, "scratch files left behind: {left:?}");
+        if scene == "cornell_box.toml" {
+            assert!(size >= 4 * budget, "the archive is at least 4× the budget");
+        }
+    }
+}
+
+#[test]
+fn a_build_budget_too_small_is_refused_before_tracing() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("box.inet");
+    let scene = concat!(env!("CARGO_MANIFEST_DIR"), "/scenes/cornell_box.toml");
+    let out = illumnet(&["build", scene, "-q", "-o", path.to_str().unwrap(), "--memory-budget", "4M"]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(6), "{stderr}");
+    assert!(stderr.contains("the build needs at least"), "{stderr}");
+    assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0, "nothing is written");
+}

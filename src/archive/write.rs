@@ -9,6 +9,51 @@ use xxhash_rust::xxh3::{Xxh3, xxh3_64};
 use super::layout::{self, HeaderRecord, SectionEntry, Tag, compression, tag};
 use super::{ArchiveContents, ArchiveError};
 
+/// Receives batches of link ends: other patch, weight, direction, bucket.
+pub type LinkEndSink<'a> = dyn FnMut(&[u32], &[f32], &[u32], &[u8]) -> std::io::Result<()> + 'a;
+
+/// The four link-end columns (`LOTH`, `LWGT`, `LDIR`, `LBKT`, §5.10) of
+/// an archive too large to hold them in memory, produced in file order
+/// (for example by merging sorted runs spilled to disk) while they are
+/// written: the archive's bytes are those of the same columns held in
+/// [`ArchiveContents`].
+pub trait LinkEndSource {
+    /// Link ends it gives in all (E).
+    fn end_count(&self) -> u64;
+    /// Calls `out` with consecutive batches of link ends, in file order,
+    /// as four columns of equal length (other patch, weight, direction,
+    /// bucket), until all [`Self::end_count`] are given.
+    fn write_ends(&mut self, out: &mut LinkEndSink<'_>) -> std::io::Result<()>;
+}
+
+/// One column being written at its own place in the file.
+struct PlacedColumn {
+    offset: u64,
+    written: u64,
+    buf: Vec<u8>,
+    hasher: Xxh3,
+}
+
+impl PlacedColumn {
+    const BUFFER: usize = 256 << 10;
+
+    fn add<W: Write + Seek>(&mut self, out: &mut W, bytes: &[u8]) -> std::io::Result<()> {
+        self.hasher.update(bytes);
+        self.buf.extend_from_slice(bytes);
+        if self.buf.len() >= Self::BUFFER { self.flush(out) } else { Ok(()) }
+    }
+
+    fn flush<W: Write + Seek>(&mut self, out: &mut W) -> std::io::Result<()> {
+        if !self.buf.is_empty() {
+            out.seek(SeekFrom::Start(self.offset + self.written))?;
+            out.write_all(&self.buf)?;
+            self.written += self.buf.len() as u64;
+            self.buf.clear();
+        }
+        Ok(())
+    }
+}
+
 /// Writes sections one after another, then the table and the header.
 struct SectionWriter<W: Write + Seek> {
     out: W,
@@ -84,6 +129,61 @@ impl<W: Write + Seek> SectionWriter<W> {
         Ok(())
     }
 
+    /// Stores the link-end columns `source` gives, as [`Self::column`] of
+    /// each would: their places follow from E alone, so the four are
+    /// written side by side while the source produces them.
+    fn link_columns(&mut self, source: &mut dyn LinkEndSource) -> std::io::Result<()> {
+        let e = source.end_count();
+        let tags = [tag::LINK_OTHER, tag::LINK_WEIGHT, tag::LINK_DIRECTION, tag::LINK_BUCKET];
+        let widths = [4u64, 4, 4, 1];
+        let mut columns = Vec::with_capacity(4);
+        let mut position = self.position;
+        for w in widths {
+            let len = e * w;
+            let align = if len >= layout::LARGE_SECTION { layout::PAGE_ALIGN } else { layout::SECTION_ALIGN };
+            let offset = position.next_multiple_of(align);
+            // The padding before the column, written as zeros.
+            self.out.seek(SeekFrom::Start(position))?;
+            self.out.write_all(&vec![0u8; (offset - position) as usize])?;
+            columns.push(PlacedColumn { offset, written: 0, buf: Vec::new(), hasher: Xxh3::new() });
+            position = offset + len;
+        }
+        let out = &mut self.out;
+        let mut given = 0u64;
+        source.write_ends(&mut |other, weight, direction, bucket| {
+            let n = other.len();
+            if weight.len() != n || direction.len() != n || bucket.len() != n || given + n as u64 > e {
+                return Err(std::io::Error::other("link-end source gave columns of unequal length or too many ends"));
+            }
+            given += n as u64;
+            columns[0].add(out, cast_slice(other))?;
+            columns[1].add(out, cast_slice(weight))?;
+            columns[2].add(out, cast_slice(direction))?;
+            columns[3].add(out, bucket)
+        })?;
+        if given != e {
+            return Err(std::io::Error::other(format!("link-end source gave {given} of its {e} ends")));
+        }
+        for ((mut c, t), w) in columns.into_iter().zip(tags).zip(widths) {
+            c.flush(&mut self.out)?;
+            self.entries.push(SectionEntry {
+                tag: t,
+                compression: compression::NONE,
+                offset: c.offset,
+                stored_length: e * w,
+                length: e * w,
+                count: e,
+                record_size: w as u32,
+                flags: 0,
+                checksum: c.hasher.digest(),
+                reserved: 0,
+            });
+        }
+        self.out.seek(SeekFrom::Start(position))?;
+        self.position = position;
+        Ok(())
+    }
+
     fn finish(mut self) -> std::io::Result<W> {
         self.pad_to(layout::SECTION_ALIGN)?;
         let table_offset = self.position;
@@ -112,7 +212,11 @@ impl<W: Write + Seek> SectionWriter<W> {
     }
 }
 
-fn write_all<W: Write + Seek>(out: W, c: &ArchiveContents) -> Result<W, ArchiveError> {
+fn write_all<W: Write + Seek>(
+    out: W,
+    c: &ArchiveContents,
+    mut links: Option<&mut dyn LinkEndSource>,
+) -> Result<W, ArchiveError> {
     let io = |e: std::io::Error| ArchiveError::Io { path: "<archive>".into(), source: e };
     let meta = rkyv::to_bytes::<rkyv::rancor::Error>(&c.meta)
         .map_err(|e| ArchiveError::corrupt(format!("cannot serialise META: {e}")))?;
@@ -145,10 +249,15 @@ fn write_all<W: Write + Seek>(out: W, c: &ArchiveContents) -> Result<W, ArchiveE
         w.column(tag::ADJACENCY_OFFSETS, &c.adjacency_offsets)?;
         w.column(tag::ADJACENCY, &c.adjacency)?;
         w.column(tag::LINK_OFFSETS, &c.link_offsets)?;
-        w.column(tag::LINK_OTHER, &c.link_other)?;
-        w.column(tag::LINK_WEIGHT, &c.link_weight)?;
-        w.column(tag::LINK_DIRECTION, &c.link_direction)?;
-        w.column(tag::LINK_BUCKET, &c.link_bucket)?;
+        match links.as_deref_mut() {
+            Some(source) => w.link_columns(source)?,
+            None => {
+                w.column(tag::LINK_OTHER, &c.link_other)?;
+                w.column(tag::LINK_WEIGHT, &c.link_weight)?;
+                w.column(tag::LINK_DIRECTION, &c.link_direction)?;
+                w.column(tag::LINK_BUCKET, &c.link_bucket)?;
+            }
+        }
         w.raw(tag::META, compression::ZSTD, &meta_z, meta.len() as u64, 1, 0)?;
         if let Some(r) = &c.reflectance {
             w.column(tag::PROTOTYPES, &r.prototypes)?;
@@ -185,6 +294,16 @@ fn write_all<W: Write + Seek>(out: W, c: &ArchiveContents) -> Result<W, ArchiveE
 /// directory, flushed and synced, then renamed over `path`. Returns the file
 /// size in bytes.
 pub fn write(path: &Path, contents: &ArchiveContents) -> Result<u64, ArchiveError> {
+    write_with_links(path, contents, None)
+}
+
+/// [`write()`], the link-end columns given by `links` when they are not in
+/// `contents` (whose link-end vectors are then ignored).
+pub fn write_with_links(
+    path: &Path,
+    contents: &ArchiveContents,
+    links: Option<&mut dyn LinkEndSource>,
+) -> Result<u64, ArchiveError> {
     let dir = match path.parent() {
         Some(p) if !p.as_os_str().is_empty() => p,
         _ => Path::new("."),
@@ -199,7 +318,7 @@ pub fn write(path: &Path, contents: &ArchiveContents) -> Result<u64, ArchiveErro
     let tmp = builder.tempfile_in(dir).map_err(io)?;
     let (file, tmp_path) = tmp.into_parts();
     let buffered = std::io::BufWriter::with_capacity(1 << 20, file);
-    let buffered = write_all(buffered, contents).map_err(|e| match e {
+    let buffered = write_all(buffered, contents, links).map_err(|e| match e {
         ArchiveError::Io { source, .. } => io(source),
         other => other,
     })?;
@@ -213,5 +332,13 @@ pub fn write(path: &Path, contents: &ArchiveContents) -> Result<u64, ArchiveErro
 
 /// Serialises `contents` to bytes (the same bytes [`write()`] stores).
 pub fn write_to_vec(contents: &ArchiveContents) -> Result<Vec<u8>, ArchiveError> {
-    Ok(write_all(std::io::Cursor::new(Vec::new()), contents)?.into_inner())
+    Ok(write_all(std::io::Cursor::new(Vec::new()), contents, None)?.into_inner())
+}
+
+/// [`write_to_vec`] with the link-end columns given by `links`.
+pub fn write_to_vec_with_links(
+    contents: &ArchiveContents,
+    links: &mut dyn LinkEndSource,
+) -> Result<Vec<u8>, ArchiveError> {
+    Ok(write_all(std::io::Cursor::new(Vec::new()), contents, Some(links))?.into_inner())
 }

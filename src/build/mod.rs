@@ -15,11 +15,13 @@
 mod links;
 mod reflectance;
 mod settings;
+mod spill;
 mod trace;
 
 use std::time::Instant;
 
 pub use settings::{BuildSettings, DEFAULT_MAX_BUCKET, MAX_BUCKET, Quality, ray_space_divisions};
+pub use spill::SpilledLinks;
 pub use trace::BundleStats;
 
 use crate::archive::layout::{
@@ -137,6 +139,61 @@ pub struct Sequence {
     /// Problems that did not stop the build (for example, the prototype
     /// library could not be written).
     pub warnings: Vec<String>,
+}
+
+/// A bounded build's limits: its memory budget, and the directory (next
+/// to the output) where it spills runs of link ends when over it.
+#[derive(Clone, Debug)]
+pub struct MemoryBound {
+    /// Bytes the build may keep resident (see [`crate::memory`]).
+    pub budget: u64,
+    /// Where scratch files go (a `.illumnet-*.spill` directory is made in it).
+    pub scratch_dir: std::path::PathBuf,
+}
+
+/// Why a bounded build did not finish.
+#[derive(Debug)]
+pub enum BuildError {
+    /// The scene or the settings cannot be built (the message says why).
+    Failed(String),
+    /// The budget is below what the build needs at least, found before
+    /// tracing: the parts of that least, in bytes.
+    OverBudget {
+        /// The budget.
+        budget: u64,
+        /// What the build needs at least, by part.
+        parts: Vec<(&'static str, u64)>,
+    },
+}
+
+impl std::fmt::Display for BuildError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        use crate::memory::Bytes;
+        match self {
+            Self::Failed(m) => f.write_str(m),
+            Self::OverBudget { budget, parts } => {
+                let needed: u64 = parts.iter().map(|p| p.1).sum();
+                write!(
+                    f,
+                    "the build needs at least {} of memory, more than the budget of {} (",
+                    Bytes(needed),
+                    Bytes(*budget)
+                )?;
+                for (i, (name, b)) in parts.iter().enumerate() {
+                    write!(f, "{}{name} {}", if i > 0 { ", " } else { "" }, Bytes(*b))?;
+                }
+                write!(f, "); raise --memory-budget, or use larger patches")
+            }
+        }
+    }
+}
+
+impl std::error::Error for BuildError {}
+
+impl From<String> for BuildError {
+    fn from(m: String) -> Self {
+        Self::Failed(m)
+    }
 }
 
 /// A link keyed by build-independent patch identities.
@@ -278,7 +335,24 @@ fn camera_record(c: &crate::scene::Camera) -> CameraRecord {
 
 /// Builds `scene` (still or animated) in one trace; see [`Sequence`].
 pub fn build_sequence(scene: &Scene, settings: &BuildSettings, progress: &dyn Progress) -> Result<Sequence, String> {
-    build_impl(scene, settings, false, progress)
+    build_impl(scene, settings, false, None, progress).map(|(s, _)| s).map_err(|e| e.to_string())
+}
+
+/// [`build_sequence`] within `bound`: when the links traced would take the
+/// build over its budget, workers spill them as sorted runs to a scratch
+/// directory, and the links come back as a [`SpilledLinks`] to merge into
+/// the archive as it is written ([`crate::archive::write_with_links`]; the
+/// contents' link-end columns are then empty). The archive's bytes are
+/// those of an unbounded build. A budget below what the build needs at
+/// least (the scene, its patches and BVH, the tracers' scratch, the merge)
+/// is refused before tracing.
+pub fn build_sequence_bounded(
+    scene: &Scene,
+    settings: &BuildSettings,
+    bound: &MemoryBound,
+    progress: &dyn Progress,
+) -> Result<(Sequence, Option<SpilledLinks>), BuildError> {
+    build_impl(scene, settings, false, Some(bound), progress)
 }
 
 /// [`build_sequence`], also keeping frame 0's link list in
@@ -288,15 +362,31 @@ pub fn build_sequence_with_links(
     settings: &BuildSettings,
     progress: &dyn Progress,
 ) -> Result<Sequence, String> {
-    build_impl(scene, settings, true, progress)
+    build_impl(scene, settings, true, None, progress).map(|(s, _)| s).map_err(|e| e.to_string())
+}
+
+/// Resident bytes a build needs whatever its links: per patch (geometry,
+/// adjacency, hit counts and each tracer's counts), per vertex and per
+/// primitive (with the BVH), each tracer's scratch, the non-diffuse hit
+/// counts.
+fn fixed_build_bytes(patches: &Patches, prims: usize, nd_patches: usize, pairs: usize) -> Vec<(&'static str, u64)> {
+    let threads = rayon::current_num_threads() as u64;
+    let p = patches.len() as u64;
+    vec![
+        ("patches", p * (12 + 12 + 4 + 4 + 16 + 16 + 8 + 4 + 4) + patches.vertex_position.len() as u64 * 12),
+        ("primitives and BVH", prims as u64 * 400),
+        ("tracers' scratch", threads * (p * 4 + (4 << 20))),
+        ("non-diffuse hit counts", (nd_patches * pairs) as u64 * 8),
+    ]
 }
 
 fn build_impl(
     scene: &Scene,
     settings: &BuildSettings,
     keep_links: bool,
+    bound: Option<&MemoryBound>,
     progress: &dyn Progress,
-) -> Result<Sequence, String> {
+) -> Result<(Sequence, Option<SpilledLinks>), BuildError> {
     settings.validate()?;
     let t0 = Instant::now();
     let dirs = match settings.direction_set {
@@ -308,10 +398,10 @@ fn build_impl(
     for inst in &instances {
         for p in &inst.primitives {
             if !(p.p.iter().all(|v| v.is_finite()) && p.area() > 0.0) {
-                return Err(format!(
+                return Err(BuildError::Failed(format!(
                     "surface `{}` at frames {}..={}: keyframed motion makes a primitive degenerate or infinite (a scale through 0?)",
                     scene.surfaces[inst.surface as usize].name, inst.frames.first, inst.frames.last
-                ));
+                )));
             }
         }
     }
@@ -344,16 +434,69 @@ fn build_impl(
 
     let lobes = reflectance::primitive_lobes(scene, &prim_surface);
     let nd_index = reflectance::nondiffuse_index(&patches, &lobes);
+    // Under a budget: what the links may hold before workers spill them
+    // (sorting a spill takes about 60 bytes a link, holding 14, and the
+    // in-memory table at the end about 40), or a refusal now.
+    let spill = match bound {
+        Some(b) if !keep_links => {
+            let nd = nd_index.iter().filter(|&&i| i != u32::MAX).count();
+            let mut parts = fixed_build_bytes(&patches, prims.len(), nd, dirs.len() / 2);
+            let fixed: u64 = parts.iter().map(|p| p.1).sum();
+            // Links held while tracing, at least; the merge's buffers
+            // (after tracing, in the tracers' place) fit in as much.
+            const LEAST_LINKS: u64 = 16 << 20;
+            if b.budget < fixed + LEAST_LINKS {
+                parts.push(("links", LEAST_LINKS));
+                return Err(BuildError::OverBudget { budget: b.budget, parts });
+            }
+            let room = b.budget - fixed;
+            let threshold = room * spill::BUNDLE_BYTES_PER_LINK / spill::Spill::sort_bytes_per_link() * 2 / 3;
+            Some(spill::Spill::new(&b.scratch_dir, threshold, patches.len())?)
+        }
+        _ => None,
+    };
     let t1 = Instant::now();
-    let traced =
-        trace::trace_all(&input, &patches, &dirs, settings.ray_spacing, settings.max_bucket, &nd_index, progress)?;
+    let traced = trace::trace_all(
+        &input,
+        &patches,
+        &dirs,
+        settings.ray_spacing,
+        settings.max_bucket,
+        &nd_index,
+        spill.as_ref(),
+        progress,
+    )?;
     let trace_s = t1.elapsed().as_secs_f64();
 
     let t2 = Instant::now();
-    let table = links::assemble(&traced.bundles, patches.len(), settings.max_bucket);
+    let trace::Traced { bundles, hits: traced_hits, nd_hits, deltas: traced_deltas, stats: traced_stats } = traced;
+    let spilled_any = spill.as_ref().is_some_and(|s| s.run_count() > 0);
+    let (table, spilled, bundles) = match spill {
+        Some(sp) if spilled_any => {
+            // What was never spilled goes too, in runs of consecutive pairs.
+            let mut rest = bundles;
+            let mut group: Vec<trace::Bundle> = Vec::new();
+            for b in rest.drain(..) {
+                if group.last().is_some_and(|l| l.pair + 1 != b.pair) {
+                    sp.spill(&mut group)?;
+                }
+                group.push(b);
+            }
+            sp.spill(&mut group)?;
+            let (merge, offsets) = sp.finish()?;
+            let table = links::LinkTable {
+                offsets,
+                other: Vec::new(),
+                weight: Vec::new(),
+                direction: Vec::new(),
+                bucket: Vec::new(),
+            };
+            (table, Some(merge), Vec::new())
+        }
+        _ => (links::assemble(&bundles, patches.len(), settings.max_bucket), None, bundles),
+    };
     let base = keep_links.then(|| {
-        traced
-            .bundles
+        bundles
             .iter()
             .flat_map(|b| {
                 (0..b.a.len()).map(move |i| LinkRecord {
@@ -367,7 +510,6 @@ fn build_impl(
             })
             .collect()
     });
-    let trace::Traced { bundles, hits: traced_hits, nd_hits, deltas: traced_deltas, stats: traced_stats } = traced;
     drop(bundles); // the link table now holds them
     let assemble_s = t2.elapsed().as_secs_f64();
 
@@ -471,7 +613,7 @@ fn build_impl(
         rays: traced_stats.rays,
         hits: traced_stats.hits,
         links: traced_stats.links,
-        link_ends: table.other.len() as u64,
+        link_ends: table.offsets.last().copied().unwrap_or(0),
         setup_s,
         trace_s,
         assemble_s,
@@ -497,7 +639,7 @@ fn build_impl(
             patch_size_m: settings.patch_size,
             ray_count: traced_stats.rays,
             link_count: traced_stats.links,
-            link_end_count: table.other.len() as u64,
+            link_end_count: table.offsets.last().copied().unwrap_or(0),
             hit_count: traced_stats.hits,
             reserved1: [0; 6],
         },
@@ -536,14 +678,17 @@ fn build_impl(
             patch_identity.push((prim_surface[pi], (sort_key[pi] & 0xffff_ffff) as u32, cell));
         }
     }
-    Ok(Sequence {
-        contents,
-        stats,
-        frames: scene.frame_count(),
-        instances,
-        base,
-        patch_identity,
-        bounds,
-        warnings: rstats.warnings,
-    })
+    Ok((
+        Sequence {
+            contents,
+            stats,
+            frames: scene.frame_count(),
+            instances,
+            base,
+            patch_identity,
+            bounds,
+            warnings: rstats.warnings,
+        },
+        spilled,
+    ))
 }

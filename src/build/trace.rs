@@ -561,6 +561,10 @@ pub struct Traced {
 }
 
 /// Traces every direction pair; see the module docs.
+/// With `spill`, workers hand their bundles to it after each pair, which
+/// spills them to disk when the build holds too many (`spill.rs`); the
+/// bundles returned are those never spilled.
+#[allow(clippy::too_many_arguments)]
 pub fn trace_all(
     input: &TraceInput<'_>,
     patches: &Patches,
@@ -568,6 +572,7 @@ pub fn trace_all(
     delta: f32,
     max_bucket: u32,
     nd_index: &[u32],
+    spill: Option<&super::spill::Spill>,
     progress: &dyn Progress,
 ) -> Result<Traced, String> {
     let (lo, hi) = input.bounds;
@@ -708,6 +713,12 @@ pub fn trace_all(
                 stats.hits += st.hits;
                 stats.links += st.links;
                 bundles.push(b);
+                if let Some(spill) = spill {
+                    spill.hold(&mut bundles)?;
+                }
+            }
+            if let Some(spill) = spill {
+                spill.end_chunk(&mut bundles)?;
             }
             s.counts.flush(&hit_counts);
             let compress = |s: &mut Scratch| -> std::io::Result<Vec<Block>> {

@@ -42,14 +42,37 @@ fn build_scene(scene: &Scene, output: &Path, args: &BuildArgs, progress: &dyn Pr
     if args.map_method.as_deref() == Some("rings") {
         settings.map_method = illumnet::reflectance::MapMethod::Rings;
     }
+    let budget = match args.memory_budget {
+        Some(bytes) => MemoryBudget { bytes, source: BudgetSource::Given },
+        None => MemoryBudget::default_for_machine(),
+    };
+    let scratch_dir = match output.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+        _ => std::path::PathBuf::from("."),
+    };
+    let bound = build::MemoryBound { budget: budget.bytes, scratch_dir };
     let t = Instant::now();
-    let seq = build::build_sequence(scene, &settings, progress).map_err(BadInput)?;
+    let (seq, mut spilled) = match build::build_sequence_bounded(scene, &settings, &bound, progress) {
+        Ok(x) => x,
+        Err(build::BuildError::Failed(m)) => return Err(BadInput(m).into()),
+        Err(e) => return Err(e.into()),
+    };
     for w in &seq.warnings {
         eprintln!("warning: {w}");
     }
+    if let Some(s) = &spilled {
+        println!(
+            "memory: budget {budget}: spilled {} runs of link ends ({}) next to {}, merged as written",
+            s.run_count(),
+            Bytes(s.spilled_bytes()),
+            output.display()
+        );
+    }
     let (contents, stats) = (seq.contents, seq.stats);
     let t_w = Instant::now();
-    let bytes = archive::write(output, &contents)?;
+    let bytes =
+        archive::write_with_links(output, &contents, spilled.as_mut().map(|s| s as &mut dyn archive::LinkEndSource))?;
+    drop(spilled);
     let t_write = t_w.elapsed().as_secs_f64();
     let secs = t.elapsed().as_secs_f64();
     println!(
@@ -69,6 +92,9 @@ fn build_scene(scene: &Scene, output: &Path, args: &BuildArgs, progress: &dyn Pr
         stats.assemble_s,
         t_write,
     );
+    if let Some(b) = memory::peak_resident() {
+        println!("peak memory {}", Bytes(b));
+    }
     if stats.tables > 0 {
         println!(
             "reflectance: {} non-diffuse patches, {} prototype table{} ({} from the library), {} orientation{}, {:.2} s",

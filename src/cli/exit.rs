@@ -100,7 +100,7 @@ pub fn code(err: &anyhow::Error) -> u8 {
         if cause.is::<IoFailure>() || cause.is::<std::io::Error>() {
             return IO;
         }
-        if cause.is::<BudgetError>() {
+        if cause.is::<BudgetError>() || cause.is::<illumnet::build::BuildError>() {
             return BUDGET;
         }
         if let Some(e) = cause.downcast_ref::<ArchiveError>() {

@@ -35,6 +35,13 @@ struct BuildArgs {
     /// --ray-spacing, --frequency and the scene's [build] table override it.
     #[arg(long, value_enum, default_value_t = Quality::Default)]
     quality: Quality,
+    /// Resident memory to stay within, e.g. 512M or 4G (powers of 1024;
+    /// default: 75% of the cgroup memory limit, else of physical memory).
+    /// Links that would not fit are spilled as sorted runs to a scratch
+    /// directory next to the output and merged into the archive (the same
+    /// bytes); a budget too small is refused before tracing (exit 6).
+    #[arg(long, value_name = "SIZE", value_parser = illumnet::memory::parse_size)]
+    memory_budget: Option<u64>,
     /// Target patch edge length in metres.
     #[arg(long, value_name = "M")]
     patch_size: Option<f32>,
