@@ -298,7 +298,7 @@ impl LinkEndSource for SpilledLinks {
         );
         let mut record = [0u8; 12];
         // Smallest slot first; within a slot, runs in pair order.
-        while let Some(std::cmp::Reverse((owner, k, i, count))) = heap.pop() {
+        while let Some(std::cmp::Reverse((_, k, i, count))) = heap.pop() {
             let r = &mut readers[i];
             for _ in 0..count {
                 r.ends.read_exact(&mut record)?;
@@ -315,7 +315,6 @@ impl LinkEndSource for SpilledLinks {
                     bucket.clear();
                 }
             }
-            let _ = owner;
             if let Some((owner, bucket, count)) = r.next_slot()? {
                 heap.push(std::cmp::Reverse((owner, bucket, i, count)));
             }

@@ -78,10 +78,15 @@ pub struct MemoryPlan {
     pub parts: Vec<(&'static str, u64)>,
 }
 
+/// Bytes of some parts in all.
+fn sum(parts: &[(&'static str, u64)]) -> u64 {
+    parts.iter().map(|p| p.1).sum()
+}
+
 impl MemoryPlan {
     /// Planned resident bytes in all.
     pub fn total(&self) -> u64 {
-        self.parts.iter().map(|p| p.1).sum()
+        sum(&self.parts)
     }
 }
 
@@ -111,7 +116,7 @@ pub struct BudgetError {
 impl BudgetError {
     /// The least the job needs in all.
     pub fn needed(&self) -> u64 {
-        self.parts.iter().map(|p| p.1).sum()
+        sum(&self.parts)
     }
 }
 
@@ -174,7 +179,7 @@ pub fn plan(s: &ArchiveSummary, job: &RenderJob, budget: MemoryBudget) -> Result
         parts.extend(fixed);
         parts
     };
-    let fits = |parts: &[(&'static str, u64)]| parts.iter().map(|p| p.1).sum::<u64>() <= budget.bytes;
+    let fits = |parts: &[(&'static str, u64)]| sum(parts) <= budget.bytes;
     // Mapped whole, with the cache, then without.
     for cache in [cache, 0] {
         let parts = with(vec![("archive (mapped)", s.file_length), ("sample cache", cache)]);
@@ -189,7 +194,7 @@ pub fn plan(s: &ArchiveSummary, job: &RenderJob, budget: MemoryBudget) -> Result
     let held = s.held_bytes() + sums + OPEN_BUFFER;
     let window_bytes = |w: u64| 2 * (w + 2 * CHUNK_ENDS as u64) * WINDOW_BYTES_PER_END;
     let base = with(vec![("archive sections held", held)]);
-    let base_total: u64 = base.iter().map(|p| p.1).sum();
+    let base_total = sum(&base);
     let least = {
         let mut parts = base.clone();
         parts.push(("link windows", window_bytes(MIN_WINDOW_ENDS)));
