@@ -145,6 +145,25 @@ fn exit_codes_tell_the_kind_of_failure() {
     std::fs::write(path("file"), b"").unwrap();
     let (code, err) = failing(&["render", &path("box.inet"), "-q", "-o", &format!("{}/x.png", path("file"))]);
     assert_eq!(code, 5, "{err}");
+    // Not converged: an error (nothing written) unless allowed.
+    let (code, err) =
+        failing(&["render", &path("box.inet"), "-q", "-o", &path("u.png"), "--max-iterations", "1", "--anderson", "0"]);
+    assert_eq!(code, 7, "{err}");
+    assert!(err.contains("did not converge in 1 iterations") && err.contains("--allow-unconverged"), "{err}");
+    assert!(!dir.path().join("u.png").exists());
+    illumnet(&[
+        "render",
+        &path("box.inet"),
+        "-q",
+        "-o",
+        &path("u.png"),
+        "--max-iterations",
+        "1",
+        "--anderson",
+        "0",
+        "--allow-unconverged",
+    ]);
+    assert!(dir.path().join("u.png").exists());
 }
 
 #[test]

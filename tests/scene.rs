@@ -58,6 +58,13 @@ fn mirroring_transforms_keep_box_faces_outward() {
 fn missing_file_is_an_error_naming_it() {
     let e = Scene::from_file(std::path::Path::new("/nonexistent/scene.toml")).unwrap_err();
     assert!(e.to_string().starts_with("/nonexistent/scene.toml: cannot read"), "{e}");
+    // An OBJ path that names a directory says so.
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::create_dir(dir.path().join("meshes")).unwrap();
+    let text = format!("{HEAD}[[surface]]\nname = 's'\nmaterial = 'w'\nmesh = 'meshes'\n");
+    let e = Scene::from_toml(&text, &dir.path().join("s.toml"), dir.path()).unwrap_err();
+    assert_eq!((e.line, e.field.as_str()), (14, "surface[0].mesh"), "{e}");
+    assert!(e.message.contains("is a directory, not an OBJ file"), "{e}");
 }
 
 #[test]
@@ -163,6 +170,31 @@ fn parser_errors_name_the_field_in_plain_words() {
             16,
             "surface[0].quads",
             "got 2 values",
+        ),
+        (
+            format!("{HEAD}{surface}emission = [1e10, 0, 0]\nquad = [[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]]\n"),
+            14,
+            "surface[0].emission",
+            "[0, 1e9]",
+        ),
+        // Too long: serde's fixed arrays would take the first values.
+        (
+            HEAD.replace("position = [0, 0, -3]", "position = [0, 0, -3, 0]"),
+            2,
+            "camera.position",
+            "expected a list of 3 numbers, like [1, 2, 3], got 4 values",
+        ),
+        (
+            format!("{HEAD}{surface}quad = [[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0, 0.5, 0]]\n"),
+            14,
+            "surface[0].quad",
+            "expected a list of 4 corners, got 5 values",
+        ),
+        (
+            HEAD.replace("reflectance = [0.5, 0.5, 0.5]", "reflectance = [0.5, 0.5, 0.5, 0.5]"),
+            10,
+            "material[0].reflectance",
+            "got 4 values",
         ),
     ] {
         let e = parse(&text);

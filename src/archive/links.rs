@@ -145,6 +145,22 @@ impl<'a> Links<'a> {
         }
     }
 
+    /// Like [`Self::for_each_window`], but only over the windows that hold
+    /// a patch of the ascending list `wanted` (a resident archive is one
+    /// window): for checks that look at a few patches' rows.
+    pub fn for_each_window_of<E: From<ArchiveError>>(
+        &self,
+        columns: Columns,
+        patches: usize,
+        wanted: &[u32],
+        f: impl FnMut(LinkWindow<'_>) -> Result<(), E>,
+    ) -> Result<(), E> {
+        match self {
+            Links::Resident(_) => self.for_each_window(columns, patches, f),
+            Links::Streamed(stream) => stream.for_each_window(columns, Some(wanted), f),
+        }
+    }
+
     /// The link ends of `patches` (in any order), every column, for passes
     /// that revisit a few patches' ends many times: borrowed from resident
     /// columns, copied out of a streamed archive in one pass.

@@ -18,6 +18,7 @@
 //! produced (build) or consumed (distribute, render).
 
 pub mod deltas;
+mod invariants;
 pub mod layout;
 mod links;
 pub mod presence;

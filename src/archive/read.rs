@@ -5,6 +5,7 @@ use std::path::Path;
 use bytemuck::{Pod, pod_read_unaligned};
 use xxhash_rust::xxh3::xxh3_64;
 
+use super::invariants::{self, WeightSums};
 use super::layout::{
     self, AnimationRecord, BuildRecord, CameraRecord, DeltaIndexRecord, DeltaRecord, DirectionRecord, HeaderRecord,
     InstanceRecord, MaterialRecord, NonDiffusePatchRecord, OrientationRecord, PrimitiveRecord, PrototypeRecord,
@@ -14,6 +15,7 @@ use super::links::{LinkRows, LinkSlices, Links, PatchIds};
 use super::presence::{self, FramePresence, FrameSpan};
 use super::stream::{self, LinkStream};
 use super::{ArchiveError, ArchiveMeta, tag_name};
+use crate::limits::{MAX_COORDINATE, MAX_PATCH_AREA, MAX_RADIANCE};
 
 enum Storage {
     Mapped(memmap2::Mmap),
@@ -209,6 +211,8 @@ pub struct SequenceView<'a> {
     patch_count: u32,
     pair_count: u32,
     max_bucket: u8,
+    /// The `DELT` table entry's `count` (one per frame).
+    payload_count: u64,
     /// Version 5 and later: `DIDX.checksum` covers the stored bytes and
     /// blocks hold columns; before, the checksum covered the decompressed
     /// records, stored as they are.
@@ -260,6 +264,22 @@ impl SequenceView<'_> {
 }
 
 impl<'a> InetView<'a> {
+    /// Frame `frame`'s delta records (§5.13), decoded, validated
+    /// ([`SequenceView::frame_delta`]) and checked against frame 0's links
+    /// and the hit counts: no record moves more rays than cross its
+    /// patches, no link is left a negative weight. Empty for frame 0.
+    pub fn frame_links(&self, frame: u32) -> Result<Vec<DeltaRecord>, ArchiveError> {
+        let Some(s) = &self.sequence else {
+            return match frame {
+                0 => Ok(Vec::new()),
+                _ => Err(ArchiveError::corrupt(format!("frame {frame} asked of a still archive"))),
+            };
+        };
+        let records = s.frame_delta(frame)?;
+        invariants::check_frame(frame, &records, self.patch_hits, self.link_offsets, &self.links)?;
+        Ok(records)
+    }
+
     /// Number of patches.
     pub fn patch_count(&self) -> usize {
         self.patch_area.len()
@@ -406,7 +426,12 @@ impl Archive {
             format!("section LOFF: {} records, expected {}", offsets.len(), b.patch_count as u64 + 1)
         })?;
         csr("LOFF", offsets.iter().copied(), b.link_end_count as usize)?;
+        let hits: &[u32] = archive.column(tag::PATCH_HITS)?;
+        check(hits.len() == b.patch_count as usize, || {
+            format!("section PHIT: {} records, expected {}", hits.len(), b.patch_count)
+        })?;
         let limits = stream::Limits {
+            hits,
             patches: b.patch_count as usize,
             directions: b.direction_count as usize,
             max_bucket: b.max_bucket.min(255) as u8,
@@ -590,6 +615,7 @@ impl Archive {
                         instances: self.column(tag::INSTANCES)?,
                         index: self.column(tag::DELTA_INDEX)?,
                         payload: self.stored(self.entry(tag::DELTAS)?),
+                        payload_count: self.entry(tag::DELTAS)?.count,
                         cameras: match self.entries.iter().any(|e| e.tag == tag::FRAME_CAMERAS) {
                             true => Some(self.column(tag::FRAME_CAMERAS)?),
                             false => None,
@@ -696,6 +722,12 @@ fn parse_header(bytes: &[u8], len: u64) -> Result<HeaderRecord, ArchiveError> {
     }
     if header.version_read > layout::READER_VERSION {
         return Err(ArchiveError::UnsupportedVersion { needs: header.version_read, supports: layout::READER_VERSION });
+    }
+    if header.version_read == 0 || header.version_write < header.version_read {
+        return Err(bad(format!(
+            "header: versions (write {}, read {}) must be at least 1, write no older than read",
+            header.version_write, header.version_read
+        )));
     }
     if header.header_size as usize != layout::HEADER_SIZE || header.entry_size as usize != layout::ENTRY_SIZE {
         return Err(bad(format!("unexpected header size {} or entry size {}", header.header_size, header.entry_size)));
@@ -812,6 +844,11 @@ fn check_entries(header: &HeaderRecord, entries: &[SectionEntry]) -> Result<(), 
     if reflectance.iter().any(|&x| x) && !reflectance.iter().all(|&x| x) {
         return Err(bad("reflectance sections PTAB, PROW, PODR, PFAC, ORNT, OMAP, NDPA and NDHC must appear together"));
     }
+    if let Some(e) = entries.iter().find(|e| e.tag == tag::META)
+        && e.count != 1
+    {
+        return Err(bad(format!("section META: count {} (expected 1)", e.count)));
+    }
     for (t, size, comp) in REQUIRED {
         let e =
             entries.iter().find(|e| e.tag == t).ok_or_else(|| bad(format!("section {} is missing", tag_name(t))))?;
@@ -833,6 +870,24 @@ fn check(ok: bool, msg: impl FnOnce() -> String) -> Result<(), ArchiveError> {
 
 fn finite(v: &[f32]) -> bool {
     v.iter().all(|x| x.is_finite())
+}
+
+/// Finite and within ±[`MAX_COORDINATE`].
+fn within(v: &[f32]) -> bool {
+    v.iter().all(|x| x.abs() <= MAX_COORDINATE)
+}
+
+/// A camera rays can be made from: points within ±[`MAX_COORDINATE`], a
+/// view direction and an `up` that are not zero nor parallel.
+fn camera_geometry(c: &CameraRecord) -> bool {
+    if !(within(&c.position) && within(&c.look_at) && within(&c.up)) {
+        return false;
+    }
+    let f: [f64; 3] = std::array::from_fn(|i| c.look_at[i] as f64 - c.position[i] as f64);
+    let u: [f64; 3] = std::array::from_fn(|i| c.up[i] as f64);
+    let cross = [f[1] * u[2] - f[2] * u[1], f[2] * u[0] - f[0] * u[2], f[0] * u[1] - f[1] * u[0]];
+    let len = |x: &[f64; 3]| (x[0] * x[0] + x[1] * x[1] + x[2] * x[2]).sqrt();
+    len(&f) > 0.0 && len(&u) > 0.0 && len(&cross) > 1e-12 * len(&f) * len(&u)
 }
 
 /// Checks counts and every stored index, so that later code can index
@@ -876,7 +931,7 @@ fn validate_contents(v: &InetView<'_>, meta: &ArchiveMeta) -> Result<(), Archive
     check(b.ray_spacing_m.is_finite() && b.ray_spacing_m > 0.0, || "BILD: ray spacing must be positive".into())?;
 
     let c = v.camera;
-    check(finite(&c.position) && finite(&c.look_at) && finite(&c.up), || "CAMR: non-finite vector".into())?;
+    check(camera_geometry(c), || "CAMR: position, look_at or up non-finite, beyond ±1e9 m or degenerate".into())?;
     check(c.fov_y_deg > 0.0 && c.fov_y_deg < 180.0, || format!("CAMR: field of view {}", c.fov_y_deg))?;
     check((1..=16384).contains(&c.width) && (1..=16384).contains(&c.height), || {
         "CAMR: image size out of range".into()
@@ -887,30 +942,39 @@ fn validate_contents(v: &InetView<'_>, meta: &ArchiveMeta) -> Result<(), Archive
         check([DIFFUSE, ROUGH_CONDUCTOR, BROAD_SPECULAR].contains(&m.model), || {
             format!("MATL[{i}]: unknown model {}", m.model)
         })?;
+        check(finite(&m.params), || format!("MATL[{i}]: non-finite parameter"))?;
         check(m.params[..6].iter().all(|r| (0.0..=1.0).contains(r)), || {
             format!("MATL[{i}]: reflectance outside [0, 1]")
         })?;
         check((0..3).all(|c| m.params[c] + m.params[3 + c] <= 1.0 + 1e-6), || {
             format!("MATL[{i}]: reflectance + specular above 1")
         })?;
-        check(m.model == DIFFUSE || v.reflectance.is_some(), || {
-            format!("MATL[{i}]: a non-diffuse material needs the reflectance sections")
-        })?;
     }
     for (i, s) in v.surfaces.iter().enumerate() {
         check((s.material as usize) < v.materials.len(), || {
             format!("SURF[{i}]: material {} out of range", s.material)
         })?;
-        check(s.emission.iter().all(|e| e.is_finite() && *e >= 0.0), || format!("SURF[{i}]: bad emission"))?;
+        check(s.emission.iter().all(|e| (0.0..=MAX_RADIANCE).contains(e)), || {
+            format!("SURF[{i}]: emission {:?} outside [0, {MAX_RADIANCE:e}]", s.emission)
+        })?;
         check(s.first_primitive as u64 + s.primitive_count as u64 <= v.primitives.len() as u64, || {
             format!("SURF[{i}]: primitives out of range")
         })?;
+    }
+    // A material no surface's primitives use needs no tables (§5.14).
+    for (i, s) in v.surfaces.iter().enumerate() {
+        check(
+            v.materials[s.material as usize].model == layout::model::DIFFUSE
+                || s.primitive_count == 0
+                || v.reflectance.is_some(),
+            || format!("SURF[{i}]: a non-diffuse material needs the reflectance sections"),
+        )?;
     }
     let (mut next_patch, mut next_vertex) = (0u64, 0u64);
     for (i, r) in v.primitives.iter().enumerate() {
         check(r.kind <= 1, || format!("PRIM[{i}]: unknown kind {}", r.kind))?;
         check((r.surface as usize) < v.surfaces.len(), || format!("PRIM[{i}]: surface out of range"))?;
-        check(r.corners.iter().all(|c| finite(c)), || format!("PRIM[{i}]: non-finite corner"))?;
+        check(r.corners.iter().all(|c| within(c)), || format!("PRIM[{i}]: corner non-finite or beyond ±1e9 m"))?;
         let (gu, gv) = (r.grid_u as u64, r.grid_v as u64);
         check(gu >= 1 && gv >= 1 && gu <= 1 << 16 && gv <= 1 << 16 && (r.kind == 0 || gu == gv), || {
             format!("PRIM[{i}]: bad grid {gu}×{gv}")
@@ -937,7 +1001,7 @@ fn validate_contents(v: &InetView<'_>, meta: &ArchiveMeta) -> Result<(), Archive
     }
     for i in 0..p {
         check(
-            finite(&v.patch_centre[i])
+            within(&v.patch_centre[i])
                 && finite(&v.patch_normal[i])
                 && v.patch_area[i].is_finite()
                 && v.patch_area[i] >= 0.0,
@@ -947,11 +1011,26 @@ fn validate_contents(v: &InetView<'_>, meta: &ArchiveMeta) -> Result<(), Archive
         check(v.patch_corners[i].iter().all(|&c| c == u32::MAX || (c as usize) < nv), || {
             format!("PCOR[{i}]: out of range")
         })?;
-        check(v.patch_expected_hits[i].is_finite() && v.patch_expected_hits[i] >= 0.0, || {
-            format!("PEXP[{i}]: bad value")
+        check(v.patch_area[i] <= MAX_PATCH_AREA, || {
+            format!("PARE[{i}]: area {} m² above {MAX_PATCH_AREA:e}", v.patch_area[i])
         })?;
+        // PEXP = A·Σ_d max(0, n·d)·Ω_d/Ω̄/δ² ≤ A·N/δ² (the ray-space
+        // baseline's is below it too): so A·H/PEXP ≥ H·δ²/N, the least
+        // area the distribution divides by.
+        let most = v.patch_area[i] as f64 * nd as f64 / (b.ray_spacing_m as f64).powi(2);
+        check(
+            v.patch_expected_hits[i].is_finite()
+                && v.patch_expected_hits[i] >= 0.0
+                && v.patch_expected_hits[i] as f64 <= most * (1.0 + 1e-3) + 1e-3,
+            || {
+                format!(
+                    "PEXP[{i}]: {} expected hits, more than area {} m² can have ({most:.3e})",
+                    v.patch_expected_hits[i], v.patch_area[i]
+                )
+            },
+        )?;
     }
-    check(v.vertex_position.iter().all(|x| finite(x)), || "VPOS: non-finite vertex".into())?;
+    check(v.vertex_position.iter().all(|x| within(x)), || "VPOS: vertex non-finite or beyond ±1e9 m".into())?;
     csr("ADJO", v.adjacency_offsets.iter().map(|&x| x as u64), v.adjacency.len())?;
     check(v.adjacency.iter().all(|&a| (a as usize) < p), || "ADJI: patch id out of range".into())?;
     // Ascending, no self-loops, symmetric (§5.9): bucket rings rely on it.
@@ -974,6 +1053,7 @@ fn validate_contents(v: &InetView<'_>, meta: &ArchiveMeta) -> Result<(), Archive
             check(l.weight.iter().all(|&w| w.is_finite() && w >= 0.0), || {
                 "LWGT: weight negative or non-finite".into()
             })?;
+            WeightSums::new(v.link_offsets, v.patch_hits).add(l.weight)?;
             check(l.direction.iter().all(|&d| (d as usize) < nd), || "LDIR: direction out of range".into())?;
             if let Some(buckets) = l.bucket {
                 count("LBKT", buckets.len(), ends)?;
@@ -996,6 +1076,9 @@ fn validate_contents(v: &InetView<'_>, meta: &ArchiveMeta) -> Result<(), Archive
         check(s.record.fps.is_finite() && s.record.fps > 0.0, || "ANIM: fps must be positive".into())?;
         count("INST", s.instances.len(), s.record.instance_count as usize)?;
         count("DIDX", s.index.len(), frames as usize)?;
+        check(s.payload_count == frames as u64, || {
+            format!("section DELT: count {} in the table, expected {frames} frames", s.payload_count)
+        })?;
         let mut next = 0u64;
         for (i, r) in s.instances.iter().enumerate() {
             check(r.first_primitive as u64 == next && r.primitive_count > 0, || {
@@ -1009,7 +1092,7 @@ fn validate_contents(v: &InetView<'_>, meta: &ArchiveMeta) -> Result<(), Archive
         if let Some(cams) = s.cameras {
             count("CAMF", cams.len(), frames as usize)?;
             for (f, c) in cams.iter().enumerate() {
-                check(finite(&c.position) && finite(&c.look_at) && finite(&c.up), || format!("CAMF[{f}]: non-finite"))?;
+                check(camera_geometry(c), || format!("CAMF[{f}]: non-finite, beyond ±1e9 m or degenerate"))?;
                 check(c.fov_y_deg > 0.0 && c.fov_y_deg < 180.0, || format!("CAMF[{f}]: field of view"))?;
                 check((c.width, c.height) == (v.camera.width, v.camera.height), || {
                     format!("CAMF[{f}]: image size differs from CAMR")
@@ -1018,7 +1101,9 @@ fn validate_contents(v: &InetView<'_>, meta: &ArchiveMeta) -> Result<(), Archive
         }
         if let Some(e) = s.emissions {
             count("EMIF", e.len(), frames as usize * v.surfaces.len())?;
-            check(e.iter().all(|x| x.iter().all(|c| c.is_finite() && *c >= 0.0)), || "EMIF: bad emission".into())?;
+            check(e.iter().all(|x| x.iter().all(|c| (0.0..=MAX_RADIANCE).contains(c))), || {
+                format!("EMIF: emission outside [0, {MAX_RADIANCE:e}]")
+            })?;
         }
         for (f, ix) in s.index.iter().enumerate() {
             let end = ix.offset.checked_add(ix.stored_length);
@@ -1038,6 +1123,12 @@ fn validate_reflectance(v: &InetView<'_>, r: &ReflectanceView<'_>) -> Result<(),
     let n = v.directions.len();
     let (mut row, mut entry, mut factor) = (0u64, 0u64, 0u64);
     for (t, p) in r.prototypes.iter().enumerate() {
+        check(finite(&[p.alpha_u, p.alpha_v, p.threshold]) && finite(&p.ior), || {
+            format!("PTAB[{t}]: non-finite parameter")
+        })?;
+        check(p.ior.iter().all(|&x| x >= 0.0) && p.alpha_u >= 0.0 && p.alpha_v >= 0.0, || {
+            format!("PTAB[{t}]: negative roughness or index of refraction")
+        })?;
         check(p.model <= layout::table_model::GGX && (p.bands == 1 || p.bands == 3), || {
             format!("PTAB[{t}]: unknown model {} or bands {}", p.model, p.bands)
         })?;

@@ -19,6 +19,7 @@ use std::sync::mpsc::sync_channel;
 use xxhash_rust::xxh3::{Xxh3, xxh3_64};
 
 use super::ArchiveError;
+use super::invariants::WeightSums;
 use super::layout::SectionEntry;
 use super::links::{Columns, LinkWindow, PatchIds};
 
@@ -32,7 +33,9 @@ const WIDTH: [usize; 4] = [4, 4, 4, 1];
 const OPEN_READ_CHUNKS: usize = 16;
 
 /// What the content rules of §7 bound the columns by.
-pub(super) struct Limits {
+pub(super) struct Limits<'h> {
+    /// `PHIT`: what each patch's link-end weights sum to at most.
+    pub hits: &'h [u32],
     pub patches: usize,
     pub directions: usize,
     pub max_bucket: u8,
@@ -113,7 +116,7 @@ impl LinkStream {
         path: &Path,
         entries: [Option<&SectionEntry>; 4],
         offsets: &[u64],
-        limits: &Limits,
+        limits: &Limits<'_>,
         window_ends: usize,
     ) -> Result<Self, ArchiveError> {
         let ends = offsets.last().copied().unwrap_or(0) as usize;
@@ -121,7 +124,9 @@ impl LinkStream {
         let mut sums = vec![[0u64; 4]; chunks];
         let names = ["LOTH", "LWGT", "LDIR", "LBKT"];
         let mut buf = Vec::new();
+        let mut weights: Vec<f32> = Vec::new();
         for (c, e) in entries.iter().enumerate() {
+            let mut sums_of_rows = WeightSums::new(offsets, limits.hits);
             let Some(e) = e else { continue };
             if e.length != (ends * WIDTH[c]) as u64 {
                 return Err(ArchiveError::corrupt(format!(
@@ -142,6 +147,11 @@ impl LinkStream {
                     sums[first + i][c] = xxh3_64(chunk);
                 }
                 check_column(c, &buf, limits)?;
+                if c == 1 {
+                    weights.clear();
+                    weights.extend(buf.chunks_exact(4).map(|x| f32::from_le_bytes(x.try_into().unwrap())));
+                    sums_of_rows.add(&weights)?;
+                }
             }
             let sum = section.digest();
             if sum != e.checksum {
@@ -351,7 +361,7 @@ fn plan(offsets: &[u64], window_ends: usize) -> (Vec<Window>, usize) {
 }
 
 /// The content rules of §7 for column `c` of some link ends.
-fn check_column(c: usize, bytes: &[u8], limits: &Limits) -> Result<(), ArchiveError> {
+fn check_column(c: usize, bytes: &[u8], limits: &Limits<'_>) -> Result<(), ArchiveError> {
     let ok = match c {
         0 => bytes.chunks_exact(4).all(|x| (u32::from_le_bytes(x.try_into().unwrap()) as usize) < limits.patches),
         1 => bytes.chunks_exact(4).all(|x| {

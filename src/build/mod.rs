@@ -427,6 +427,14 @@ fn build_impl(
         .flat_map(|(i, inst)| std::iter::repeat_n(i as u32, inst.primitives.len()))
         .collect();
     let patches = Patches::new(&prims, &prim_instance, settings.patch_size)?;
+    if let Some(p) = patches.area.iter().position(|&a| a > crate::limits::MAX_PATCH_AREA) {
+        return Err(format!(
+            "patch {p} has an area of {:e} m², above the {:e} an archive holds: use a smaller --patch-size",
+            patches.area[p],
+            crate::limits::MAX_PATCH_AREA
+        )
+        .into());
+    }
     let setup_s = t0.elapsed().as_secs_f64();
     let bounds = settings.grid_bounds.unwrap_or_else(|| crate::geometry::bounds_of(&prims));
     let input =

@@ -14,7 +14,7 @@ use illumnet::progress::Progress;
 use illumnet::render::{self, RenderOptions, image_io, plan};
 use illumnet::scene::{BuildHints, Scene};
 
-use super::exit::{BadInput, InputContext, IoFailure, bail_input};
+use super::exit::{BadInput, InputContext, IoFailure, ResultRefused, bail_input};
 use super::{BuildArgs, RenderArgs, Shading};
 
 fn hints(a: &BuildArgs) -> BuildHints {
@@ -337,6 +337,9 @@ pub fn render(
     if !(args.tolerance > 0.0 && args.tolerance < 1.0) {
         bail_input!("--tolerance must be in (0, 1), got {}", args.tolerance);
     }
+    if !(1..=1_000_000).contains(&args.max_iterations) {
+        bail_input!("--max-iterations must be in 1..=1000000, got {}", args.max_iterations);
+    }
     if !(1..=64).contains(&args.samples) {
         bail_input!("--samples must be in 1..=64, got {}", args.samples);
     }
@@ -422,7 +425,7 @@ pub fn render(
         patch_size_correction: !args.no_patch_size_correction,
         anderson_depth: args.anderson,
         split_direct: direct_shading,
-        ..Default::default()
+        max_iterations: args.max_iterations,
     };
     let (mut t_dist, mut t_render, mut ends, mut t_delta) = (0.0, 0.0, 0.0, 0.0);
     let sum = |a: &[f64; 3]| a.iter().sum::<f64>();
@@ -456,8 +459,19 @@ pub fn render(
             sum(&b.residual),
             b.imbalance(),
             b.iterations,
-            if b.converged { "" } else { " (NOT converged: raise the iteration limit or the tolerance)" }
+            if b.converged { "" } else { " (NOT converged)" }
         );
+        if !b.converged && !args.allow_unconverged {
+            return Err(anyhow::Error::new(ResultRefused(format!(
+                "frame {f}: the distribution did not converge in {} iterations (unshot power {:.2e} of the {:.4} W \
+                 emitted, tolerance {:e}): raise --max-iterations or --tolerance, or write it anyway with \
+                 --allow-unconverged",
+                b.iterations,
+                sum(&b.residual) / sum(&b.emitted).max(f64::MIN_POSITIVE),
+                sum(&b.emitted),
+                args.tolerance
+            ))));
+        }
         let emitted = sum(&b.emitted);
         if emitted <= 0.0 && !warned_dark {
             warned_dark = true;
@@ -497,6 +511,16 @@ pub fn render(
                  a closed box or are some quads wound the wrong way?",
                 100.0 * renderer.back_faces as f64 / samples
             );
+        }
+        for (what, im) in [("image", Some(&image)), ("direct light", direct.as_ref())] {
+            if let Some(i) = im.and_then(|im| im.pixels.iter().position(|p| !p.iter().all(|c| c.is_finite()))) {
+                return Err(anyhow::Error::new(ResultRefused(format!(
+                    "frame {f}: the {what} has a non-finite pixel ({}, {}): nothing written; the archive holds values \
+                     beyond what its checks bound: please report it, with the archive",
+                    i % image.width as usize,
+                    i / image.width as usize
+                ))));
+            }
         }
         image_io::write_png(&image, &out_path(png, f)?, args.exposure).map_err(IoFailure)?;
         if let Some(exr) = exr {

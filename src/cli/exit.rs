@@ -9,7 +9,7 @@
 //! | 4 | corrupt or unsupported archive |
 //! | 5 | I/O: a file could not be read or written |
 //! | 6 | the job does not fit the memory budget (said before work starts) |
-//! | 7 | reserved: the result is not finite or did not converge |
+//! | 7 | the result is not finite, or did not converge (without `--allow-unconverged`) |
 //! | 101 | internal error (a panic: a bug, please report it) |
 //!
 //! Errors carry their kind as a typed source in the `anyhow` chain
@@ -34,6 +34,21 @@ pub const CORRUPT_ARCHIVE: u8 = 4;
 pub const IO: u8 = 5;
 /// The job does not fit the memory budget.
 pub const BUDGET: u8 = 6;
+
+/// The result is refused: not finite, or not converged.
+pub const RESULT: u8 = 7;
+
+/// A result the CLI will not write: not converged, or not finite.
+#[derive(Debug)]
+pub struct ResultRefused(pub String);
+
+impl fmt::Display for ResultRefused {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl std::error::Error for ResultRefused {}
 
 /// An option value or other input the CLI refuses.
 #[derive(Debug)]
@@ -100,6 +115,9 @@ pub fn code(err: &anyhow::Error) -> u8 {
         if cause.is::<IoFailure>() || cause.is::<std::io::Error>() {
             return IO;
         }
+        if cause.is::<ResultRefused>() {
+            return RESULT;
+        }
         if cause.is::<BudgetError>() || cause.is::<illumnet::build::BuildError>() {
             return BUDGET;
         }
@@ -110,6 +128,7 @@ pub fn code(err: &anyhow::Error) -> u8 {
             return match e {
                 DistributeError::Archive(a) => archive_code(a),
                 DistributeError::TooLarge(_) | DistributeError::Unsupported(_) => FAILURE,
+                DistributeError::NotFinite { .. } => RESULT,
                 _ => BAD_INPUT,
             };
         }

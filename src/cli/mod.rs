@@ -121,6 +121,14 @@ struct RenderArgs {
     /// indirect light as IMAGE.direct.exr and IMAGE.indirect.exr.
     #[arg(long)]
     layers: bool,
+    /// Most distribution iterations per frame.
+    #[arg(long, default_value_t = 1000, value_name = "N")]
+    max_iterations: u32,
+    /// Write images even when the distribution stops at --max-iterations
+    /// before unshot power is below --tolerance (otherwise an error,
+    /// exit 7, after the frame's energy balance is printed).
+    #[arg(long)]
+    allow_unconverged: bool,
     /// Resident memory to stay within, e.g. 512M or 4G (powers of 1024;
     /// default: 75% of the cgroup memory limit, else of physical memory).
     /// An archive larger than it fits has its link ends streamed from

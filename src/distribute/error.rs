@@ -32,6 +32,15 @@ pub enum DistributeError {
     TooLarge(String),
     /// The archive needs something this solver does not do.
     Unsupported(String),
+    /// The result is not finite (a NaN or infinite radiance or power):
+    /// what the archive's checks did not bound. Never handed out as a
+    /// [`super::Solution`].
+    NotFinite {
+        /// The frame solved.
+        frame: u32,
+        /// The first non-finite quantity.
+        what: String,
+    },
     /// The archive holds something the distribution cannot use (found
     /// when a frame's delta is decoded, or by a check open does not make).
     Archive(ArchiveError),
@@ -51,6 +60,11 @@ impl fmt::Display for DistributeError {
             }
             Self::TooLarge(m) => write!(f, "archive too large to distribute: {m}"),
             Self::Unsupported(m) => write!(f, "unsupported: {m}"),
+            Self::NotFinite { frame, what } => write!(
+                f,
+                "frame {frame}: the distributed light is not finite ({what}); the archive holds values beyond \
+                 what its checks bound: please report it, with the archive"
+            ),
             Self::Archive(e) => e.fmt(f),
         }
     }

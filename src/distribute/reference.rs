@@ -81,8 +81,8 @@ pub fn solve(
         }
         Ok::<(), ArchiveError>(())
     })?;
-    if let Some(s) = v.sequence {
-        for d in s.frame_delta(frame)? {
+    if v.sequence.is_some() {
+        for d in v.frame_links(frame)? {
             let (ba, bb) = if use_buckets { (d.bucket_a, d.bucket_b) } else { (0, 0) };
             ends.push(End { owner: d.a, other: d.b, weight: d.count as f64, bucket: ba });
             ends.push(End { owner: d.b, other: d.a, weight: d.count as f64, bucket: bb });

@@ -7,6 +7,7 @@ use std::borrow::Cow;
 
 use super::overlay::Overlay;
 use super::{DistributeError, Distributor};
+use crate::archive::ArchiveError;
 use crate::archive::presence::FramePresence;
 
 /// One frame's view of the archive, made before its first iteration.
@@ -76,7 +77,7 @@ impl<'a> Distributor<'a> {
                         emit[p] = keyed[surface];
                     }
                 }
-                let records = s.frame_delta(frame)?;
+                let records = v.frame_links(frame)?;
                 (Some(Overlay::new(self.nb, &records, &presence, self.nd.is_some())), Some(presence))
             }
             None if frame == 0 => (None, None),
@@ -88,6 +89,15 @@ impl<'a> Distributor<'a> {
                 *l += d;
             }
             self.absent_ends(frame, |q, w, _| linked[q] -= w as f64);
+            // Records were checked one by one (`frame_links`); their sums too.
+            for (q, &l) in linked.iter().enumerate() {
+                let h = v.patch_hits[q] as f64;
+                if !(l >= -1e-3 && l <= h * (1.0 + 1e-6) + 1e-3) {
+                    return Err(DistributeError::Archive(ArchiveError::corrupt(format!(
+                        "DELT frame {frame}: patch {q}'s links carry {l} rays, outside 0..={h} (its PHIT)"
+                    ))));
+                }
+            }
         }
         let delta_s = if overlay.is_some() { t_delta.elapsed().as_secs_f64() } else { 0.0 };
         let emitted_power: Vec<[f32; 4]> = (0..n)

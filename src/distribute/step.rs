@@ -443,14 +443,15 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
         let (area_eff, rho, emit) = (&d.area_eff, &d.rho, &s.emit);
         let (total_direct, total_spread) = (&self.total_direct, &self.total_spread);
         let inv_pi = 1.0 / std::f32::consts::PI;
-        let radiance = (0..n)
+        let radiance: Vec<[f32; 3]> = (0..n)
             .map(|p| {
                 let kd = if area_eff[p] > 0.0 { inv_pi / area_eff[p] } else { 0.0 };
                 let ks = if v.patch_area[p] > 0.0 { inv_pi / v.patch_area[p] } else { 0.0 };
                 [0, 1, 2].map(|c| emit[p][c] + rho[p][c] * (total_direct[p][c] * kd + total_spread[p][c] * ks))
             })
             .collect();
-        let received = (0..n).map(|p| [0, 1, 2].map(|c| total_direct[p][c] + total_spread[p][c])).collect();
+        let received: Vec<[f32; 3]> =
+            (0..n).map(|p| [0, 1, 2].map(|c| total_direct[p][c] + total_spread[p][c])).collect();
         let direct = match d.opts.split_direct {
             true => Some(self.first_bounce()?),
             false => None,
@@ -482,6 +483,7 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
                 overlay: s.overlay.as_ref().map(|o| o.gather.clone()),
             })
         });
+        check_finite(frame, &radiance, &received, &bal, direct.as_deref(), directional.as_ref())?;
         Ok(Solution {
             radiance,
             received,
@@ -496,4 +498,38 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
             frame,
         })
     }
+}
+
+/// Refuses a result with a NaN or infinity anywhere (issue of forged or
+/// out-of-range archives: never an image of NaN).
+fn check_finite(
+    frame: u32,
+    radiance: &[[f32; 3]],
+    received: &[[f32; 3]],
+    bal: &EnergyBalance,
+    direct: Option<&[[f32; 3]]>,
+    directional: Option<&DirectionalRadiance>,
+) -> Result<(), DistributeError> {
+    let first_bad = |v: &[[f32; 3]]| v.iter().position(|x| !x.iter().all(|c| c.is_finite()));
+    let fail = |what: String| Err(DistributeError::NotFinite { frame, what });
+    if let Some(p) = first_bad(radiance) {
+        return fail(format!("radiance {:?} of patch {p}", radiance[p]));
+    }
+    if let Some(p) = first_bad(received) {
+        return fail(format!("power {:?} received by patch {p}", received[p]));
+    }
+    if let Some(p) = direct.and_then(first_bad) {
+        return fail(format!("direct radiance of patch {p}"));
+    }
+    if let Some(k) = directional.and_then(|d| first_bad(&d.radiance)) {
+        return fail(format!("directional radiance entry {k}"));
+    }
+    let totals = [bal.emitted, bal.absorbed, bal.escaped, bal.residual];
+    if !totals.iter().flatten().all(|x| x.is_finite()) {
+        return fail(format!(
+            "energy balance: emitted {:?} W, absorbed {:?} W, escaped {:?} W",
+            bal.emitted, bal.absorbed, bal.escaped
+        ));
+    }
+    Ok(())
 }

@@ -48,6 +48,38 @@ impl fmt::Display for SceneError {
 
 impl std::error::Error for SceneError {}
 
+/// A TOML array of exactly `N` values: serde's fixed arrays take the first
+/// `N` of a longer one without a word (`position = [1, 1, -2, 0]`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Exact<T, const N: usize>([T; N]);
+
+/// Three numbers: a point, a vector or an RGB triple.
+type V3 = Exact<f32, 3>;
+
+impl From<V3> for Vec3 {
+    fn from(v: V3) -> Vec3 {
+        Vec3::from(v.0)
+    }
+}
+
+impl<T, const N: usize> std::ops::Deref for Exact<T, N> {
+    type Target = [T; N];
+    fn deref(&self) -> &[T; N] {
+        &self.0
+    }
+}
+
+impl<'de, T: Deserialize<'de>, const N: usize> Deserialize<'de> for Exact<T, N> {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        let v = Vec::<T>::deserialize(d)?;
+        let n = v.len();
+        // Points and colours are lists of 3 numbers, quads of 4 corners.
+        let expected = if N == 3 { format!("an array of length {N}") } else { format!("a list of {N} corners") };
+        let a: [T; N] = v.try_into().map_err(|_| serde::de::Error::invalid_length(n, &expected.as_str()))?;
+        Ok(Self(a))
+    }
+}
+
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct RawScene {
@@ -76,18 +108,18 @@ fn default_fps() -> Spanned<f32> {
 #[serde(deny_unknown_fields)]
 struct RawKeyframe {
     frame: u32,
-    translate: Option<[f32; 3]>,
-    rotate_deg: Option<[f32; 3]>,
-    scale: Option<[f32; 3]>,
+    translate: Option<V3>,
+    rotate_deg: Option<V3>,
+    scale: Option<V3>,
 }
 
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct RawCamera {
-    position: [f32; 3],
-    look_at: [f32; 3],
+    position: V3,
+    look_at: V3,
     #[serde(default = "default_up")]
-    up: [f32; 3],
+    up: V3,
     fov_y_deg: Spanned<f32>,
     width: Spanned<u32>,
     height: Spanned<u32>,
@@ -98,15 +130,15 @@ struct RawCamera {
 #[serde(deny_unknown_fields)]
 struct RawCameraKey {
     frame: u32,
-    position: [f32; 3],
-    look_at: [f32; 3],
+    position: V3,
+    look_at: V3,
 }
 
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct RawEmissionKey {
     frame: u32,
-    emission: [f32; 3],
+    emission: V3,
 }
 
 /// Checks that keyed frames are in the sequence and strictly increasing.
@@ -139,8 +171,8 @@ fn check_key_frames(
     Ok(())
 }
 
-fn default_up() -> [f32; 3] {
-    [0.0, 1.0, 0.0]
+fn default_up() -> V3 {
+    Exact([0.0, 1.0, 0.0])
 }
 
 #[derive(Deserialize)]
@@ -158,8 +190,8 @@ struct RawMaterial {
     name: Spanned<String>,
     #[serde(rename = "type")]
     kind: Spanned<String>,
-    reflectance: Option<Spanned<[f32; 3]>>,
-    specular: Option<Spanned<[f32; 3]>>,
+    reflectance: Option<Spanned<V3>>,
+    specular: Option<Spanned<V3>>,
     alpha: Option<Spanned<f32>>,
     alpha_u: Option<Spanned<f32>>,
     alpha_v: Option<Spanned<f32>>,
@@ -171,7 +203,7 @@ struct RawMaterial {
 #[serde(untagged)]
 enum Ior {
     One(f32),
-    Bands([f32; 3]),
+    Bands(V3),
 }
 
 #[derive(Deserialize)]
@@ -179,9 +211,9 @@ enum Ior {
 struct RawSurface {
     name: Spanned<String>,
     material: Spanned<String>,
-    emission: Option<Spanned<[f32; 3]>>,
-    quad: Option<Spanned<[[f32; 3]; 4]>>,
-    quads: Option<Spanned<Vec<[[f32; 3]; 4]>>>,
+    emission: Option<Spanned<V3>>,
+    quad: Option<Spanned<Exact<V3, 4>>>,
+    quads: Option<Spanned<Vec<Exact<V3, 4>>>>,
     #[serde(rename = "box")]
     cuboid: Option<Spanned<RawBox>>,
     mesh: Option<Spanned<String>>,
@@ -189,15 +221,15 @@ struct RawSurface {
     keyframes: Option<Spanned<Vec<RawKeyframe>>>,
     emission_keyframes: Option<Spanned<Vec<RawEmissionKey>>>,
     interpolation: Option<Spanned<String>>,
-    pivot: Option<Spanned<[f32; 3]>>,
-    grain: Option<Spanned<[f32; 3]>>,
+    pivot: Option<Spanned<V3>>,
+    grain: Option<Spanned<V3>>,
 }
 
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct RawBox {
-    min: [f32; 3],
-    max: [f32; 3],
+    min: V3,
+    max: V3,
     #[serde(default)]
     inward: bool,
     #[serde(default)]
@@ -207,9 +239,9 @@ struct RawBox {
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct RawTransform {
-    scale: Option<[f32; 3]>,
-    rotate_deg: Option<[f32; 3]>,
-    translate: Option<[f32; 3]>,
+    scale: Option<V3>,
+    rotate_deg: Option<V3>,
+    translate: Option<V3>,
 }
 
 struct Ctx<'a> {
@@ -419,8 +451,9 @@ fn plain_message(message: &str, key: &str) -> String {
     message.to_string()
 }
 
+/// Finite and within ±[`crate::limits::MAX_COORDINATE`].
 fn finite3(v: &[f32; 3]) -> bool {
-    v.iter().all(|x| x.is_finite())
+    v.iter().all(|x| x.abs() <= crate::limits::MAX_COORDINATE)
 }
 
 pub(super) fn parse(text: &str, file: &Path, base_dir: &Path, name: String) -> Result<Scene, SceneError> {
@@ -436,7 +469,7 @@ pub(super) fn parse(text: &str, file: &Path, base_dir: &Path, name: String) -> R
     let c = raw.camera.get_ref();
     let cspan = raw.camera.span();
     if !finite3(&c.position) || !finite3(&c.look_at) || !finite3(&c.up) {
-        return Err(cx.err(cspan, "camera", "position, look_at and up must be finite"));
+        return Err(cx.err(cspan, "camera", "position, look_at and up must be finite and within ±1e9 m"));
     }
     let (position, look_at, up) = (Vec3::from(c.position), Vec3::from(c.look_at), Vec3::from(c.up));
     let forward = look_at - position;
@@ -505,14 +538,14 @@ pub(super) fn parse(text: &str, file: &Path, base_dir: &Path, name: String) -> R
                 format!("duplicate material name `{}`", m.name.get_ref()),
             ));
         }
-        let unit_rgb = |v: &Option<Spanned<[f32; 3]>>, key: &str, what: &str| -> Result<[f32; 3], SceneError> {
+        let unit_rgb = |v: &Option<Spanned<V3>>, key: &str, what: &str| -> Result<[f32; 3], SceneError> {
             let r = v.as_ref().ok_or_else(|| {
                 cx.err(m.kind.span(), field(key), format!("a {} material needs `{key} = [r, g, b]`", m.kind.get_ref()))
             })?;
             if !r.get_ref().iter().all(|x| (0.0..=1.0).contains(x)) {
                 return Err(cx.err(r.span(), field(key), format!("each component of {what} must be in [0, 1]")));
             }
-            Ok(*r.get_ref())
+            Ok(r.get_ref().0)
         };
         let lobe = || -> Result<crate::reflectance::Lobe, SceneError> {
             let check = |a: &Spanned<f32>, key: &str| {
@@ -542,7 +575,7 @@ pub(super) fn parse(text: &str, file: &Path, base_dir: &Path, name: String) -> R
                 Some(i) => {
                     let v = match i.get_ref() {
                         Ior::One(x) => [*x; 3],
-                        Ior::Bands(b) => *b,
+                        Ior::Bands(b) => b.0,
                     };
                     if !v.iter().all(|x| x.is_finite() && *x > 0.0) {
                         return Err(cx.err(i.span(), field("ior"), "an index of refraction must be positive"));
@@ -616,10 +649,10 @@ pub(super) fn parse(text: &str, file: &Path, base_dir: &Path, name: String) -> R
         })? as u32;
         let emission = match &s.emission {
             Some(e) => {
-                if !e.get_ref().iter().all(|x| x.is_finite() && *x >= 0.0) {
-                    return Err(cx.err(e.span(), field("emission"), "each component must be finite and non-negative"));
+                if !e.get_ref().iter().all(|x| (0.0..=crate::limits::MAX_RADIANCE).contains(x)) {
+                    return Err(cx.err(e.span(), field("emission"), "each component must be in [0, 1e9] W·sr⁻¹·m⁻²"));
                 }
-                *e.get_ref()
+                e.get_ref().0
             }
             None => [0.0; 3],
         };
@@ -631,7 +664,7 @@ pub(super) fn parse(text: &str, file: &Path, base_dir: &Path, name: String) -> R
         let mut geometry_span = sspan.clone();
         let mut geometry_field = field("quad");
         if let Some(q) = &s.quad {
-            prims.push(Primitive::quad(q.get_ref().map(Vec3::from)));
+            prims.push(Primitive::quad(q.get_ref().0.map(Vec3::from)));
             geometry_span = q.span();
         }
         if let Some(qs) = &s.quads {
@@ -685,11 +718,11 @@ pub(super) fn parse(text: &str, file: &Path, base_dir: &Path, name: String) -> R
                 &raw.animation,
             )?;
             for k in keys.get_ref() {
-                if !k.emission.iter().all(|x| x.is_finite() && *x >= 0.0) {
+                if !k.emission.iter().all(|x| (0.0..=crate::limits::MAX_RADIANCE).contains(x)) {
                     return Err(cx.err(
                         keys.span(),
                         field("emission_keyframes"),
-                        "emission must be finite and non-negative",
+                        "emission must be in [0, 1e9] W·sr⁻¹·m⁻²",
                     ));
                 }
                 emission_keys.push(EmissionKey { frame: k.frame, emission: Vec3::from(k.emission) });
@@ -733,11 +766,13 @@ pub(super) fn parse(text: &str, file: &Path, base_dir: &Path, name: String) -> R
         check_key_frames(&cx, keys.get_ref().iter().map(|k| k.frame), keys.span(), "camera.keyframes", &raw.animation)?;
         for k in keys.get_ref() {
             let (p, l) = (Vec3::from(k.position), Vec3::from(k.look_at));
-            if !(p.is_finite() && l.is_finite()) || (l - p).normalize_or_zero().cross(camera.up).length() < 1e-6 {
+            if !(finite3(&p.to_array()) && finite3(&l.to_array()))
+                || (l - p).normalize_or_zero().cross(camera.up).length() < 1e-6
+            {
                 return Err(cx.err(
                     keys.span(),
                     "camera.keyframes",
-                    "position and look_at must be finite, distinct and not along `up`",
+                    "position and look_at must be finite (within ±1e9 m), distinct and not along `up`",
                 ));
             }
             camera_keys.push(CameraKey { frame: k.frame, position: p, look_at: l });
@@ -749,8 +784,8 @@ pub(super) fn parse(text: &str, file: &Path, base_dir: &Path, name: String) -> R
 /// Rejects non-finite, degenerate, non-planar and non-convex primitives.
 fn check_primitive(p: &Primitive) -> Result<(), String> {
     let n = p.corner_count();
-    if !p.p[..n].iter().all(|v| v.is_finite()) {
-        return Err("coordinates must be finite".into());
+    if !p.p[..n].iter().all(|v| v.abs().max_element() <= crate::limits::MAX_COORDINATE) {
+        return Err(format!("coordinates must be finite and within ±{:e} m", crate::limits::MAX_COORDINATE));
     }
     let (lo, hi) = p.bounds();
     let size = (hi - lo).length();
@@ -855,9 +890,9 @@ fn parse_motion(
                 ),
             ));
         }
-        let t = Vec3::from(k.translate.unwrap_or([0.0; 3]));
-        let r = Vec3::from(k.rotate_deg.unwrap_or([0.0; 3]));
-        let sc = Vec3::from(k.scale.unwrap_or([1.0; 3]));
+        let t = Vec3::from(k.translate.unwrap_or(Exact([0.0; 3])));
+        let r = Vec3::from(k.rotate_deg.unwrap_or(Exact([0.0; 3])));
+        let sc = Vec3::from(k.scale.unwrap_or(Exact([1.0; 3])));
         if !(t.is_finite() && r.is_finite() && sc.is_finite()) || sc.cmpeq(Vec3::ZERO).any() {
             return Err(cx.err(keys.span(), field(&f), "values must be finite and scale non-zero"));
         }
@@ -883,9 +918,9 @@ fn parse_motion(
 }
 
 fn transform_matrix(t: &RawTransform) -> Result<(Mat3, Vec3), String> {
-    let s = Vec3::from(t.scale.unwrap_or([1.0; 3]));
-    let r = Vec3::from(t.rotate_deg.unwrap_or([0.0; 3]));
-    let tr = Vec3::from(t.translate.unwrap_or([0.0; 3]));
+    let s = Vec3::from(t.scale.unwrap_or(Exact([1.0; 3])));
+    let r = Vec3::from(t.rotate_deg.unwrap_or(Exact([0.0; 3])));
+    let tr = Vec3::from(t.translate.unwrap_or(Exact([0.0; 3])));
     if !(s.is_finite() && r.is_finite() && tr.is_finite()) || s.cmpeq(Vec3::ZERO).any() {
         return Err("scale must be non-zero; all values finite".into());
     }
@@ -897,6 +932,11 @@ fn transform_matrix(t: &RawTransform) -> Result<(Mat3, Vec3), String> {
 
 fn load_obj(path: &Path) -> Result<Vec<Primitive>, String> {
     let opts = tobj::LoadOptions { triangulate: true, single_index: true, ..Default::default() };
+    match std::fs::metadata(path) {
+        Err(e) => return Err(format!("cannot read OBJ `{}`: {e}", path.display())),
+        Ok(m) if m.is_dir() => return Err(format!("`{}` is a directory, not an OBJ file", path.display())),
+        Ok(_) => {}
+    }
     let (models, _) = tobj::load_obj(path, &opts).map_err(|e| format!("cannot load OBJ `{}`: {e}", path.display()))?;
     let mut out = Vec::new();
     for m in models {

@@ -1,0 +1,165 @@
+//! The rules that keep a distribution's results finite, checked against
+//! the data they bound (§5.10, §5.13): a patch's link ends carry no more
+//! rays than cross it, and a frame's delta removes no more rays from a
+//! link than frame 0 gave it.
+//!
+//! Checksums prove a file is what its writer wrote; these prove that what
+//! it holds is something a build can produce. A forged or buggy file that
+//! breaks them would divide by a share of zero, give links negative
+//! weights, or send more power than a patch holds, and render NaN.
+
+use super::ArchiveError;
+use super::layout::DeltaRecord;
+use super::links::{Columns, LinkWindow, Links};
+
+/// Relative slack on sums of f32 ray counts (exact integers below 2²⁴;
+/// larger sums round).
+const SUM_SLACK: f64 = 1e-6;
+
+/// Folds link-end weights into per-patch sums and checks each finished
+/// patch's sum against its hit count `PHIT[p]` (each ray line crossing a
+/// patch makes at most one link end there). Fed weights in end order, in
+/// any slicing.
+pub(super) struct WeightSums<'a> {
+    offsets: &'a [u64],
+    hits: &'a [u32],
+    /// The patch whose ends come next.
+    patch: usize,
+    /// The end that comes next.
+    end: usize,
+    sum: f64,
+}
+
+impl<'a> WeightSums<'a> {
+    /// Sums over the rows `offsets` (validated CSR) of patches with `hits`.
+    pub(super) fn new(offsets: &'a [u64], hits: &'a [u32]) -> Self {
+        Self { offsets, hits, patch: 0, end: 0, sum: 0.0 }
+    }
+
+    /// Adds the next `weights` (ends `self.end ..`).
+    pub(super) fn add(&mut self, weights: &[f32]) -> Result<(), ArchiveError> {
+        let mut i = 0;
+        while i < weights.len() {
+            self.finish_empty()?;
+            let row_end = self.offsets[self.patch + 1] as usize;
+            let take = (row_end - self.end).min(weights.len() - i);
+            self.sum += weights[i..i + take].iter().map(|&w| w as f64).sum::<f64>();
+            self.end += take;
+            i += take;
+        }
+        self.finish_empty()
+    }
+
+    /// Closes every patch whose row is complete.
+    fn finish_empty(&mut self) -> Result<(), ArchiveError> {
+        while self.patch + 1 < self.offsets.len() && self.offsets[self.patch + 1] as usize == self.end {
+            let h = self.hits[self.patch] as f64;
+            if self.sum > h * (1.0 + SUM_SLACK) {
+                return Err(ArchiveError::corrupt(format!(
+                    "LWGT: patch {}'s link ends carry {} rays, more than the {h} that cross it (PHIT)",
+                    self.patch, self.sum
+                )));
+            }
+            self.sum = 0.0;
+            self.patch += 1;
+        }
+        Ok(())
+    }
+}
+
+/// A link's end at `a`: (`a`, `bucket_a`, `pair`, `b`).
+type EndKey = (u32, u8, u32, u32);
+
+/// Checks frame `frame`'s decoded `records` (indices already checked)
+/// against the hit counts and frame 0's `links` (rows `offsets`): no
+/// record moves more rays than cross either of its patches, and no link
+/// loses more rays than frame 0 gave it (§5.13: "the result has no
+/// negative weights"). Reads only the rows of patches some record removes
+/// rays at, window by window.
+pub(super) fn check_frame(
+    frame: u32,
+    records: &[DeltaRecord],
+    hits: &[u32],
+    offsets: &[u64],
+    links: &Links<'_>,
+) -> Result<(), ArchiveError> {
+    let bad = |i: usize, what: String| ArchiveError::corrupt(format!("DELT frame {frame}, record {i}: {what}"));
+    for (i, d) in records.iter().enumerate() {
+        let most = hits[d.a as usize].min(hits[d.b as usize]);
+        if d.count.unsigned_abs() > most {
+            return Err(bad(
+                i,
+                format!(
+                    "count {} is more rays than the {most} that cross patch {} (PHIT)",
+                    d.count,
+                    if hits[d.a as usize] <= hits[d.b as usize] { d.a } else { d.b }
+                ),
+            ));
+        }
+    }
+    // Each link's end at `a` (direction 2k, other `b`, bucket `bucket_a`),
+    // summed over `bucket_b`: records of one key are adjacent once sorted.
+    let key = |d: &DeltaRecord| (d.a, d.bucket_a, d.pair, d.b);
+    let mut order: Vec<u32> = (0..records.len() as u32).collect();
+    order.sort_unstable_by_key(|&i| key(&records[i as usize]));
+    // Per key with a net removal: the key, the net count and the first record.
+    let mut removals: Vec<(EndKey, i64, usize)> = Vec::new();
+    let mut i = 0;
+    while i < order.len() {
+        let k = key(&records[order[i] as usize]);
+        let (mut net, first) = (0i64, order[i] as usize);
+        while i < order.len() && key(&records[order[i] as usize]) == k {
+            net += records[order[i] as usize].count as i64;
+            i += 1;
+        }
+        if net < 0 {
+            removals.push((k, net, first));
+        }
+    }
+    if removals.is_empty() {
+        return Ok(());
+    }
+    let mut wanted: Vec<u32> = removals.iter().map(|r| r.0.0).collect();
+    wanted.dedup();
+    let columns = Columns::ALL;
+    let patches = offsets.len() - 1;
+    let mut next = 0;
+    let mut row: Vec<((u8, u32, u32), f64)> = Vec::new();
+    links.for_each_window_of(columns, patches, &wanted, |w: LinkWindow<'_>| {
+        while next < removals.len() && (removals[next].0.0 as usize) < w.patches.end {
+            let q = removals[next].0.0 as usize;
+            if q < w.patches.start {
+                next += 1;
+                continue;
+            }
+            // Frame 0's ends at q leaving along an even direction, by key.
+            let r = w.local(offsets[q] as usize..offsets[q + 1] as usize);
+            row.clear();
+            for e in r {
+                let d = w.direction[e];
+                if d.is_multiple_of(2) {
+                    let bucket = w.bucket.get(e).copied().unwrap_or(0);
+                    row.push(((bucket, d / 2, w.other.ids()[e]), w.weight[e] as f64));
+                }
+            }
+            row.sort_unstable_by_key(|x| x.0);
+            while next < removals.len() && removals[next].0.0 as usize == q {
+                let ((_, bucket, pair, b), net, first) = removals[next];
+                let at = row.partition_point(|x| x.0 < (bucket, pair, b));
+                let base: f64 = row[at..].iter().take_while(|x| x.0 == (bucket, pair, b)).map(|x| x.1).sum();
+                if base + (net as f64) < 0.0 {
+                    return Err(bad(
+                        first,
+                        format!(
+                            "removes {} rays from the link of patches {q} and {b} along pair {pair}, which frame 0 \
+                             gave {base}: a negative weight",
+                            -net
+                        ),
+                    ));
+                }
+                next += 1;
+            }
+        }
+        Ok(())
+    })
+}

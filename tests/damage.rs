@@ -1,0 +1,427 @@
+//! The damage matrix (issue 14): a still, a glossy and a sequence archive,
+//! every section in turn flipped, zeroed, given a wrong length, cut at
+//! every section boundary, and forged with hostile values under valid
+//! checksums; each case must be a clear error or give finite light and a
+//! finite image, never a panic or a NaN. Run in CI in a debug build with
+//! overflow checks too (`tools/test.sh`).
+
+use std::panic::{AssertUnwindSafe, catch_unwind};
+
+use bytemuck::pod_read_unaligned;
+use illumnet::archive::layout::{self, HeaderRecord, SectionEntry};
+use illumnet::archive::{self, Archive, ArchiveContents, ArchiveError, tag_name};
+use illumnet::build::{self, BuildSettings};
+use illumnet::distribute::{DistributeError, DistributeOptions, Distributor, Lighting};
+use illumnet::progress::NoProgress;
+use illumnet::render::{self, RenderOptions, Renderer};
+use illumnet::scene::{BuildHints, Scene};
+use xxhash_rust::xxh3::xxh3_64;
+
+const ROOM: &str = r#"
+[camera]
+position = [1, 1, -1.5]
+look_at = [1, 1, 1]
+fov_y_deg = 60
+width = 12
+height = 12
+
+[[material]]
+name = "grey"
+type = "diffuse"
+reflectance = [0.6, 0.5, 0.4]
+
+[[surface]]
+name = "room"
+material = "grey"
+box = { min = [0, 0, 0], max = [2, 2, 2], inward = true }
+
+[[surface]]
+name = "lamp"
+material = "grey"
+emission = [5, 5, 5]
+quad = [[0.8, 1.9, 0.8], [1.2, 1.9, 0.8], [1.2, 1.9, 1.2], [0.8, 1.9, 1.2]]
+"#;
+
+const GLOSSY: &str = r#"
+[[material]]
+name = "metal"
+type = "rough_conductor"
+specular = [0.9, 0.8, 0.7]
+alpha_u = 0.2
+alpha_v = 0.4
+
+[[surface]]
+name = "plate"
+material = "metal"
+quad = [[0.5, 0.3, 0.5], [1.5, 0.3, 0.5], [1.5, 0.3, 1.5], [0.5, 0.3, 1.5]]
+"#;
+
+const MOVING: &str = r#"
+[animation]
+frames = 3
+fps = 10
+
+[[surface]]
+name = "mover"
+material = "grey"
+box = { min = [0.3, 0.2, 0.3], max = [0.7, 0.6, 0.7] }
+keyframes = [{ frame = 0 }, { frame = 2, translate = [0.8, 0.2, 0.6] }]
+"#;
+
+fn hints() -> BuildHints {
+    BuildHints { patch_size: Some(0.3), frequency: Some(3), ray_spacing: Some(0.06), buckets: None }
+}
+
+fn contents(text: &str) -> ArchiveContents {
+    let scene = Scene::from_toml(text, std::path::Path::new("damage.toml"), std::path::Path::new(".")).unwrap();
+    let mut settings = BuildSettings::resolve(&scene, hints());
+    settings.prototype_library = None;
+    build::build_sequence(&scene, &settings, &NoProgress).unwrap().contents
+}
+
+fn archives() -> Vec<(&'static str, ArchiveContents)> {
+    vec![
+        ("still", contents(ROOM)),
+        ("glossy", contents(&format!("{ROOM}{GLOSSY}"))),
+        ("sequence", contents(&format!("{ROOM}{MOVING}"))),
+    ]
+}
+
+fn header(bytes: &[u8]) -> HeaderRecord {
+    pod_read_unaligned(&bytes[..layout::HEADER_SIZE])
+}
+
+fn entries(bytes: &[u8]) -> Vec<SectionEntry> {
+    let h = header(bytes);
+    let t = h.table_offset as usize;
+    bytes[t..t + h.section_count as usize * layout::ENTRY_SIZE]
+        .chunks_exact(layout::ENTRY_SIZE)
+        .map(pod_read_unaligned)
+        .collect()
+}
+
+/// Recomputes every section checksum, the table's and the header's: a
+/// forgery a checksum cannot catch.
+fn reseal(bytes: &mut [u8]) {
+    let h = header(bytes);
+    let t = h.table_offset as usize;
+    for (i, mut e) in entries(bytes).into_iter().enumerate() {
+        let (a, b) = (e.offset as usize, (e.offset + e.stored_length) as usize);
+        if b <= bytes.len() && a <= b {
+            e.checksum = xxh3_64(&bytes[a..b]);
+        }
+        let at = t + i * layout::ENTRY_SIZE;
+        bytes[at..at + layout::ENTRY_SIZE].copy_from_slice(bytemuck::bytes_of(&e));
+    }
+    let mut h = header(bytes);
+    h.table_checksum = xxh3_64(&bytes[t..t + h.section_count as usize * layout::ENTRY_SIZE]);
+    bytes[..layout::HEADER_SIZE].copy_from_slice(bytemuck::bytes_of(&h));
+    let sum = xxh3_64(&bytes[..120]);
+    bytes[120..128].copy_from_slice(&sum.to_le_bytes());
+}
+
+fn set_entry(bytes: &mut [u8], i: usize, f: impl FnOnce(&mut SectionEntry)) {
+    let t = header(bytes).table_offset as usize + i * layout::ENTRY_SIZE;
+    let mut e: SectionEntry = pod_read_unaligned(&bytes[t..t + layout::ENTRY_SIZE]);
+    f(&mut e);
+    bytes[t..t + layout::ENTRY_SIZE].copy_from_slice(bytemuck::bytes_of(&e));
+}
+
+/// What an archive's bytes led to.
+#[derive(Debug)]
+enum Outcome {
+    /// Refused when opened.
+    Refused(ArchiveError),
+    /// Opened, then refused by the distribution (a frame's delta, a
+    /// non-finite result).
+    Stopped(DistributeError),
+    /// Every frame distributed and rendered, all finite.
+    Finite,
+}
+
+/// Opens, distributes every frame and renders it; `Err`
+/// for a panic or a non-finite value.
+fn outcome(bytes: &[u8]) -> Result<Outcome, String> {
+    catch_unwind(AssertUnwindSafe(|| -> Result<Outcome, String> {
+        let a = match Archive::from_bytes(bytes) {
+            Ok(a) => a,
+            Err(e) => return Ok(Outcome::Refused(e)),
+        };
+        let v = a.view();
+        let opts = DistributeOptions { max_iterations: 60, ..Default::default() };
+        let d = match Distributor::new(&v, &opts, &Lighting::from_view(&v)) {
+            Ok(d) => d,
+            Err(e) => return Ok(Outcome::Stopped(e)),
+        };
+        let last = v.sequence.map_or(0, |s| s.frames() - 1);
+        let mut renderer = Renderer::new(&v, RenderOptions { samples_per_axis: 1 });
+        for f in 0..=last {
+            let s = match d.frame(f, None, &NoProgress) {
+                Ok(s) => s,
+                Err(e) => return Ok(Outcome::Stopped(e)),
+            };
+            let finite = |x: &[[f32; 3]]| x.iter().flatten().all(|c| c.is_finite());
+            if !finite(&s.radiance) {
+                return Err(format!("frame {f}: a non-finite radiance was handed out"));
+            }
+            let light = render::DirectLight::new(&v, f, &s.surface_emission, &s.surface_reflectance, 1);
+            let (image, direct) = renderer.frame_direct(f, &render::indirect_frame_radiance(&v, f, &s), &light);
+            if !finite(&image.pixels) || !finite(&direct.pixels) {
+                return Err(format!("frame {f}: a non-finite pixel"));
+            }
+        }
+        Ok(Outcome::Finite)
+    }))
+    .unwrap_or_else(|p| {
+        let msg = p.downcast_ref::<String>().cloned().or_else(|| p.downcast_ref::<&str>().map(|s| s.to_string()));
+        Err(format!("panic: {}", msg.unwrap_or_default()))
+    })
+}
+
+/// Runs `cases` (name, bytes) and fails listing every panic, non-finite
+/// output, or case `must_refuse` yet accepted.
+fn run(label: &str, cases: impl Iterator<Item = (String, Vec<u8>, bool)>) -> [usize; 3] {
+    let mut failures = Vec::new();
+    let mut counts = [0usize; 3];
+    for (name, bytes, must_refuse) in cases {
+        match outcome(&bytes) {
+            Err(e) => failures.push(format!("{label} {name}: {e}")),
+            Ok(o) => {
+                let k = match &o {
+                    Outcome::Refused(e) => {
+                        assert!(!e.to_string().is_empty());
+                        0
+                    }
+                    Outcome::Stopped(_) => 1,
+                    Outcome::Finite => 2,
+                };
+                counts[k] += 1;
+                if must_refuse && k == 2 {
+                    failures.push(format!("{label} {name}: accepted"));
+                }
+            }
+        }
+    }
+    assert!(failures.is_empty(), "{} of the damage cases failed:\n{}", failures.len(), failures.join("\n"));
+    eprintln!(
+        "{label}: refused at open {}, stopped by the distribution {}, finite {}",
+        counts[0], counts[1], counts[2]
+    );
+    counts
+}
+
+#[test]
+fn flipped_zeroed_misdeclared_and_cut_archives_are_errors() {
+    for (label, c) in archives() {
+        let good = archive::write_to_vec(&c).unwrap();
+        assert!(matches!(outcome(&good), Ok(Outcome::Finite)), "{label}: the undamaged archive");
+        let es = entries(&good);
+        let mut cases: Vec<(String, Vec<u8>, bool)> = Vec::new();
+        for (i, e) in es.iter().enumerate() {
+            let name = tag_name(e.tag);
+            let (a, n) = (e.offset as usize, e.stored_length as usize);
+            for at in [0, n / 2, n.saturating_sub(1)] {
+                if n > 0 {
+                    let mut b = good.clone();
+                    b[a + at] ^= 0x5a;
+                    cases.push((format!("{name}: byte {at} flipped"), b, true));
+                }
+            }
+            let z = n.min(64);
+            if good[a..a + z].iter().any(|&x| x != 0) {
+                let mut b = good.clone();
+                b[a..a + z].fill(0);
+                cases.push((format!("{name}: first {z} bytes zeroed"), b, true));
+            }
+            for (what, f) in [
+                ("length + 1", (|e: &mut SectionEntry| e.length += 1) as fn(&mut SectionEntry)),
+                ("stored length + 1", |e| e.stored_length += 1),
+                ("length - 1", |e| e.length = e.length.saturating_sub(1)),
+                ("count + 1", |e| e.count += 1),
+                ("count u64::MAX", |e| e.count = u64::MAX),
+                ("record size 0", |e| e.record_size = if e.record_size == 0 { 1 } else { 0 }),
+                ("offset + 64", |e| e.offset += 64),
+            ] {
+                let mut b = good.clone();
+                set_entry(&mut b, i, f);
+                reseal(&mut b);
+                // A moved section may land on bytes that happen to pass.
+                cases.push((format!("{name}: table entry {what}"), b, what != "offset + 64"));
+            }
+            for cut in [a, a + n] {
+                cases.push((format!("{name}: cut at {cut}"), good[..cut].to_vec(), true));
+            }
+        }
+        cases.push(("cut at the table".into(), good[..header(&good).table_offset as usize].to_vec(), true));
+        for (what, at, value) in [("version_write 0", 8, 0u32), ("version_read 0", 12, 0), ("version_read 7", 12, 7)] {
+            let mut b = good.clone();
+            b[at..at + 4].copy_from_slice(&value.to_le_bytes());
+            reseal(&mut b);
+            cases.push((what.into(), b, true));
+        }
+        let counts = run(label, cases.into_iter());
+        assert!(counts[2] <= es.len(), "{label}: refused / stopped / finite {counts:?}");
+    }
+}
+
+#[test]
+fn hostile_values_under_valid_checksums_never_give_nan() {
+    let words: [(&str, u32); 10] = [
+        ("u32::MAX", u32::MAX),
+        ("i32::MIN", 0x8000_0000),
+        ("i32::MAX", 0x7fff_ffff),
+        ("NaN", f32::NAN.to_bits()),
+        ("inf", f32::INFINITY.to_bits()),
+        ("-inf", f32::NEG_INFINITY.to_bits()),
+        ("-1.0", (-1.0f32).to_bits()),
+        ("zero", 0),
+        ("3e38", 3e38f32.to_bits()),
+        ("1e-45", 1),
+    ];
+    let mut total = [0usize; 3];
+    for (label, c) in archives() {
+        let good = archive::write_to_vec(&c).unwrap();
+        let mut cases = Vec::new();
+        for e in entries(&good) {
+            let name = tag_name(e.tag);
+            let (a, n) = (e.offset as usize, e.stored_length as usize / 4 * 4);
+            if n == 0 {
+                continue;
+            }
+            for at in [0, (n / 8) * 4, n - 4] {
+                for (what, w) in words {
+                    let mut b = good.clone();
+                    b[a + at..a + at + 4].copy_from_slice(&w.to_le_bytes());
+                    if b == good {
+                        continue;
+                    }
+                    reseal(&mut b);
+                    cases.push((format!("{name}: word at {at} = {what}"), b, false));
+                }
+            }
+        }
+        let counts = run(label, cases.into_iter());
+        for k in 0..3 {
+            total[k] += counts[k];
+        }
+    }
+    // Most forgeries are refused; the rest must give finite light.
+    assert!(total[0] > 2 * total[2], "refused / stopped / finite: {total:?}");
+}
+
+/// Frame 1's records of the sequence archive with `f` applied, re-encoded.
+fn forged_deltas(c: &ArchiveContents, f: impl FnOnce(&mut Vec<layout::DeltaRecord>, &ArchiveContents)) -> Vec<u8> {
+    let a = Archive::from_bytes(&archive::write_to_vec(c).unwrap()).unwrap();
+    let s = a.view().sequence.unwrap();
+    let mut frames: Vec<Vec<layout::DeltaRecord>> = (0..s.frames()).map(|k| s.frame_delta(k).unwrap()).collect();
+    f(&mut frames[1], c);
+    let mut c = c.clone();
+    c.sequence.as_mut().unwrap().deltas = archive::deltas::EncodedDeltas::from_frames(&frames).unwrap();
+    archive::write_to_vec(&c).unwrap()
+}
+
+fn stopped_with(bytes: &[u8], want: &str) {
+    match outcome(bytes) {
+        Ok(Outcome::Stopped(e)) => assert!(e.to_string().contains(want), "{e}"),
+        other => panic!("expected the distribution to stop with `{want}`, got {other:?}"),
+    }
+}
+
+#[test]
+fn deltas_that_drive_a_weight_negative_or_huge_are_refused_naming_frame_and_record() {
+    let c = contents(&format!("{ROOM}{MOVING}"));
+    for count in [i32::MIN, i32::MAX, -(1 << 20), 1 << 20] {
+        let b = forged_deltas(&c, |r, _| r[0].count = count);
+        stopped_with(&b, "DELT frame 1, record 0: count");
+    }
+    // A removal one ray larger than the link holds.
+    let a = Archive::from_bytes(&archive::write_to_vec(&c).unwrap()).unwrap();
+    let v = a.view();
+    let records = v.sequence.unwrap().frame_delta(1).unwrap();
+    let k = records.iter().position(|d| d.count < 0).expect("frame 1 removes rays somewhere");
+    let b = forged_deltas(&c, |r, _| {
+        r[k].count -= 1 + v.patch_hits[r[k].a as usize].min(v.patch_hits[r[k].b as usize]) as i32 / 2
+    });
+    match outcome(&b) {
+        Ok(Outcome::Stopped(e)) => {
+            let m = e.to_string();
+            assert!(m.contains("DELT frame 1"), "{m}");
+        }
+        other => panic!("{other:?}"),
+    }
+    // A removal from a link frame 0 does not have: moved onto a pair
+    // whose link it is not.
+    let b = forged_deltas(&c, |r, c| {
+        let d = r[k];
+        let pairs = c.build.direction_count / 2;
+        r[k].pair = (d.pair + 1) % pairs;
+        r.sort_by_key(|d| (d.pair, d.a, d.b, d.bucket_a, d.bucket_b));
+        r.dedup_by_key(|d| (d.pair, d.a, d.b, d.bucket_a, d.bucket_b));
+    });
+    match outcome(&b) {
+        Ok(Outcome::Stopped(e)) => {
+            assert!(e.to_string().contains("negative weight") || e.to_string().contains("rays"), "{e}")
+        }
+        Ok(Outcome::Finite) => {} // the forged key happened to name a link with rays to spare
+        other => panic!("{other:?}"),
+    }
+}
+
+fn refused_with(c: &ArchiveContents, want: &str) {
+    let bytes = archive::write_to_vec(c).unwrap();
+    match Archive::from_bytes(&bytes) {
+        Err(e) => assert!(e.to_string().contains(want), "expected `{want}`, got: {e}"),
+        Ok(_) => panic!("accepted; expected `{want}`"),
+    }
+}
+
+#[test]
+fn values_within_old_rules_that_made_nan_are_refused_at_open() {
+    let c = contents(ROOM);
+    let linked = (0..c.patch_hits.len()).find(|&p| c.link_offsets[p + 1] > c.link_offsets[p] + 1).unwrap();
+    let mut x = c.clone();
+    x.patch_hits[linked] = 1;
+    refused_with(&x, "more than the 1 that cross it");
+    let mut x = c.clone();
+    x.link_weight[c.link_offsets[linked] as usize] = 3e38;
+    refused_with(&x, "LWGT");
+    let mut x = c.clone();
+    x.surfaces[1].emission = [1e38; 3];
+    refused_with(&x, "SURF[1]: emission");
+    let mut x = c.clone();
+    x.patch_area[linked] = 1e-45;
+    refused_with(&x, &format!("PEXP[{linked}]"));
+    let mut x = c.clone();
+    x.patch_area[linked] = 1e30;
+    refused_with(&x, &format!("PARE[{linked}]"));
+    let mut x = c.clone();
+    x.materials[0].params[13] = f32::NAN;
+    refused_with(&x, "MATL[0]: non-finite");
+    let mut g = contents(&format!("{ROOM}{GLOSSY}"));
+    g.reflectance.as_mut().unwrap().prototypes[0].ior = [f32::NEG_INFINITY; 3];
+    refused_with(&g, "PTAB[0]");
+}
+
+#[test]
+fn a_delt_entry_with_a_wrong_count_is_refused() {
+    let good = archive::write_to_vec(&contents(&format!("{ROOM}{MOVING}"))).unwrap();
+    let i = entries(&good).iter().position(|e| e.tag == layout::tag::DELTAS).unwrap();
+    for count in [4, u64::MAX] {
+        let mut b = good.clone();
+        set_entry(&mut b, i, |e| e.count = count);
+        reseal(&mut b);
+        let e = Archive::from_bytes(&b).err().expect("accepted");
+        assert!(e.to_string().contains("DELT: count"), "{e}");
+    }
+}
+
+#[test]
+fn an_unused_glossy_material_builds_an_archive_that_opens() {
+    let text = ROOM.to_string()
+        + "\n[[material]]\nname = \"spare\"\ntype = \"rough_conductor\"\nspecular = [0.9, 0.9, 0.9]\nalpha = 0.3\n";
+    let c = contents(&text);
+    assert!(c.reflectance.is_none());
+    let a = Archive::from_bytes(&archive::write_to_vec(&c).unwrap()).unwrap();
+    assert!(matches!(outcome(&archive::write_to_vec(&c).unwrap()), Ok(Outcome::Finite)));
+    assert_eq!(a.view().materials.len(), 2);
+}
