@@ -58,6 +58,7 @@ pub mod progress;
 pub mod reflectance;
 pub mod render;
 pub mod scene;
+pub mod scratch;
 
 /// The Cornell box scene embedded in the binary (`scenes/cornell_box.toml`),
 /// used by `illumnet demo` and the tests.

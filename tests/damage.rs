@@ -15,7 +15,6 @@ use illumnet::distribute::{DistributeError, DistributeOptions, Distributor, Ligh
 use illumnet::progress::NoProgress;
 use illumnet::render::{self, RenderOptions, Renderer};
 use illumnet::scene::{BuildHints, Scene};
-use xxhash_rust::xxh3::xxh3_64;
 
 const ROOM: &str = r#"
 [camera]
@@ -98,26 +97,6 @@ fn entries(bytes: &[u8]) -> Vec<SectionEntry> {
         .chunks_exact(layout::ENTRY_SIZE)
         .map(pod_read_unaligned)
         .collect()
-}
-
-/// Recomputes every section checksum, the table's and the header's: a
-/// forgery a checksum cannot catch.
-fn reseal(bytes: &mut [u8]) {
-    let h = header(bytes);
-    let t = h.table_offset as usize;
-    for (i, mut e) in entries(bytes).into_iter().enumerate() {
-        let (a, b) = (e.offset as usize, (e.offset + e.stored_length) as usize);
-        if b <= bytes.len() && a <= b {
-            e.checksum = xxh3_64(&bytes[a..b]);
-        }
-        let at = t + i * layout::ENTRY_SIZE;
-        bytes[at..at + layout::ENTRY_SIZE].copy_from_slice(bytemuck::bytes_of(&e));
-    }
-    let mut h = header(bytes);
-    h.table_checksum = xxh3_64(&bytes[t..t + h.section_count as usize * layout::ENTRY_SIZE]);
-    bytes[..layout::HEADER_SIZE].copy_from_slice(bytemuck::bytes_of(&h));
-    let sum = xxh3_64(&bytes[..120]);
-    bytes[120..128].copy_from_slice(&sum.to_le_bytes());
 }
 
 fn set_entry(bytes: &mut [u8], i: usize, f: impl FnOnce(&mut SectionEntry)) {
@@ -244,7 +223,7 @@ fn flipped_zeroed_misdeclared_and_cut_archives_are_errors() {
             ] {
                 let mut b = good.clone();
                 set_entry(&mut b, i, f);
-                reseal(&mut b);
+                archive::reseal(&mut b);
                 // A moved section may land on bytes that happen to pass.
                 cases.push((format!("{name}: table entry {what}"), b, what != "offset + 64"));
             }
@@ -256,7 +235,7 @@ fn flipped_zeroed_misdeclared_and_cut_archives_are_errors() {
         for (what, at, value) in [("version_write 0", 8, 0u32), ("version_read 0", 12, 0), ("version_read 7", 12, 7)] {
             let mut b = good.clone();
             b[at..at + 4].copy_from_slice(&value.to_le_bytes());
-            reseal(&mut b);
+            archive::reseal(&mut b);
             cases.push((what.into(), b, true));
         }
         let counts = run(label, cases.into_iter());
@@ -295,7 +274,7 @@ fn hostile_values_under_valid_checksums_never_give_nan() {
                     if b == good {
                         continue;
                     }
-                    reseal(&mut b);
+                    archive::reseal(&mut b);
                     cases.push((format!("{name}: word at {at} = {what}"), b, false));
                 }
             }
@@ -409,7 +388,7 @@ fn a_delt_entry_with_a_wrong_count_is_refused() {
     for count in [4, u64::MAX] {
         let mut b = good.clone();
         set_entry(&mut b, i, |e| e.count = count);
-        reseal(&mut b);
+        archive::reseal(&mut b);
         let e = Archive::from_bytes(&b).err().expect("accepted");
         assert!(e.to_string().contains("DELT: count"), "{e}");
     }
@@ -424,4 +403,56 @@ fn an_unused_glossy_material_builds_an_archive_that_opens() {
     let a = Archive::from_bytes(&archive::write_to_vec(&c).unwrap()).unwrap();
     assert!(matches!(outcome(&archive::write_to_vec(&c).unwrap()), Ok(Outcome::Finite)));
     assert_eq!(a.view().materials.len(), 2);
+}
+
+/// Writes the fuzzers' seed corpus (`fuzz/corpus/`, committed): the
+/// archives of this file's scenes (built coarsely, to stay small), their
+/// frames' delta bytes, the scene files, and a few OBJ meshes. Run by hand:
+/// `cargo test --release --test damage -- --ignored write_fuzz_seed_corpus`.
+#[test]
+#[ignore]
+fn write_fuzz_seed_corpus() {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("fuzz/corpus");
+    let put = |target: &str, name: &str, bytes: &[u8]| {
+        std::fs::create_dir_all(root.join(target)).unwrap();
+        std::fs::write(root.join(target).join(name), bytes).unwrap();
+    };
+    let coarse = |text: &str| {
+        let scene = Scene::from_toml(text, std::path::Path::new("seed.toml"), std::path::Path::new(".")).unwrap();
+        let hints = BuildHints { patch_size: Some(0.4), frequency: Some(2), ray_spacing: Some(0.08), buckets: None };
+        let mut settings = BuildSettings::resolve(&scene, hints);
+        settings.prototype_library = None;
+        archive::write_to_vec(&build::build_sequence(&scene, &settings, &NoProgress).unwrap().contents).unwrap()
+    };
+    for (name, text) in
+        [("still", ROOM.to_string()), ("glossy", format!("{ROOM}{GLOSSY}")), ("sequence", format!("{ROOM}{MOVING}"))]
+    {
+        let bytes = coarse(&text);
+        assert!(bytes.len() <= 262_144, "{name}: {} bytes, above the fuzzers' -max_len", bytes.len());
+        put("archive_open", &format!("{name}-archive"), &bytes);
+        put("scene_toml", &format!("{name}.toml"), text.as_bytes());
+        if name == "sequence" {
+            let a = Archive::from_bytes(&bytes).unwrap();
+            let s = a.view().sequence.unwrap();
+            for (f, ix) in s.index.iter().enumerate() {
+                let stored = &s.payload[ix.offset as usize..(ix.offset + ix.stored_length) as usize];
+                let mut input = vec![1u8];
+                input.extend_from_slice(&(ix.count as u32).to_le_bytes());
+                input.extend_from_slice(stored);
+                put("frame_delta", &format!("frame{f}"), &input);
+            }
+        }
+    }
+    for (i, script) in [&[0u8][..], &[1], &[2], &[2, 5, 0, 0, 0, 0, 3, 0xff, 0xff, 0xff, 0x7f]].iter().enumerate() {
+        put("archive_forge", &format!("script{i}"), script);
+    }
+    for f in std::fs::read_dir(std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes")).unwrap() {
+        let p = f.unwrap().path();
+        if p.extension().is_some_and(|e| e == "toml") {
+            put("scene_toml", &p.file_name().unwrap().to_string_lossy(), &std::fs::read(&p).unwrap());
+        }
+    }
+    put("scene_obj", "triangle.obj", b"v 0 0 0\nv 1 0 0\nv 1 1 0\nf 1 2 3\n");
+    put("scene_obj", "quad.obj", b"# a quad\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvn 0 0 1\nf 1//1 2//1 3//1 4//1\n");
+    put("scene_obj", "groups.obj", b"o a\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\ng b\nv 0 0 1\nf -1 -2 -3\n");
 }

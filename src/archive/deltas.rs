@@ -141,6 +141,15 @@ impl EncodedDeltas {
     }
 }
 
+/// Decodes one frame's stored `DELT` bytes into `count` records (blocks of
+/// columns when `columns`, else the plain records of version 3 and 4
+/// files), checking what the format says of blocks before allocating; no
+/// range or order checks (the reader's are
+/// [`super::SequenceView::frame_delta`]). For tools and fuzzing.
+pub fn decode_frame(stored: &[u8], count: u64, columns: bool) -> Result<Vec<DeltaRecord>, ArchiveError> {
+    decode(stored, count, 0, columns)
+}
+
 fn bad(frame: u32, what: String) -> ArchiveError {
     ArchiveError::corrupt(format!("DELT frame {frame}: {what}"))
 }

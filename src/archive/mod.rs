@@ -32,7 +32,7 @@ use std::path::PathBuf;
 pub use links::{Columns, LinkRows, LinkSlices, LinkWindow, Links, PatchIds};
 pub use read::{Archive, ArchiveSummary, InetView, ReflectanceView, SequenceView};
 pub use stream::{CHUNK_ENDS, LinkStream, bytes_per_end};
-pub use write::{LinkEndSink, LinkEndSource, write, write_to_vec, write_to_vec_with_links, write_with_links};
+pub use write::{LinkEndSink, LinkEndSource, reseal, write, write_to_vec, write_to_vec_with_links, write_with_links};
 
 use layout::{BuildRecord, CameraRecord, DirectionRecord, MaterialRecord, PrimitiveRecord, SurfaceRecord, Tag};
 

@@ -8,6 +8,7 @@ use xxhash_rust::xxh3::{Xxh3, xxh3_64};
 
 use super::layout::{self, HeaderRecord, SectionEntry, Tag, compression, tag};
 use super::{ArchiveContents, ArchiveError};
+use crate::scratch;
 
 /// Receives batches of link ends: other patch, weight, direction, bucket.
 pub type LinkEndSink<'a> = dyn FnMut(&[u32], &[f32], &[u32], &[u8]) -> std::io::Result<()> + 'a;
@@ -304,18 +305,12 @@ pub fn write_with_links(
     contents: &ArchiveContents,
     links: Option<&mut dyn LinkEndSource>,
 ) -> Result<u64, ArchiveError> {
-    let dir = match path.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p,
-        _ => Path::new("."),
-    };
+    let dir = scratch::dir_of(path);
     let io = |e: std::io::Error| ArchiveError::Io { path: path.into(), source: e };
     std::fs::create_dir_all(dir).map_err(|e| ArchiveError::Io { path: dir.into(), source: e })?;
-    let mut builder = tempfile::Builder::new();
-    builder.prefix(".illumnet-").suffix(".tmp");
-    // Created as a new file would be (0666 less the umask), not tempfile's 0600.
-    #[cfg(unix)]
-    builder.permissions(std::os::unix::fs::PermissionsExt::from_mode(0o666));
-    let tmp = builder.tempfile_in(dir).map_err(io)?;
+    // What a killed write of this archive left (never a live one's).
+    let _ = scratch::remove_stale(path);
+    let tmp = scratch::temp_file(path).map_err(io)?;
     let (file, tmp_path) = tmp.into_parts();
     let buffered = std::io::BufWriter::with_capacity(1 << 20, file);
     let buffered = write_all(buffered, contents, links).map_err(|e| match e {
@@ -323,6 +318,7 @@ pub fn write_with_links(
         other => other,
     })?;
     let file = buffered.into_inner().map_err(|e| io(e.into_error()))?;
+    scratch::stop_point("write");
     file.sync_all().map_err(io)?;
     let len = file.metadata().map_err(io)?.len();
     drop(file);
@@ -341,4 +337,54 @@ pub fn write_to_vec_with_links(
     links: &mut dyn LinkEndSource,
 ) -> Result<Vec<u8>, ArchiveError> {
     Ok(write_all(std::io::Cursor::new(Vec::new()), contents, Some(links))?.into_inner())
+}
+
+/// Recomputes every checksum of the archive held in `bytes` — each frame's
+/// in `DIDX` (of its `DELT` bytes), each section's, the table's and the
+/// header's — after its bytes were changed in place: how tests and fuzzers
+/// forge archives that get past the checksums to the rules behind them.
+/// Entries or ranges that lie outside `bytes` are left as they are.
+pub fn reseal(bytes: &mut [u8]) {
+    if bytes.len() < layout::HEADER_SIZE {
+        return;
+    }
+    let header: HeaderRecord = bytemuck::pod_read_unaligned(&bytes[..layout::HEADER_SIZE]);
+    let t = header.table_offset as usize;
+    let table_end = (header.section_count as usize).checked_mul(layout::ENTRY_SIZE).and_then(|n| n.checked_add(t));
+    let Some(table_end) = table_end.filter(|&e| e <= bytes.len()) else { return };
+    let entry_at = |i: usize| t + i * layout::ENTRY_SIZE;
+    let entries: Vec<SectionEntry> = (0..header.section_count as usize)
+        .map(|i| bytemuck::pod_read_unaligned(&bytes[entry_at(i)..entry_at(i) + layout::ENTRY_SIZE]))
+        .collect();
+    let len = bytes.len();
+    let range = |e: &SectionEntry| {
+        let a = e.offset as usize;
+        a.checked_add(e.stored_length as usize).filter(|&b| b <= len).map(|b| a..b)
+    };
+    let find = |t: Tag| entries.iter().find(|e| e.tag == t).and_then(range);
+    if let (Some(index), Some(payload)) = (find(tag::DELTA_INDEX), find(tag::DELTAS)) {
+        let size = size_of::<layout::DeltaIndexRecord>();
+        for at in index.step_by(size) {
+            if at + size > bytes.len() {
+                break;
+            }
+            let mut r: layout::DeltaIndexRecord = bytemuck::pod_read_unaligned(&bytes[at..at + size]);
+            let a = payload.start.saturating_add(r.offset as usize);
+            if let Some(b) = a.checked_add(r.stored_length as usize).filter(|&b| b <= payload.end) {
+                r.checksum = xxh3_64(&bytes[a..b]);
+                bytes[at..at + size].copy_from_slice(bytes_of(&r));
+            }
+        }
+    }
+    for (i, mut e) in entries.into_iter().enumerate() {
+        if let Some(r) = range(&e) {
+            e.checksum = xxh3_64(&bytes[r]);
+        }
+        bytes[entry_at(i)..entry_at(i) + layout::ENTRY_SIZE].copy_from_slice(bytes_of(&e));
+    }
+    let mut header = header;
+    header.table_checksum = xxh3_64(&bytes[t..table_end]);
+    bytes[..layout::HEADER_SIZE].copy_from_slice(bytes_of(&header));
+    let sum = xxh3_64(&bytes[..120]);
+    bytes[120..128].copy_from_slice(&sum.to_le_bytes());
 }

@@ -141,14 +141,15 @@ pub struct Sequence {
     pub warnings: Vec<String>,
 }
 
-/// A bounded build's limits: its memory budget, and the directory (next
-/// to the output) where it spills runs of link ends when over it.
+/// A bounded build's limits: its memory budget, and the archive it
+/// builds, next to which it spills runs of link ends when over it.
 #[derive(Clone, Debug)]
 pub struct MemoryBound {
     /// Bytes the build may keep resident (see [`crate::memory`]).
     pub budget: u64,
-    /// Where scratch files go (a `.illumnet-*.spill` directory is made in it).
-    pub scratch_dir: std::path::PathBuf,
+    /// The archive's path: scratch goes in a `.illumnet-<name>.<pid>-*.spill`
+    /// directory next to it ([`crate::scratch`]).
+    pub output: std::path::PathBuf,
 }
 
 /// Why a bounded build did not finish.
@@ -459,7 +460,7 @@ fn build_impl(
             }
             let room = b.budget - fixed;
             let threshold = room * spill::BUNDLE_BYTES_PER_LINK / spill::Spill::sort_bytes_per_link() * 2 / 3;
-            Some(spill::Spill::new(&b.scratch_dir, threshold, patches.len())?)
+            Some(spill::Spill::new(&b.output, threshold, patches.len())?)
         }
         _ => None,
     };
@@ -503,6 +504,7 @@ fn build_impl(
         }
         _ => (links::assemble(&bundles, patches.len(), settings.max_bucket), None, bundles),
     };
+    crate::scratch::stop_point("links");
     let base = keep_links.then(|| {
         bundles
             .iter()

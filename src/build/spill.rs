@@ -53,7 +53,11 @@ struct Run {
 
 /// Where a build spills, and what it has spilled.
 pub(super) struct Spill {
-    dir: tempfile::TempDir,
+    /// The archive: the scratch directory goes next to it.
+    output: std::path::PathBuf,
+    /// The scratch directory and its lock (held while it lives), made
+    /// at the first spill.
+    dir: Mutex<Option<Scratch>>,
     /// In-memory bundle bytes above which a worker spills its own.
     threshold: u64,
     in_memory: AtomicU64,
@@ -79,21 +83,20 @@ struct SortEnd {
     direction: u32,
 }
 
+/// A scratch directory and its lock file ([`crate::scratch::scratch_dir`]).
+type Scratch = (tempfile::TempDir, std::fs::File);
+
 fn io_error(path: &Path, e: std::io::Error) -> String {
     format!("cannot spill link ends to {}: {e}", path.display())
 }
 
 impl Spill {
-    /// A scratch directory in `dir` (the output's), spilling when the
+    /// A scratch directory next to `output`, spilling when the
     /// bundles held exceed `threshold` bytes.
-    pub(super) fn new(dir: &Path, threshold: u64, patches: usize) -> Result<Self, String> {
-        let scratch = tempfile::Builder::new()
-            .prefix(".illumnet-")
-            .suffix(".spill")
-            .tempdir_in(dir)
-            .map_err(|e| format!("cannot make a scratch directory in {}: {e}", dir.display()))?;
+    pub(super) fn new(output: &Path, threshold: u64, patches: usize) -> Result<Self, String> {
         Ok(Self {
-            dir: scratch,
+            output: output.to_path_buf(),
+            dir: Mutex::new(None),
             threshold,
             in_memory: AtomicU64::new(0),
             runs: Mutex::new(Vec::new()),
@@ -158,7 +161,7 @@ impl Spill {
         // Within a slot, ends keep the bundle order (`seq` is unique).
         ends.sort_unstable_by_key(|e| (e.owner, e.bucket, e.seq));
         let n = self.sequence.fetch_add(1, Ordering::Relaxed);
-        let path = self.dir.path().join(format!("run-{first_pair:06}-{n:04}.bin"));
+        let path = self.run_path(&format!("run-{first_pair:06}-{n:04}.bin"))?;
         let file = File::create(&path).map_err(|e| io_error(&path, e))?;
         let mut out = BufWriter::with_capacity(1 << 20, file);
         let write = |out: &mut BufWriter<File>, ends: &[SortEnd]| -> std::io::Result<u64> {
@@ -179,6 +182,7 @@ impl Spill {
         };
         let slots = write(&mut out, &ends).map_err(|e| io_error(&path, e))?;
         drop(out);
+        crate::scratch::stop_point("spill");
         {
             let mut per = self.ends_per_patch.lock().expect("no panics while held");
             for e in &ends {
@@ -202,6 +206,19 @@ impl Spill {
         Ok(())
     }
 
+    /// Where run `name` goes, in the scratch directory (made now if this
+    /// is the first run, after removing what killed builds left).
+    fn run_path(&self, name: &str) -> Result<std::path::PathBuf, String> {
+        let mut dir = self.dir.lock().expect("no panics while held");
+        if dir.is_none() {
+            let _ = crate::scratch::remove_stale(&self.output);
+            *dir = Some(crate::scratch::scratch_dir(&self.output).map_err(|e| {
+                format!("cannot make a scratch directory in {}: {e}", crate::scratch::dir_of(&self.output).display())
+            })?);
+        }
+        Ok(dir.as_ref().expect("made above").0.path().join(name))
+    }
+
     /// Runs spilled so far.
     pub(super) fn run_count(&self) -> usize {
         self.runs.lock().map_or(0, |r| r.len())
@@ -219,7 +236,7 @@ impl Spill {
             sum += e;
             offsets.push(sum);
         }
-        Ok((SpilledLinks { _dir: self.dir, runs, ends: sum }, offsets))
+        Ok((SpilledLinks { _dir: self.dir.into_inner().expect("no panics while held"), runs, ends: sum }, offsets))
     }
 
     /// Bytes held per link of a run being sorted.
@@ -233,7 +250,7 @@ impl Spill {
 /// directory goes when it is dropped.
 pub struct SpilledLinks {
     /// Removed (with the runs) when the build ends.
-    _dir: tempfile::TempDir,
+    _dir: Option<Scratch>,
     runs: Vec<Run>,
     ends: u64,
 }
@@ -308,6 +325,7 @@ impl LinkEndSource for SpilledLinks {
                 direction.push(word(2));
                 bucket.push(k);
                 if other.len() == BATCH {
+                    crate::scratch::stop_point("merge");
                     out(&other, &weight, &direction, &bucket)?;
                     other.clear();
                     weight.clear();

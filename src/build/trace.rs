@@ -688,6 +688,7 @@ pub fn trace_all(
         }
         accumulate_changes(s, &patch_active);
         progress.advance(1);
+        crate::scratch::stop_point("trace");
         (bundle, stats)
     };
     let pool = std::sync::Mutex::new(Vec::new());

@@ -46,11 +46,19 @@ fn build_scene(scene: &Scene, output: &Path, args: &BuildArgs, progress: &dyn Pr
         Some(bytes) => MemoryBudget { bytes, source: BudgetSource::Given },
         None => MemoryBudget::default_for_machine(),
     };
-    let scratch_dir = match output.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
-        _ => std::path::PathBuf::from("."),
-    };
-    let bound = build::MemoryBound { budget: budget.bytes, scratch_dir };
+    // What an interrupted build of this archive left next to it.
+    if let Ok(r) = illumnet::scratch::remove_stale(output)
+        && !r.paths.is_empty()
+    {
+        println!(
+            "removed {} temporary file{} ({}) left next to {} by an interrupted build",
+            r.paths.len(),
+            if r.paths.len() == 1 { "" } else { "s" },
+            Bytes(r.bytes),
+            output.display()
+        );
+    }
+    let bound = build::MemoryBound { budget: budget.bytes, output: output.to_path_buf() };
     let t = Instant::now();
     let (seq, mut spilled) = match build::build_sequence_bounded(scene, &settings, &bound, progress) {
         Ok(x) => x,

@@ -260,9 +260,41 @@ fn quiet_on_broken_pipe() {
     }));
 }
 
+/// A full disk or a file-size limit (`ulimit -f`) makes a write fail with
+/// an error (EFBIG) the CLI reports and cleans up after, instead of the
+/// default action of SIGXFSZ, which kills the process and leaves its
+/// temporary file behind.
+fn file_size_limit_is_an_error() {
+    #[cfg(unix)]
+    // SAFETY: setting a signal's disposition to SIG_IGN installs no
+    // handler code; called first thing, before any other thread exists.
+    unsafe {
+        libc::signal(libc::SIGXFSZ, libc::SIG_IGN);
+    }
+}
+
+/// `e` and its causes, `: `-separated, leaving out a cause its error
+/// already says (library errors such as `ArchiveError::Io` print their
+/// source and also return it as `source()`).
+fn report(e: &anyhow::Error) -> String {
+    let mut out = String::new();
+    for cause in e.chain() {
+        let text = cause.to_string();
+        if out.contains(&text) {
+            continue;
+        }
+        if !out.is_empty() {
+            out.push_str(": ");
+        }
+        out.push_str(&text);
+    }
+    out
+}
+
 /// Runs the CLI; errors print as `illumnet: error: …` and exit with the
 /// code of their kind (`exit.rs`, README).
 pub fn main() -> ExitCode {
+    file_size_limit_is_an_error();
     quiet_on_broken_pipe();
     let cli = Cli::parse();
     if let Some(n) = cli.threads
@@ -298,7 +330,7 @@ pub fn main() -> ExitCode {
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("illumnet: error: {e:#}");
+            eprintln!("illumnet: error: {}", report(&e));
             ExitCode::from(exit::code(&e))
         }
     }

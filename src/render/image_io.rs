@@ -25,12 +25,8 @@ fn save_atomic(
     let err = |e: &dyn std::fmt::Display| format!("{}: {e}", path.display());
     // `-o out/frame_%04d.png` into a directory that does not exist yet.
     std::fs::create_dir_all(dir).map_err(|e| format!("cannot create directory {}: {e}", dir.display()))?;
-    let mut builder = tempfile::Builder::new();
-    builder.prefix(".illumnet-").suffix(".tmp");
-    // Created as a new file would be (0666 less the umask), not tempfile's 0600.
-    #[cfg(unix)]
-    builder.permissions(std::os::unix::fs::PermissionsExt::from_mode(0o666));
-    let mut tmp = builder.tempfile_in(dir).map_err(|e| err(&e))?;
+    let _ = crate::scratch::remove_stale(path);
+    let mut tmp = crate::scratch::temp_file(path).map_err(|e| err(&e))?;
     {
         let mut w = BufWriter::new(tmp.as_file_mut());
         write(&mut w).map_err(|e| err(&e))?;

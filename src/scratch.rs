@@ -1,0 +1,194 @@
+//! Temporary files and scratch directories next to an output, named after
+//! it and locked while in use, so that what a killed process leaves behind
+//! is found and removed by the next write of the same output, and a live
+//! process's files never are.
+//!
+//! Names: `.illumnet-<output file name>.<pid>-<random>.tmp` for a file
+//! renamed over the output when complete, `.illumnet-<output file
+//! name>.<pid>-<random>.spill/` for a bounded build's runs (with a `lock`
+//! file inside). A leftover is *stale* when its owner's process id is no
+//! longer running and its lock can be taken (an exclusive `flock`, which
+//! the kernel drops when the owner dies, however it dies); both are
+//! checked, so that a file just created and not yet locked is safe too.
+
+use std::fs::File;
+use std::io;
+use std::path::{Path, PathBuf};
+
+/// The directory an output goes in (`.` for a bare file name).
+pub fn dir_of(output: &Path) -> &Path {
+    match output.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => Path::new("."),
+    }
+}
+
+/// The name every temporary of `output` starts with.
+fn prefix(output: &Path) -> String {
+    let name = output.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    format!(".illumnet-{name}.{}-", std::process::id())
+}
+
+/// The owner's process id in a temporary's name, if it is one of
+/// `output`'s (`.illumnet-<name>.<pid>-…`).
+fn owner(entry: &str, output: &Path) -> Option<u32> {
+    let name = output.file_name()?.to_string_lossy();
+    let rest = entry.strip_prefix(".illumnet-")?.strip_prefix(name.as_ref())?.strip_prefix('.')?;
+    let (pid, tail) = rest.split_once('-')?;
+    (tail.ends_with(".tmp") || tail.ends_with(".spill")).then_some(())?;
+    pid.parse().ok()
+}
+
+/// Whether process `pid` is running (always "yes" where it cannot be told).
+fn alive(pid: u32) -> bool {
+    if pid == std::process::id() {
+        return true;
+    }
+    let proc = Path::new("/proc");
+    !proc.is_dir() || proc.join(pid.to_string()).exists()
+}
+
+/// A temporary file for `output`, in its directory, locked while it lives
+/// and removed when dropped unless persisted (renamed over `output`).
+pub fn temp_file(output: &Path) -> io::Result<tempfile::NamedTempFile> {
+    let name = prefix(output);
+    let mut builder = tempfile::Builder::new();
+    builder.prefix(&name).suffix(".tmp");
+    // Created as a new file would be (0666 less the umask), not tempfile's 0600.
+    #[cfg(unix)]
+    builder.permissions(std::os::unix::fs::PermissionsExt::from_mode(0o666));
+    let tmp = builder.tempfile_in(dir_of(output))?;
+    lock(tmp.as_file())?;
+    Ok(tmp)
+}
+
+/// A scratch directory for `output`, in its directory, locked while it
+/// lives (through the returned `lock` file inside it) and removed with
+/// everything in it when dropped.
+pub fn scratch_dir(output: &Path) -> io::Result<(tempfile::TempDir, File)> {
+    let dir = tempfile::Builder::new().prefix(&prefix(output)).suffix(".spill").tempdir_in(dir_of(output))?;
+    let lock_file = File::create(dir.path().join("lock"))?;
+    lock(&lock_file)?;
+    Ok((dir, lock_file))
+}
+
+fn lock(f: &File) -> io::Result<()> {
+    match f.try_lock() {
+        Ok(()) => Ok(()),
+        // A filesystem without locks: the process-id check alone guards.
+        Err(std::fs::TryLockError::Error(e)) if e.kind() == io::ErrorKind::Unsupported => Ok(()),
+        Err(std::fs::TryLockError::Error(e)) => Err(e),
+        Err(std::fs::TryLockError::WouldBlock) => Err(io::Error::other("a new temporary file is locked")),
+    }
+}
+
+/// Whether the leftover at `path` (a file, or a directory with a `lock`)
+/// has no live owner.
+fn unlocked(path: &Path, is_dir: bool) -> bool {
+    let f = match File::open(if is_dir { path.join("lock") } else { path.to_path_buf() }) {
+        Ok(f) => f,
+        // A directory whose lock file was never made or is gone.
+        Err(e) => return is_dir && e.kind() == io::ErrorKind::NotFound,
+    };
+    matches!(f.try_lock(), Ok(()))
+}
+
+/// What [`remove_stale`] removed.
+#[derive(Debug, Default, Clone, PartialEq, Eq)]
+pub struct Removed {
+    /// The leftovers removed.
+    pub paths: Vec<PathBuf>,
+    /// Their bytes.
+    pub bytes: u64,
+}
+
+/// Removes the temporaries and scratch directories of `output` that killed
+/// processes left (see the module docs), never one of a running process.
+/// Errors reading the directory are returned; a leftover that cannot be
+/// removed is left.
+pub fn remove_stale(output: &Path) -> io::Result<Removed> {
+    let mut removed = Removed::default();
+    let dir = dir_of(output);
+    let entries = match std::fs::read_dir(dir) {
+        Ok(e) => e,
+        Err(e) if e.kind() == io::ErrorKind::NotFound => return Ok(removed),
+        Err(e) => return Err(e),
+    };
+    for entry in entries {
+        let entry = entry?;
+        let name = entry.file_name();
+        let Some(pid) = owner(&name.to_string_lossy(), output) else { continue };
+        let path = entry.path();
+        let Ok(kind) = entry.file_type() else { continue };
+        if alive(pid) || !unlocked(&path, kind.is_dir()) {
+            continue;
+        }
+        let bytes = size(&path);
+        let gone = if kind.is_dir() { std::fs::remove_dir_all(&path) } else { std::fs::remove_file(&path) };
+        if gone.is_ok() {
+            removed.bytes += bytes;
+            removed.paths.push(path);
+        }
+    }
+    Ok(removed)
+}
+
+fn size(path: &Path) -> u64 {
+    match std::fs::symlink_metadata(path) {
+        Ok(m) if m.is_dir() => std::fs::read_dir(path).map_or(0, |d| d.flatten().map(|e| size(&e.path())).sum()),
+        Ok(m) => m.len(),
+        Err(_) => 0,
+    }
+}
+
+/// Test-only: when the environment variable `ILLUMNET_TEST_STOP_AT`
+/// names `stage`, the process kills itself (SIGKILL, as a crash or the
+/// OOM killer would) here, so that tests can reach each stage of a build
+/// deterministically. Does nothing otherwise.
+pub fn stop_point(stage: &str) {
+    static STOP_AT: std::sync::OnceLock<Option<String>> = std::sync::OnceLock::new();
+    let at = STOP_AT.get_or_init(|| std::env::var("ILLUMNET_TEST_STOP_AT").ok());
+    if at.as_deref() == Some(stage) {
+        #[cfg(unix)]
+        // SAFETY: raise(2) with a valid signal number has no preconditions.
+        unsafe {
+            libc::raise(libc::SIGKILL);
+        }
+        std::process::abort();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn names_are_matched_to_their_output_only() {
+        let out = Path::new("dir/box.inet");
+        assert_eq!(owner(".illumnet-box.inet.123-abc.tmp", out), Some(123));
+        assert_eq!(owner(".illumnet-box.inet.123-abc.spill", out), Some(123));
+        assert_eq!(owner(".illumnet-box.inet2.123-abc.tmp", out), None);
+        assert_eq!(owner(".illumnet-box.inet.x-abc.tmp", out), None);
+        assert_eq!(owner(".illumnet-box.inet.123-abc.png", out), None);
+        assert_eq!(owner("box.inet", out), None);
+    }
+
+    #[test]
+    fn only_leftovers_of_dead_owners_are_removed() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("a.inet");
+        // Ours, live and locked; a dead process's; one of another output.
+        let live = temp_file(&out).unwrap();
+        let dead = dir.path().join(".illumnet-a.inet.4294967295-zz.tmp");
+        std::fs::write(&dead, b"left").unwrap();
+        let dead_dir = dir.path().join(".illumnet-a.inet.4294967294-zz.spill");
+        std::fs::create_dir(&dead_dir).unwrap();
+        std::fs::write(dead_dir.join("run-0.bin"), b"12345678").unwrap();
+        let other = dir.path().join(".illumnet-b.inet.4294967295-zz.tmp");
+        std::fs::write(&other, b"x").unwrap();
+        let removed = remove_stale(&out).unwrap();
+        assert_eq!(removed.paths.len(), 2, "{removed:?}");
+        assert_eq!(removed.bytes, 12);
+        assert!(live.path().exists() && other.exists() && !dead.exists() && !dead_dir.exists());
+    }
+}

@@ -1,0 +1,105 @@
+//! Crash safety (issue 14): a build killed (SIGKILL) at each stage leaves
+//! the archive already at its path intact, byte for byte, and the next
+//! build of that path removes what the killed one left.
+
+use std::os::unix::process::ExitStatusExt;
+use std::path::Path;
+use std::process::Command;
+
+fn illumnet(args: &[&str], stop_at: Option<&str>) -> std::process::Output {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_illumnet"));
+    c.args(args).env_remove("ILLUMNET_TEST_STOP_AT");
+    if let Some(s) = stop_at {
+        c.env("ILLUMNET_TEST_STOP_AT", s);
+    }
+    c.output().unwrap()
+}
+
+fn leftovers(dir: &Path) -> Vec<String> {
+    std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|n| n.starts_with(".illumnet-"))
+        .collect()
+}
+
+#[test]
+fn a_build_killed_at_any_stage_keeps_the_old_archive_and_the_next_build_cleans_up() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("box.inet");
+    let out_s = out.to_str().unwrap();
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/cornell_box.toml");
+    let scene = scene.to_str().unwrap();
+    let first = illumnet(&["build", "-q", scene, "-o", out_s, "--quality", "draft"], None);
+    assert!(first.status.success(), "{}", String::from_utf8_lossy(&first.stderr));
+    let old = std::fs::read(&out).unwrap();
+    // Each stage with the build that reaches it: in memory, or spilling
+    // under a budget (the default quality's 174 MiB archive under 40 MiB).
+    let unbounded: &[&str] = &["build", "-q", scene, "-o", out_s, "--quality", "draft", "--frequency", "9"];
+    let bounded: &[&str] = &["build", "-q", scene, "-o", out_s, "--memory-budget", "40M"];
+    for (stage, args, leaves) in [
+        ("trace", unbounded, false),
+        ("links", unbounded, false),
+        ("write", unbounded, true),
+        ("spill", bounded, true),
+        ("merge", bounded, true),
+        ("write", bounded, true),
+    ] {
+        let killed = illumnet(args, Some(stage));
+        assert_eq!(
+            killed.status.signal(),
+            Some(9),
+            "{stage}: {:?} {}",
+            killed.status,
+            String::from_utf8_lossy(&killed.stderr)
+        );
+        assert!(std::fs::read(&out).unwrap() == old, "{stage}: the archive at the path changed");
+        let left = leftovers(dir.path());
+        assert_eq!(!left.is_empty(), leaves, "{stage}: left {left:?}");
+        // The next build of the path removes them, and only then writes.
+        let next = illumnet(args, None);
+        assert!(next.status.success(), "{stage}: {}", String::from_utf8_lossy(&next.stderr));
+        assert!(leftovers(dir.path()).is_empty(), "{stage}: {:?} after the next build", leftovers(dir.path()));
+        if leaves {
+            let said = String::from_utf8_lossy(&next.stdout);
+            assert!(said.contains("left next to") && said.contains("by an interrupted build"), "{stage}: {said}");
+        }
+        assert!(std::fs::read(&out).unwrap() != old, "{stage}: the next build wrote nothing");
+        // Back to the first archive for the next stage.
+        std::fs::write(&out, &old).unwrap();
+    }
+}
+
+#[test]
+fn a_full_disk_is_one_clear_error_that_leaves_nothing_behind() {
+    use std::os::unix::process::CommandExt;
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("box.inet");
+    std::fs::write(&out, b"the previous archive").unwrap();
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/cornell_box.toml");
+    for budget in [None, Some("40M")] {
+        let mut c = Command::new(env!("CARGO_BIN_EXE_illumnet"));
+        c.args(["build", "-q", scene.to_str().unwrap(), "-o", out.to_str().unwrap()]);
+        if let Some(b) = budget {
+            c.args(["--memory-budget", b]);
+        }
+        // A 10 MB file-size limit stands for a disk that fills up (the
+        // default archive is 174 MiB; its spilled runs are smaller).
+        // SAFETY: setrlimit is async-signal-safe; nothing else runs in the child.
+        unsafe {
+            c.pre_exec(|| {
+                let limit = libc::rlimit { rlim_cur: 10 << 20, rlim_max: 10 << 20 };
+                if libc::setrlimit(libc::RLIMIT_FSIZE, &limit) != 0 {
+                    return Err(std::io::Error::last_os_error());
+                }
+                Ok(())
+            });
+        }
+        let o = c.output().unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(5), "{budget:?}: {:?} {err}", o.status);
+        assert_eq!(err.matches("File too large").count(), 1, "{budget:?}: {err}");
+        assert_eq!(std::fs::read(&out).unwrap(), b"the previous archive");
+        assert!(leftovers(dir.path()).is_empty(), "{budget:?}: {:?}", leftovers(dir.path()));
+    }
+}
