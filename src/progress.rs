@@ -12,6 +12,9 @@ pub trait Progress: Sync {
     fn advance(&self, units: u64);
     /// The current stage is finished.
     fn finish(&self);
+    /// Something the user should know before a long stage starts (what it
+    /// will cost). Shown even when progress bars are not; ignored by default.
+    fn note(&self, _message: &str) {}
 }
 
 /// Progress sink that ignores every event.

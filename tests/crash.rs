@@ -103,3 +103,19 @@ fn a_full_disk_is_one_clear_error_that_leaves_nothing_behind() {
         assert!(leftovers(dir.path()).is_empty(), "{budget:?}: {:?}", leftovers(dir.path()));
     }
 }
+
+#[test]
+fn a_large_build_says_what_it_will_cost_before_it_starts() {
+    // Killed once the first pair is traced: the estimate came before.
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("big.inet");
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/cornell_box.toml");
+    let args = ["build", "-q", scene.to_str().unwrap(), "-o", out.to_str().unwrap(), "--frequency", "40"];
+    let o = illumnet(&[&args[..], &["--ray-spacing", "0.0015"]].concat(), Some("trace"));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.signal(), Some(9), "{err}");
+    assert!(err.contains("note: this build traces 2.23e9 rays over 8001 direction pairs"), "{err}");
+    // A small one says nothing.
+    let o = illumnet(&[&args[..], &["--ray-spacing", "0.02"]].concat(), Some("trace"));
+    assert!(!String::from_utf8_lossy(&o.stderr).contains("note:"));
+}

@@ -376,6 +376,10 @@ fn values_within_old_rules_that_made_nan_are_refused_at_open() {
     let mut x = c.clone();
     x.materials[0].params[13] = f32::NAN;
     refused_with(&x, "MATL[0]: non-finite");
+    // Found by fuzzing (archive_forge): an `up` of 2e-38 made NaN rays.
+    let mut x = c.clone();
+    x.camera.up = [0.0, 2e-38, 0.0];
+    refused_with(&x, "CAMR");
     let mut g = contents(&format!("{ROOM}{GLOSSY}"));
     g.reflectance.as_mut().unwrap().prototypes[0].ior = [f32::NEG_INFINITY; 3];
     refused_with(&g, "PTAB[0]");

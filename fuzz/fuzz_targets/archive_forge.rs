@@ -75,7 +75,7 @@ fuzz_target!(|data: &[u8]| {
     archive::reseal(&mut bytes);
     let Ok(a) = Archive::from_bytes(&bytes) else { return };
     let v = a.view();
-    let opts = DistributeOptions { max_iterations: 30, ..Default::default() };
+    let opts = DistributeOptions { max_iterations: 6, ..Default::default() };
     let Ok(d) = Distributor::new(&v, &opts, &Lighting::from_view(&v)) else { return };
     let small = (v.camera.width as u64 * v.camera.height as u64) <= 64 * 64;
     let mut renderer = small.then(|| Renderer::new(&v, RenderOptions { samples_per_axis: 1 }));

@@ -23,6 +23,18 @@ use crate::progress::Progress;
 /// Most rays one build may trace; beyond this the ray spacing is surely a mistake.
 pub const MAX_RAYS: u64 = 1 << 34;
 
+/// Builds tracing this many rays or more say what they will cost first.
+pub const LARGE_RAYS: u64 = 2_000_000_000;
+
+/// `secs` as a rough human duration.
+fn duration(secs: f64) -> String {
+    match secs {
+        s if s < 120.0 => format!("{s:.0} s"),
+        s if s < 7200.0 => format!("{:.0} min", s / 60.0),
+        s => format!("{:.1} h", s / 3600.0),
+    }
+}
+
 /// Links of one direction pair, merged: `a` faces along the pair's first
 /// direction `d`, `b` faces back along `−d`, `w` parallel rays with the same
 /// buckets joined them. Sorted by `(a, b, bucket_a, bucket_b)`.
@@ -604,6 +616,20 @@ pub fn trace_all(
     if total_rays > MAX_RAYS {
         return Err(format!(
             "ray spacing {delta} m would trace {total_rays} rays (limit {MAX_RAYS}); use a larger spacing"
+        ));
+    }
+    if total_rays >= LARGE_RAYS {
+        // Rates measured on the CI kind of machine (docs/PERFORMANCE.md):
+        // about 3 M rays/s per thread for the Cornell box.
+        let threads = rayon::current_num_threads().max(1) as f64;
+        let secs = total_rays as f64 / (3e6 * threads);
+        progress.note(&format!(
+            "this build traces {:.2e} rays over {pairs} direction pairs ({} frame{}): roughly {} on {threads} \
+             threads; a larger --ray-spacing or a lower --frequency makes it cheaper",
+            total_rays as f64,
+            input.frames,
+            if input.frames == 1 { "" } else { "s" },
+            duration(secs),
         ));
     }
     let prims = input.prims;

@@ -398,6 +398,19 @@ pub fn render(
         buckets: !args.no_buckets,
     };
     let memory = plan::plan(&summary, &job, budget)?;
+    let samples = job.width as f64 * job.height as f64 * (args.samples * args.samples) as f64 * job.frames as f64;
+    if samples >= 2e9 {
+        progress.note(&format!(
+            "this render shades {samples:.2e} image samples ({}×{} pixels, {}×{} samples each, {} frame{}): \
+             expect minutes; fewer --samples or --frames make it cheaper",
+            job.width,
+            job.height,
+            args.samples,
+            args.samples,
+            job.frames,
+            if job.frames == 1 { "" } else { "s" }
+        ));
+    }
     let archive = match memory.access {
         plan::LinkAccess::Mapped => open_archive(path)?,
         plan::LinkAccess::Streamed { window_ends } => opened(path, Archive::open_streamed(path, window_ends))?,

@@ -47,6 +47,10 @@ impl Progress for BarProgress {
         }
     }
 
+    fn note(&self, message: &str) {
+        eprintln!("illumnet: note: {message}");
+    }
+
     fn finish(&self) {
         if let Some(b) = self.bar.lock().unwrap_or_else(|e| e.into_inner()).take() {
             b.finish_and_clear();
