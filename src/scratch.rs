@@ -35,7 +35,10 @@ fn owner(entry: &str, output: &Path) -> Option<u32> {
     let name = output.file_name()?.to_string_lossy();
     let rest = entry.strip_prefix(".illumnet-")?.strip_prefix(name.as_ref())?.strip_prefix('.')?;
     let (pid, tail) = rest.split_once('-')?;
-    (tail.ends_with(".tmp") || tail.ends_with(".spill")).then_some(())?;
+    // The random part is alphanumeric: `a`'s sweep does not take the
+    // temporaries of an output named `a.5-x`.
+    let random = tail.strip_suffix(".tmp").or_else(|| tail.strip_suffix(".spill"))?;
+    (!random.is_empty() && random.chars().all(|c| c.is_ascii_alphanumeric())).then_some(())?;
     pid.parse().ok()
 }
 
@@ -171,6 +174,8 @@ mod tests {
         assert_eq!(owner(".illumnet-box.inet.x-abc.tmp", out), None);
         assert_eq!(owner(".illumnet-box.inet.123-abc.png", out), None);
         assert_eq!(owner("box.inet", out), None);
+        // Another output's, whose name starts like this one's.
+        assert_eq!(owner(".illumnet-box.inet.5-x.123-abc.tmp", out), None);
     }
 
     #[test]

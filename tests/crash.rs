@@ -77,18 +77,19 @@ fn a_full_disk_is_one_clear_error_that_leaves_nothing_behind() {
     let out = dir.path().join("box.inet");
     std::fs::write(&out, b"the previous archive").unwrap();
     let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/cornell_box.toml");
-    for budget in [None, Some("40M")] {
+    // 10 MB: the archive's write fails; 3 MB: a spilled run's does first.
+    for (budget, limit) in [(None, 10u64 << 20), (Some("40M"), 10 << 20), (Some("40M"), 3 << 20)] {
         let mut c = Command::new(env!("CARGO_BIN_EXE_illumnet"));
         c.args(["build", "-q", scene.to_str().unwrap(), "-o", out.to_str().unwrap()]);
         if let Some(b) = budget {
             c.args(["--memory-budget", b]);
         }
-        // A 10 MB file-size limit stands for a disk that fills up (the
-        // default archive is 174 MiB; its spilled runs are smaller).
+        // A file-size limit stands for a disk that fills up (the default
+        // archive is 174 MiB; its spilled runs are 1 to 4 MiB).
         // SAFETY: setrlimit is async-signal-safe; nothing else runs in the child.
         unsafe {
-            c.pre_exec(|| {
-                let limit = libc::rlimit { rlim_cur: 10 << 20, rlim_max: 10 << 20 };
+            c.pre_exec(move || {
+                let limit = libc::rlimit { rlim_cur: limit, rlim_max: limit };
                 if libc::setrlimit(libc::RLIMIT_FSIZE, &limit) != 0 {
                     return Err(std::io::Error::last_os_error());
                 }
@@ -118,4 +119,36 @@ fn a_large_build_says_what_it_will_cost_before_it_starts() {
     // A small one says nothing.
     let o = illumnet(&[&args[..], &["--ray-spacing", "0.02"]].concat(), Some("trace"));
     assert!(!String::from_utf8_lossy(&o.stderr).contains("note:"));
+}
+
+#[test]
+fn a_large_render_says_what_it_will_cost_before_it_starts() {
+    use std::io::{BufRead, BufReader};
+    let dir = tempfile::tempdir().unwrap();
+    let scene = dir.path().join("wide.toml");
+    let text = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/cornell_box.toml"))
+        .unwrap()
+        .replace("width = 256", "width = 16384")
+        .replace("height = 256", "height = 16384");
+    assert!(text.contains("width = 16384") && text.contains("height = 16384"));
+    std::fs::write(&scene, text).unwrap();
+    let archive = dir.path().join("wide.inet");
+    let b = illumnet(
+        &["build", "-q", scene.to_str().unwrap(), "-o", archive.to_str().unwrap(), "--quality", "draft"],
+        None,
+    );
+    assert!(b.status.success(), "{}", String::from_utf8_lossy(&b.stderr));
+    let mut child = Command::new(env!("CARGO_BIN_EXE_illumnet"))
+        .args(["render", "-q", archive.to_str().unwrap(), "-o", dir.path().join("w.png").to_str().unwrap()])
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let first = BufReader::new(child.stderr.take().unwrap()).lines().next().unwrap().unwrap();
+    child.kill().unwrap();
+    child.wait().unwrap();
+    assert!(
+        first.contains("note: this render shades 4.29e9 image samples (16384×16384 pixels, 4×4 samples each"),
+        "{first}"
+    );
 }

@@ -67,15 +67,15 @@ impl<'a> WeightSums<'a> {
     }
 }
 
-/// A link's end at `a`: (`a`, `bucket_a`, `pair`, `b`).
+/// A link end: (owner patch, bucket, direction it leaves along, other patch).
 type EndKey = (u32, u8, u32, u32);
 
 /// Checks frame `frame`'s decoded `records` (indices already checked)
 /// against the hit counts and frame 0's `links` (rows `offsets`): no
 /// record moves more rays than cross either of its patches, and no link
 /// loses more rays than frame 0 gave it (§5.13: "the result has no
-/// negative weights"). Reads only the rows of patches some record removes
-/// rays at, window by window.
+/// negative weights"), at either end. Reads only the rows of patches some
+/// record removes rays at, window by window.
 pub(super) fn check_frame(
     frame: u32,
     records: &[DeltaRecord],
@@ -97,23 +97,21 @@ pub(super) fn check_frame(
             ));
         }
     }
-    // Each link's end at `a` (direction 2k, other `b`, bucket `bucket_a`),
-    // summed over `bucket_b`: records of one key are adjacent once sorted.
-    let key = |d: &DeltaRecord| (d.a, d.bucket_a, d.pair, d.b);
-    let mut order: Vec<u32> = (0..records.len() as u32).collect();
-    order.sort_unstable_by_key(|&i| key(&records[i as usize]));
-    // Per key with a net removal: the key, the net count and the first record.
+    // Each link's two ends: at `a` (direction 2k, other `b`, bucket
+    // `bucket_a`) and at `b` (2k + 1, `a`, `bucket_b`). An end's key can
+    // recur (links that differ in the other end's bucket): summed.
+    let ends = |i: usize| {
+        let d = &records[i];
+        [(d.a, d.bucket_a, 2 * d.pair, d.b), (d.b, d.bucket_b, 2 * d.pair + 1, d.a)]
+    };
+    let mut keyed: Vec<(EndKey, u32)> = (0..records.len()).flat_map(|i| ends(i).map(|k| (k, i as u32))).collect();
+    keyed.sort_unstable();
+    // Per end with a net removal: the key, the net count and the first record.
     let mut removals: Vec<(EndKey, i64, usize)> = Vec::new();
-    let mut i = 0;
-    while i < order.len() {
-        let k = key(&records[order[i] as usize]);
-        let (mut net, first) = (0i64, order[i] as usize);
-        while i < order.len() && key(&records[order[i] as usize]) == k {
-            net += records[order[i] as usize].count as i64;
-            i += 1;
-        }
+    for run in keyed.chunk_by(|x, y| x.0 == y.0) {
+        let net: i64 = run.iter().map(|&(_, i)| records[i as usize].count as i64).sum();
         if net < 0 {
-            removals.push((k, net, first));
+            removals.push((run[0].0, net, run[0].1 as usize));
         }
     }
     if removals.is_empty() {
@@ -132,27 +130,26 @@ pub(super) fn check_frame(
                 next += 1;
                 continue;
             }
-            // Frame 0's ends at q leaving along an even direction, by key.
+            // Frame 0's ends at q, by (bucket, direction, other patch).
             let r = w.local(offsets[q] as usize..offsets[q + 1] as usize);
             row.clear();
             for e in r {
-                let d = w.direction[e];
-                if d.is_multiple_of(2) {
-                    let bucket = w.bucket.get(e).copied().unwrap_or(0);
-                    row.push(((bucket, d / 2, w.other.ids()[e]), w.weight[e] as f64));
-                }
+                let bucket = w.bucket.get(e).copied().unwrap_or(0);
+                row.push(((bucket, w.direction[e], w.other.ids()[e]), w.weight[e] as f64));
             }
             row.sort_unstable_by_key(|x| x.0);
             while next < removals.len() && removals[next].0.0 as usize == q {
-                let ((_, bucket, pair, b), net, first) = removals[next];
-                let at = row.partition_point(|x| x.0 < (bucket, pair, b));
-                let base: f64 = row[at..].iter().take_while(|x| x.0 == (bucket, pair, b)).map(|x| x.1).sum();
+                let ((_, bucket, direction, other), net, first) = removals[next];
+                let key = (bucket, direction, other);
+                let at = row.partition_point(|x| x.0 < key);
+                // `+ 0.0`: an empty sum is −0, printed as such.
+                let base = row[at..].iter().take_while(|x| x.0 == key).map(|x| x.1).sum::<f64>() + 0.0;
                 if base + (net as f64) < 0.0 {
                     return Err(bad(
                         first,
                         format!(
-                            "removes {} rays from the link of patches {q} and {b} along pair {pair}, which frame 0 \
-                             gave {base}: a negative weight",
+                            "removes {} rays from patch {q}'s end of its link with patch {other} along direction \
+                             {direction}, which frame 0 gave {base}: a negative weight",
                             -net
                         ),
                     ));

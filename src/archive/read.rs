@@ -877,19 +877,9 @@ fn within(v: &[f32]) -> bool {
     v.iter().all(|x| x.abs() <= MAX_COORDINATE)
 }
 
-/// A camera rays can be made from: points within ±[`MAX_COORDINATE`], a
-/// view direction and an `up` that are not zero nor parallel, by the
-/// scene reader's rule (|f̂ × up| ≥ 10⁻⁶: a tiny `up` is as bad as a
-/// parallel one).
+/// A camera rays can be made from ([`crate::limits::camera_is_usable`]).
 fn camera_geometry(c: &CameraRecord) -> bool {
-    if !(within(&c.position) && within(&c.look_at) && within(&c.up)) {
-        return false;
-    }
-    let f: [f64; 3] = std::array::from_fn(|i| c.look_at[i] as f64 - c.position[i] as f64);
-    let u: [f64; 3] = std::array::from_fn(|i| c.up[i] as f64);
-    let cross = [f[1] * u[2] - f[2] * u[1], f[2] * u[0] - f[0] * u[2], f[0] * u[1] - f[1] * u[0]];
-    let len = |x: &[f64; 3]| (x[0] * x[0] + x[1] * x[1] + x[2] * x[2]).sqrt();
-    len(&f) > 0.0 && len(&cross) >= 1e-6 * len(&f)
+    crate::limits::camera_is_usable(c.position, c.look_at, c.up)
 }
 
 /// Checks counts and every stored index, so that later code can index

@@ -321,8 +321,10 @@ pub fn write_with_links(
     scratch::stop_point("write");
     file.sync_all().map_err(io)?;
     let len = file.metadata().map_err(io)?.len();
-    drop(file);
+    // Renamed while still open and locked, so that no other process's
+    // stale-file sweep ever sees it unlocked (`scratch::remove_stale`).
     tmp_path.persist(path).map_err(|e| io(e.error))?;
+    drop(file);
     Ok(len)
 }
 

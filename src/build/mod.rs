@@ -157,6 +157,9 @@ pub struct MemoryBound {
 pub enum BuildError {
     /// The scene or the settings cannot be built (the message says why).
     Failed(String),
+    /// Writing or reading the bounded build's scratch files failed (a
+    /// full disk, most often): an I/O failure, not a fault of the scene.
+    Scratch(String),
     /// The budget is below what the build needs at least, found before
     /// tracing: the parts of that least, in bytes.
     OverBudget {
@@ -171,7 +174,7 @@ impl std::fmt::Display for BuildError {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         use crate::memory::Bytes;
         match self {
-            Self::Failed(m) => f.write_str(m),
+            Self::Failed(m) | Self::Scratch(m) => f.write_str(m),
             Self::OverBudget { budget, parts } => {
                 let needed: u64 = parts.iter().map(|p| p.1).sum();
                 write!(
@@ -402,6 +405,16 @@ fn build_impl(
                 return Err(BuildError::Failed(format!(
                     "surface `{}` at frames {}..={}: keyframed motion makes a primitive degenerate or infinite (a scale through 0?)",
                     scene.surfaces[inst.surface as usize].name, inst.frames.first, inst.frames.last
+                )));
+            }
+            if !p.p.iter().all(|v| v.abs().max_element() <= crate::limits::MAX_COORDINATE) {
+                return Err(BuildError::Failed(format!(
+                    "surface `{}` at frames {}..={}: keyframed motion moves a corner beyond ±{:e} m, the most an \
+                     archive holds",
+                    scene.surfaces[inst.surface as usize].name,
+                    inst.frames.first,
+                    inst.frames.last,
+                    crate::limits::MAX_COORDINATE
                 )));
             }
         }

@@ -27,6 +27,7 @@ use std::path::{Path, PathBuf};
 use std::sync::Mutex;
 use std::sync::atomic::{AtomicU64, Ordering};
 
+use super::BuildError;
 use super::trace::Bundle;
 use crate::archive::{LinkEndSink, LinkEndSource};
 
@@ -86,8 +87,8 @@ struct SortEnd {
 /// A scratch directory and its lock file ([`crate::scratch::scratch_dir`]).
 type Scratch = (tempfile::TempDir, std::fs::File);
 
-fn io_error(path: &Path, e: std::io::Error) -> String {
-    format!("cannot spill link ends to {}: {e}", path.display())
+fn io_error(path: &Path, e: std::io::Error) -> BuildError {
+    BuildError::Scratch(format!("cannot spill link ends to {}: {e}", path.display()))
 }
 
 impl Spill {
@@ -109,7 +110,7 @@ impl Spill {
     /// Counts `bundle` as held, and spills `held` (the worker's bundles of
     /// consecutive pairs, `bundle` last) when the build holds more than
     /// the threshold.
-    pub(super) fn hold(&self, held: &mut Vec<Bundle>) -> Result<(), String> {
+    pub(super) fn hold(&self, held: &mut Vec<Bundle>) -> Result<(), BuildError> {
         let bytes = held.last().map_or(0, |b| b.a.len() as u64 * BUNDLE_BYTES_PER_LINK);
         let total = self.in_memory.fetch_add(bytes, Ordering::Relaxed) + bytes;
         // A worker holding little waits for the others to spill, so that
@@ -124,7 +125,7 @@ impl Spill {
     }
 
     /// Writes `bundles` (consecutive pairs) as one sorted run and lets them go.
-    pub(super) fn spill(&self, bundles: &mut Vec<Bundle>) -> Result<(), String> {
+    pub(super) fn spill(&self, bundles: &mut Vec<Bundle>) -> Result<(), BuildError> {
         let links: u64 = bundles.iter().map(|b| b.a.len() as u64).sum();
         if bundles.is_empty() {
             return Ok(());
@@ -199,7 +200,7 @@ impl Spill {
     /// At the end of a worker's chunk: spills what it still holds when the
     /// build holds more than the threshold (else the tails of many chunks
     /// would add up in memory).
-    pub(super) fn end_chunk(&self, held: &mut Vec<Bundle>) -> Result<(), String> {
+    pub(super) fn end_chunk(&self, held: &mut Vec<Bundle>) -> Result<(), BuildError> {
         if self.in_memory.load(Ordering::Relaxed) > self.threshold {
             self.spill(held)?;
         }
@@ -208,12 +209,15 @@ impl Spill {
 
     /// Where run `name` goes, in the scratch directory (made now if this
     /// is the first run, after removing what killed builds left).
-    fn run_path(&self, name: &str) -> Result<std::path::PathBuf, String> {
+    fn run_path(&self, name: &str) -> Result<std::path::PathBuf, BuildError> {
         let mut dir = self.dir.lock().expect("no panics while held");
         if dir.is_none() {
             let _ = crate::scratch::remove_stale(&self.output);
             *dir = Some(crate::scratch::scratch_dir(&self.output).map_err(|e| {
-                format!("cannot make a scratch directory in {}: {e}", crate::scratch::dir_of(&self.output).display())
+                BuildError::Scratch(format!(
+                    "cannot make a scratch directory in {}: {e}",
+                    crate::scratch::dir_of(&self.output).display()
+                ))
             })?);
         }
         Ok(dir.as_ref().expect("made above").0.path().join(name))

@@ -11,6 +11,7 @@ use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
 
+use super::BuildError;
 use crate::archive::deltas::{Block, BlockCompressor};
 use crate::archive::layout::DeltaRecord;
 use crate::archive::presence::FrameSpan;
@@ -586,13 +587,15 @@ pub fn trace_all(
     nd_index: &[u32],
     spill: Option<&super::spill::Spill>,
     progress: &dyn Progress,
-) -> Result<Traced, String> {
+) -> Result<Traced, BuildError> {
     let (lo, hi) = input.bounds;
     let pairs = (dirs.len() / 2) as u32;
     let dir_of = |k: u32| Vec3::from(dirs.directions[2 * k as usize]);
     let layouts: Vec<BundleLayout> = (0..pairs).map(|k| layout(dirs, delta, k)).collect();
     if !(lo.is_finite() && hi.is_finite()) {
-        return Err("the scene's bounds are not finite (a transform or keyframe moved geometry to infinity)".into());
+        return Err(BuildError::Failed(
+            "the scene's bounds are not finite (a transform or keyframe moved geometry to infinity)".into(),
+        ));
     }
     // Counted in f64 first: tiny spacings would overflow integer grid sizes.
     let total_rays_f: f64 = (0..pairs)
@@ -603,9 +606,9 @@ pub fn trace_all(
         })
         .sum();
     if total_rays_f.is_nan() || total_rays_f > MAX_RAYS as f64 {
-        return Err(format!(
+        return Err(BuildError::Failed(format!(
             "ray spacing {delta} m would trace about {total_rays_f:.3e} rays (limit {MAX_RAYS}); use a larger spacing"
-        ));
+        )));
     }
     let total_rays: u64 = (0..pairs)
         .map(|k| {
@@ -614,9 +617,9 @@ pub fn trace_all(
         })
         .sum();
     if total_rays > MAX_RAYS {
-        return Err(format!(
+        return Err(BuildError::Failed(format!(
             "ray spacing {delta} m would trace {total_rays} rays (limit {MAX_RAYS}); use a larger spacing"
-        ));
+        )));
     }
     if total_rays >= LARGE_RAYS {
         // Rates measured on the CI kind of machine (docs/PERFORMANCE.md):
@@ -721,7 +724,7 @@ pub fn trace_all(
     progress.start("tracing direction bundles", pairs as u64);
     // Per chunk: its bundles, its block of every frame's changes, totals.
     type Chunk = (Vec<Bundle>, Vec<Block>, BundleStats);
-    let results: Vec<Result<Chunk, String>> = (0..chunks)
+    let results: Vec<Result<Chunk, BuildError>> = (0..chunks)
         .into_par_iter()
         .map(|c| {
             // Scratch space comes from a pool: rayon may split the work into
@@ -762,7 +765,8 @@ pub fn trace_all(
                     })
                     .collect()
             };
-            let blocks = compress(s).map_err(|e| format!("cannot compress the per-frame link changes: {e}"))?;
+            let blocks = compress(s)
+                .map_err(|e| BuildError::Failed(format!("cannot compress the per-frame link changes: {e}")))?;
             Ok((bundles, blocks, stats))
         })
         .collect();

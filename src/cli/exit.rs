@@ -118,8 +118,15 @@ pub fn code(err: &anyhow::Error) -> u8 {
         if cause.is::<ResultRefused>() {
             return RESULT;
         }
-        if cause.is::<BudgetError>() || cause.is::<illumnet::build::BuildError>() {
+        if cause.is::<BudgetError>() {
             return BUDGET;
+        }
+        if let Some(e) = cause.downcast_ref::<illumnet::build::BuildError>() {
+            return match e {
+                illumnet::build::BuildError::OverBudget { .. } => BUDGET,
+                illumnet::build::BuildError::Scratch(_) => IO,
+                illumnet::build::BuildError::Failed(_) => BAD_INPUT,
+            };
         }
         if let Some(e) = cause.downcast_ref::<ArchiveError>() {
             return archive_code(e);

@@ -273,14 +273,14 @@ fn file_size_limit_is_an_error() {
     }
 }
 
-/// `e` and its causes, `: `-separated, leaving out a cause its error
-/// already says (library errors such as `ArchiveError::Io` print their
-/// source and also return it as `source()`).
+/// `e` and its causes, `: `-separated, leaving out a cause the message
+/// already ends with (library errors such as `ArchiveError::Io` print
+/// their source and also return it as `source()`).
 fn report(e: &anyhow::Error) -> String {
     let mut out = String::new();
     for cause in e.chain() {
         let text = cause.to_string();
-        if out.contains(&text) {
+        if out.ends_with(&text) {
             continue;
         }
         if !out.is_empty() {

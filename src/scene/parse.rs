@@ -778,7 +778,27 @@ pub(super) fn parse(text: &str, file: &Path, base_dir: &Path, name: String) -> R
             camera_keys.push(CameraKey { frame: k.frame, position: p, look_at: l });
         }
     }
-    Ok(Scene { name, materials, surfaces, camera, build, animation, camera_keys })
+    let scene = Scene { name, materials, surfaces, camera, build, animation, camera_keys };
+    // Every frame's camera, between keys too (the archive reader's rule).
+    let frames = scene.animation.as_ref().map_or(1, |a| a.frames);
+    if let Some(f) = (0..frames).find(|&f| {
+        let c = scene.camera_at(f);
+        !crate::limits::camera_is_usable(c.position.to_array(), c.look_at.to_array(), c.up.to_array())
+    }) {
+        let (span, field) = match &raw.camera.get_ref().keyframes {
+            Some(k) => (k.span(), "camera.keyframes"),
+            None => (cspan, "camera"),
+        };
+        return Err(cx.err(
+            span,
+            field,
+            format!(
+                "at frame {f} the camera looks along `up`, or from its look_at point (or beyond ±1e9 m): \
+                 no rays can be made"
+            ),
+        ));
+    }
+    Ok(scene)
 }
 
 /// Rejects non-finite, degenerate, non-planar and non-convex primitives.
