@@ -65,6 +65,15 @@ fn missing_file_is_an_error_naming_it() {
     let e = Scene::from_toml(&text, &dir.path().join("s.toml"), dir.path()).unwrap_err();
     assert_eq!((e.line, e.field.as_str()), (14, "surface[0].mesh"), "{e}");
     assert!(e.message.contains("is a directory, not an OBJ file"), "{e}");
+    // Found by fuzzing: a normal index whose ×3 overflows inside tobj.
+    let obj = std::fs::read(
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("fuzz/corpus/scene_obj/crash-tobj-normal-index-overflow"),
+    )
+    .unwrap();
+    std::fs::write(dir.path().join("bad.obj"), obj).unwrap();
+    let text = format!("{HEAD}[[surface]]\nname = 's'\nmaterial = 'w'\nmesh = 'bad.obj'\n");
+    let e = Scene::from_toml(&text, &dir.path().join("s.toml"), dir.path()).unwrap_err();
+    assert!(e.field == "surface[0].mesh" && e.message.contains("index out of bounds"), "{e}");
 }
 
 #[test]

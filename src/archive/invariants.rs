@@ -97,66 +97,90 @@ pub(super) fn check_frame(
             ));
         }
     }
-    // Each link's two ends: at `a` (direction 2k, other `b`, bucket
-    // `bucket_a`) and at `b` (2k + 1, `a`, `bucket_b`). An end's key can
-    // recur (links that differ in the other end's bucket): summed.
-    let ends = |i: usize| {
-        let d = &records[i];
-        [(d.a, d.bucket_a, 2 * d.pair, d.b), (d.b, d.bucket_b, 2 * d.pair + 1, d.a)]
-    };
-    let mut keyed: Vec<(EndKey, u32)> = (0..records.len()).flat_map(|i| ends(i).map(|k| (k, i as u32))).collect();
+    // The two ends of each removal: at `a` (direction 2k, other `b`,
+    // bucket `bucket_a`) and at `b` (2k + 1, `a`, `bucket_b`). An end's key
+    // recurs for links that differ only in the other end's bucket: their
+    // removals are summed, against frame 0's ends of that key summed too.
+    // (Additions are left out: a valid frame's removals of a key never
+    // exceed what frame 0 gave it, whatever it adds.)
+    let mut keyed: Vec<(EndKey, u32)> = records
+        .iter()
+        .enumerate()
+        .filter(|(_, d)| d.count < 0)
+        .flat_map(|(i, d)| {
+            [((d.a, d.bucket_a, 2 * d.pair, d.b), i as u32), ((d.b, d.bucket_b, 2 * d.pair + 1, d.a), i as u32)]
+        })
+        .collect();
+    if keyed.is_empty() {
+        return Ok(());
+    }
     keyed.sort_unstable();
-    // Per end with a net removal: the key, the net count and the first record.
+    // Per removed end: the key, the rays removed and the first record.
     let mut removals: Vec<(EndKey, i64, usize)> = Vec::new();
     for run in keyed.chunk_by(|x, y| x.0 == y.0) {
         let net: i64 = run.iter().map(|&(_, i)| records[i as usize].count as i64).sum();
-        if net < 0 {
-            removals.push((run[0].0, net, run[0].1 as usize));
-        }
-    }
-    if removals.is_empty() {
-        return Ok(());
+        removals.push((run[0].0, net, run[0].1 as usize));
     }
     let mut wanted: Vec<u32> = removals.iter().map(|r| r.0.0).collect();
     wanted.dedup();
-    let columns = Columns::ALL;
     let patches = offsets.len() - 1;
     let mut next = 0;
-    let mut row: Vec<((u8, u32, u32), f64)> = Vec::new();
-    links.for_each_window_of(columns, patches, &wanted, |w: LinkWindow<'_>| {
+    let mut base: Vec<f64> = Vec::new();
+    links.for_each_window_of(Columns::ALL, patches, &wanted, |w: LinkWindow<'_>| {
         while next < removals.len() && (removals[next].0.0 as usize) < w.patches.end {
-            let q = removals[next].0.0 as usize;
-            if q < w.patches.start {
-                next += 1;
+            let q = removals[next].0.0;
+            let count = removals[next..].iter().take_while(|r| r.0.0 == q).count();
+            let mine = &removals[next..next + count];
+            next += count;
+            if (q as usize) < w.patches.start {
                 continue;
             }
-            // Frame 0's ends at q, by (bucket, direction, other patch).
-            let r = w.local(offsets[q] as usize..offsets[q + 1] as usize);
-            row.clear();
-            for e in r {
-                let bucket = w.bucket.get(e).copied().unwrap_or(0);
-                row.push(((bucket, w.direction[e], w.other.ids()[e]), w.weight[e] as f64));
+            // Frame 0's weight of each removed end, found by binary search:
+            // a row is ordered by bucket, direction pair and the link's
+            // patch pair (§5.10), that is by `order_key`.
+            let r = w.local(offsets[q as usize] as usize..offsets[q as usize + 1] as usize);
+            let order_key = |e: usize| {
+                let (d, other) = (w.direction[e], w.other.ids()[e]);
+                let link = if d.is_multiple_of(2) { (q, other) } else { (other, q) };
+                (w.bucket.get(e).copied().unwrap_or(0), d / 2, link, d)
+            };
+            base.clear();
+            for &((_, bucket, direction, other), _, _) in mine {
+                let link = if direction.is_multiple_of(2) { (q, other) } else { (other, q) };
+                let key = (bucket, direction / 2, link, direction);
+                let from = r.start + first_false(r.len(), |i| order_key(r.start + i) < key);
+                base.push(
+                    (from..r.end).take_while(|&e| order_key(e) == key).map(|e| w.weight[e] as f64).sum::<f64>() + 0.0,
+                );
             }
-            row.sort_unstable_by_key(|x| x.0);
-            while next < removals.len() && removals[next].0.0 as usize == q {
-                let ((_, bucket, direction, other), net, first) = removals[next];
-                let key = (bucket, direction, other);
-                let at = row.partition_point(|x| x.0 < key);
-                // `+ 0.0`: an empty sum is −0, printed as such.
-                let base = row[at..].iter().take_while(|x| x.0 == key).map(|x| x.1).sum::<f64>() + 0.0;
-                if base + (net as f64) < 0.0 {
+            for (k, &((_, _, direction, other), net, first)) in mine.iter().enumerate() {
+                if base[k] + (net as f64) < 0.0 {
                     return Err(bad(
                         first,
                         format!(
                             "removes {} rays from patch {q}'s end of its link with patch {other} along direction \
-                             {direction}, which frame 0 gave {base}: a negative weight",
-                            -net
+                             {direction}, which frame 0 gave {}: a negative weight",
+                            -net, base[k]
                         ),
                     ));
                 }
-                next += 1;
             }
         }
         Ok(())
     })
+}
+
+/// The first of `0..n` for which `before` is false, `before` being true
+/// and then false along `0..n` (a binary search).
+fn first_false(n: usize, before: impl Fn(usize) -> bool) -> usize {
+    let (mut lo, mut hi) = (0, n);
+    while lo < hi {
+        let mid = lo + (hi - lo) / 2;
+        if before(mid) {
+            lo = mid + 1;
+        } else {
+            hi = mid;
+        }
+    }
+    lo
 }
