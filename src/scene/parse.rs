@@ -432,6 +432,19 @@ fn plain_message(message: &str, key: &str) -> String {
     {
         return format!("expected {}, got {got} values", words(expected));
     }
+    // A whole number out of its type's range.
+    if let Some(rest) = message.strip_prefix("invalid value: integer ")
+        && let Some((got, expected)) = rest.split_once(", expected ")
+    {
+        let range = match expected.trim() {
+            "u8" => " from 0 to 255",
+            "u16" => " from 0 to 65535",
+            "u32" => " from 0 to 4294967295",
+            "i32" => " from -2147483648 to 2147483647",
+            _ => "",
+        };
+        return format!("expected {}{range}, got {}", words(expected), got.replace('`', ""));
+    }
     if let Some(rest) = message.strip_prefix("invalid type: ")
         && let Some((got, expected)) = rest.split_once(", expected ")
     {
