@@ -67,7 +67,7 @@ fn missing_file_is_an_error_naming_it() {
     assert!(e.message.contains("is a directory, not an OBJ file"), "{e}");
     // Found by fuzzing: a normal index whose ×3 overflows inside tobj.
     let obj = std::fs::read(
-        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("fuzz/corpus/scene_obj/crash-tobj-normal-index-overflow"),
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/tobj_normal_index_overflow.obj"),
     )
     .unwrap();
     std::fs::write(dir.path().join("bad.obj"), obj).unwrap();
