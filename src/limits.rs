@@ -22,9 +22,9 @@ pub const MAX_PATCH_AREA: f32 = 1e14;
 pub const MAX_COORDINATE: f32 = 1e9;
 
 /// Whether rays can be made from a camera at `position` looking at
-/// `look_at` with `up`: points within ±[`MAX_COORDINATE`], and
-/// |f̂ × up| ≥ 10⁻⁶ for the unit view direction f̂ (a tiny `up` is as bad
-/// as a parallel one). Computed in f64 from the f32 values, so that the
+/// `look_at` with `up`: points within ±[`MAX_COORDINATE`] and at least
+/// 10⁻⁶ m apart, and |f̂ × up| ≥ 10⁻⁶ for the unit view direction f̂ (a
+/// tiny `up` is as bad as a parallel one). Computed in f64 from the f32 values, so that the
 /// scene reader (every frame's camera) and the archive reader agree.
 pub fn camera_is_usable(position: [f32; 3], look_at: [f32; 3], up: [f32; 3]) -> bool {
     let within = |v: &[f32; 3]| v.iter().all(|x| x.abs() <= MAX_COORDINATE);
@@ -35,5 +35,7 @@ pub fn camera_is_usable(position: [f32; 3], look_at: [f32; 3], up: [f32; 3]) -> 
     let u: [f64; 3] = std::array::from_fn(|i| up[i] as f64);
     let cross = [f[1] * u[2] - f[2] * u[1], f[2] * u[0] - f[0] * u[2], f[0] * u[1] - f[1] * u[0]];
     let len = |x: &[f64; 3]| (x[0] * x[0] + x[1] * x[1] + x[2] * x[2]).sqrt();
-    len(&f) > 0.0 && len(&cross) >= 1e-6 * len(&f)
+    // At least 1 µm between position and look_at: a shorter view vector's
+    // squares underflow in f32 and its direction is NaN (found by fuzzing).
+    len(&f) >= 1e-6 && len(&cross) >= 1e-6 * len(&f)
 }

@@ -394,6 +394,10 @@ fn values_within_old_rules_that_made_nan_are_refused_at_open() {
     let mut x = c.clone();
     x.camera.up = [0.0, 2e-38, 0.0];
     refused_with(&x, "CAMR");
+    // Found by fuzzing too: a view vector whose squares underflow in f32.
+    let mut x = c.clone();
+    (x.camera.position, x.camera.look_at) = ([0.0, 1e-30, 0.0], [0.0, 0.0, 1e-30]);
+    refused_with(&x, "CAMR");
     let mut g = contents(&format!("{ROOM}{GLOSSY}"));
     g.reflectance.as_mut().unwrap().prototypes[0].ior = [f32::NEG_INFINITY; 3];
     refused_with(&g, "PTAB[0]");
