@@ -171,7 +171,7 @@ fn frame_radiance_from_the_sequence_archive_equals_from_scratch() {
     let (seq, settings) = sequence(&scene, hints);
     let bytes = archive::write_to_vec(&seq.contents).unwrap();
     let arch = Archive::from_bytes(&bytes).unwrap();
-    assert_eq!(arch.header().version_read, 6, "sequence archives need a reader of version 6");
+    assert_eq!(arch.header().version_read, 7, "archives need a reader of version 7");
     let v = arch.view();
     let opts = DistributeOptions { tolerance: 1e-7, ..Default::default() };
     let mut worst = 0.0f64;
@@ -251,55 +251,27 @@ fn sequence_archive_bytes_do_not_depend_on_thread_count() {
 }
 
 #[test]
-fn version_4_sequence_archives_with_record_checksums_still_read() {
-    // See: format-spec/archive.md §5.13. Before version 5, a frame was one
-    // zstd frame of plain records and `DIDX.checksum` covered the records; a
-    // version 5 reader must read such files and still catch a wrong checksum.
-    use illumnet::archive::{self, Archive, tag_name};
+fn archives_of_older_formats_are_refused_with_what_to_do() {
+    // See: format-spec/archive.md §6, §8. A reader of version 7 reads
+    // version 7 files; version 6 files are rewritten by `illumnet upgrade`
+    // (tests/upgrade.rs), older ones built again.
+    use illumnet::archive::{self, Archive, ArchiveError};
     use xxhash_rust::xxh3::xxh3_64;
     let scene = adversarial();
     let hints = BuildHints { patch_size: Some(0.4), frequency: Some(3), ray_spacing: Some(0.08), buckets: Some(1) };
     let seq = build::build_sequence(&scene, &BuildSettings::resolve(&scene, hints), &NoProgress).unwrap();
-    let deltas = &seq.contents.sequence.as_ref().unwrap().deltas;
-    let frames: Vec<_> = (0..deltas.index.len()).map(|f| deltas.frame(f).unwrap()).collect();
-    // The same contents with the deltas laid out as version 4 wrote them.
-    let mut old_contents = seq.contents.clone();
-    old_contents.sequence.as_mut().unwrap().deltas = archive::deltas::EncodedDeltas::version_4(&frames).unwrap();
-    let bytes = archive::write_to_vec(&old_contents).unwrap();
-    let rewrite = |spoil: bool| {
+    let bytes = archive::write_to_vec(&seq.contents).unwrap();
+    for (written, read, says) in [(6u32, 6u32, "illumnet upgrade"), (5, 5, "build it again"), (4, 3, "build it again")]
+    {
         let mut b = bytes.clone();
-        let arch = Archive::from_bytes(&bytes).unwrap();
-        let table = arch.header().table_offset as usize;
-        if spoil {
-            // A wrong record checksum (the section checksums still agree).
-            let (i, e) = arch.sections().iter().enumerate().find(|(_, e)| tag_name(e.tag) == "DIDX").unwrap();
-            let f = frames.iter().position(|r| !r.is_empty()).unwrap();
-            b[e.offset as usize + 32 * f + 24] ^= 1;
-            let section = xxh3_64(&b[e.offset as usize..(e.offset + e.stored_length) as usize]);
-            b[table + 64 * i + 48..][..8].copy_from_slice(&section.to_le_bytes());
-            let n = arch.sections().len();
-            let table_sum = xxh3_64(&b[table..table + 64 * n]);
-            b[48..56].copy_from_slice(&table_sum.to_le_bytes());
-        }
-        b[8..12].copy_from_slice(&4u32.to_le_bytes()); // version_write
-        b[12..16].copy_from_slice(&3u32.to_le_bytes()); // version_read
+        b[8..12].copy_from_slice(&written.to_le_bytes()); // version_write
+        b[12..16].copy_from_slice(&read.to_le_bytes()); // version_read
         let header_sum = xxh3_64(&b[..120]);
         b[120..128].copy_from_slice(&header_sum.to_le_bytes());
-        b
-    };
-    let old = rewrite(false);
-    let arch = Archive::from_bytes(&old).unwrap();
-    let s = arch.view().sequence.unwrap();
-    let changed = (0..scene.frame_count()).filter(|&f| deltas.index[f as usize].count > 0).collect::<Vec<_>>();
-    assert!(!changed.is_empty());
-    for &f in &changed {
-        assert_eq!(s.frame_delta(f).unwrap(), frames[f as usize], "frame {f}");
+        let err = Archive::from_bytes(&b).err().unwrap();
+        assert!(matches!(err, ArchiveError::Outdated { written: w } if w == written), "{err}");
+        assert!(err.to_string().contains(says), "{err}");
     }
-    // A record checksum that does not match is caught.
-    let spoiled = rewrite(true);
-    let arch = Archive::from_bytes(&spoiled).unwrap();
-    let err = arch.view().sequence.unwrap().frame_delta(changed[0]).unwrap_err().to_string();
-    assert!(err.contains("checksum"), "{err}");
 }
 
 #[test]
@@ -374,7 +346,7 @@ fn glossy_movers_radiance_from_the_sequence_equals_from_scratch() {
     let seq = build::build_sequence_with_links(&scene, &settings, &NoProgress).unwrap();
     let arch = Archive::from_bytes(&archive::write_to_vec(&seq.contents).unwrap()).unwrap();
     let v = arch.view();
-    assert_eq!(arch.header().version_read, 6, "sequence (6) takes precedence over reflectance (4)");
+    assert_eq!(arch.header().version_read, 7, "every archive needs a reader of version 7");
     let r = v.reflectance.unwrap();
     assert!(r.orientations.len() > 6, "moving glossy boxes have one orientation per face and turn");
     let opts = DistributeOptions { tolerance: 1e-7, ..Default::default() };

@@ -43,7 +43,7 @@ fn an_archive_over_four_times_the_budget_renders_within_it_to_the_same_image() {
     let s = |p: &Path| p.to_str().unwrap().to_string();
     ok(&["build", &s(&scene), "-q", "-o", &s(&archive)]);
     let size = std::fs::metadata(&archive).unwrap().len();
-    let budget: u64 = 40 << 20;
+    let budget: u64 = 32 << 20;
     assert!(size >= 4 * budget, "the archive ({size} bytes) is at least 4× the budget");
     let render = |name: &str, extra: &[&str]| {
         let png = d.join(format!("{name}.png"));
@@ -56,7 +56,7 @@ fn an_archive_over_four_times_the_budget_renders_within_it_to_the_same_image() {
         (stdout, std::fs::read(&png).unwrap(), read_exr(&exr).unwrap())
     };
     let (full_out, full_png, full_exr) = render("full", &[]);
-    let (out, png, exr) = render("budget", &["--memory-budget", "40M"]);
+    let (out, png, exr) = render("budget", &["--memory-budget", "32M"]);
     assert!(out.contains("link ends streamed in windows of"), "{out}");
     let (full_peak, budget_peak) = (peak(&full_out), peak(&out));
     eprintln!(
@@ -117,7 +117,7 @@ fn a_build_over_its_budget_spills_runs_and_writes_the_same_bytes() {
     let d = dir.path();
     // A still four times the budget, and a sequence.
     for (scene, args, budget) in
-        [("cornell_box.toml", vec![], 40u64 << 20), ("fan_room.toml", vec!["--quality", "draft"], 28 << 20)]
+        [("cornell_box.toml", vec![], 32u64 << 20), ("fan_room.toml", vec!["--quality", "draft"], 28 << 20)]
     {
         let (full, bounded) = (d.join("full.inet"), d.join("bounded.inet"));
         build(scene, &full, &args);

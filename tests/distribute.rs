@@ -1,13 +1,17 @@
 //! The distribution's fast path against the plain reference solver, its
 //! errors, and its images pinned bit for bit.
 //!
-//! The pinned hashes are those of the images the single-function
+//! The pinned hashes were first those of the images the single-function
 //! distribution made before `distribute/` was split into its pieces
 //! (setup, warm starts, the iteration step, kernels); the split was also
 //! checked bit for bit on the glossy floor and the brushed plate, which
-//! are not pinned here (their table kernel depends on the CPU's AVX2). A change that means to change
-//! the numbers re-pins them: run this test with `ILLUMNET_PIN=1` and copy
-//! the printed hashes, and say why in the commit.
+//! are not pinned here (their table kernel depends on the CPU's AVX2).
+//! Format version 7's one-byte weights kept them bit for bit; its tiled
+//! patch numbering changed the order of the gather's sums and re-pinned
+//! them (`patches_in_tiles_give_the_light_of_patches_in_rows` holds the
+//! two orders within 1e-6). A change that means to change the numbers
+//! re-pins them: run this test with `ILLUMNET_PIN=1` and copy the printed
+//! hashes, and say why in the commit.
 
 mod common;
 
@@ -67,6 +71,81 @@ fn fast_distribution_agrees_with_the_reference_solver_on_a_still() {
     let want =
         reference::solve(&v, 0, &lighting, &DistributeOptions { tolerance: 1e-10, ..Default::default() }).unwrap();
     assert!(worst_relative(&other.radiance, &want.radiance) > 1e-3);
+}
+
+#[test]
+fn weights_kept_apart_give_the_reference_light_resident_and_streamed() {
+    // Patches of 0.24 m crossed by rays 3 mm apart: links of up to ~6 400
+    // rays, whose weights do not fit LCNT's byte and go to LCNX (§5.10),
+    // mixed with small ones; the gather adds them in a pass of their own.
+    let hints =
+        BuildHints { frequency: Some(3), patch_size: Some(0.24), ray_spacing: Some(0.003), ..Default::default() };
+    let scene = Scene::cornell_box();
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("coarse.inet");
+    let mut settings = illumnet::build::BuildSettings::resolve(&scene, hints);
+    settings.prototype_library = None;
+    let (contents, _) = illumnet::build::build(&scene, &settings, &NoProgress).unwrap();
+    illumnet::archive::write(&path, &contents).unwrap();
+    let big = contents.link_weight.iter().filter(|&&w| w > 255.0).count();
+    assert!(big > 100 && big < contents.link_weight.len(), "{big} of {} ends escaped", contents.link_weight.len());
+    let lighting = {
+        let a = Archive::open(&path).unwrap();
+        Lighting::from_view(&a.view())
+    };
+    for streamed in [false, true] {
+        let a = if streamed { Archive::open_streamed(&path, 300).unwrap() } else { Archive::open(&path).unwrap() };
+        let v = a.view();
+        assert_eq!(v.links.resident().map(|l| l.weight.escapes().len()).unwrap_or(big), big);
+        for buckets in [true, false] {
+            let opts = DistributeOptions { tolerance: 1e-7, buckets, ..Default::default() };
+            let fast = distribute::distribute(&v, &opts, &NoProgress).unwrap();
+            let want = reference::solve(&v, 0, &lighting, &DistributeOptions { tolerance: 1e-10, ..opts }).unwrap();
+            let err = worst_relative(&fast.radiance, &want.radiance);
+            assert!(err < 1e-5, "streamed {streamed}, buckets {buckets}: worst patch {err:.2e} off the reference");
+        }
+    }
+}
+
+#[test]
+fn patches_in_tiles_give_the_light_of_patches_in_rows() {
+    // Version 7 numbers a quad's patches in tiles (§5.5): the same links
+    // between renumbered patches, so only the order of the gather's sums
+    // changes. At the same iteration count the light agrees within 1e-6.
+    use illumnet::build::{self, BuildSettings};
+    use illumnet::geometry::PrimitiveKind;
+    use illumnet::geometry::grid::{CellOrder, PatchGrid};
+    let scene = Scene::cornell_box();
+    let archive = |order: CellOrder| {
+        let mut settings = BuildSettings::resolve(&scene, BuildHints::default());
+        settings.cell_order = order;
+        let (contents, _) = build::build(&scene, &settings, &NoProgress).unwrap();
+        Archive::from_bytes(&illumnet::archive::write_to_vec(&contents).unwrap()).unwrap()
+    };
+    let (rows, tiles) = (archive(CellOrder::Rows), archive(CellOrder::Tiles));
+    let opts = DistributeOptions { tolerance: 0.0, max_iterations: 12, ..Default::default() };
+    let solve = |a: &Archive| distribute::distribute(&a.view(), &opts, &NoProgress).unwrap();
+    let (r, t) = (solve(&rows), solve(&tiles));
+    assert_eq!(r.balance.iterations, t.balance.iterations);
+    let (vr, vt) = (rows.view(), tiles.view());
+    assert_eq!(vr.link_end_count(), vt.link_end_count());
+    let (mut worst, mut moved) = (0.0f64, 0);
+    for (p, &prim) in vr.patch_primitive.iter().enumerate() {
+        let (a, b) = (&vr.primitives[prim as usize], &vt.primitives[prim as usize]);
+        assert_eq!((a.cell_order, b.cell_order), (0, 1));
+        let grid = |order| PatchGrid { kind: PrimitiveKind::Quad, n_u: a.grid_u, n_v: a.grid_v, order };
+        let (i, j) = grid(CellOrder::Rows).quad_ij(p as u32 - a.first_patch);
+        let q = (b.first_patch + grid(CellOrder::Tiles).quad_cell(i, j)) as usize;
+        moved += usize::from(q != p);
+        assert_eq!(vr.patch_hits[p], vt.patch_hits[q]);
+        for c in 0..3 {
+            let (x, y) = (r.radiance[p][c] as f64, t.radiance[q][c] as f64);
+            worst = worst.max((x - y).abs() / x.abs().max(1e-3));
+        }
+    }
+    assert!(moved > vr.patch_count() / 2, "tiles renumber most patches");
+    eprintln!("tiles against rows: worst patch {worst:.2e} apart, {moved} patches renumbered");
+    assert!(worst < 1e-6, "worst patch {worst:.2e} apart");
 }
 
 #[test]
@@ -150,21 +229,21 @@ fn images_are_pinned_bit_for_bit() {
     let default = DistributeOptions::default();
     let plain = DistributeOptions { buckets: false, anderson_depth: 0, ..default };
     let got = [render_frames(&v, &default, &[0], false), render_frames(&v, &plain, &[0], false)].concat();
-    check_pins("cornell", &got, &[0x6a11deb05932108a, 0xd2856f2ba9186d61]);
+    check_pins("cornell", &got, &[0x166f77fed13b7f25, 0x2544f641bc8c78de]);
     let hints = BuildHints { frequency: Some(8), patch_size: Some(0.2), ray_spacing: Some(0.05), ..Default::default() };
     let a = common::build_sequence_archive(&scene_file("fan_room.toml"), hints);
     let v = a.view();
     let got = [render_frames(&v, &default, &[0, 1, 2, 3, 4, 5], true), render_frames(&v, &default, &[40, 41], false)]
         .concat();
     let want = [
-        0x6760f39322abb3f1,
-        0xf4b59e9cb1ccf1d4,
-        0x7308fdc6971256de,
-        0xcad4ab8ce1f5bc9b,
-        0xd90a306e3459ae29,
-        0xf0fb0014b074db8e,
-        0x01b081ea8a415605,
-        0x44e6c159f51d4bd4,
+        0x06510bb84bba48d0,
+        0xed2f721c924cd89c,
+        0x75a377c0f0978bf8,
+        0x64fd76526b79f01a,
+        0x870b76bc9fa7e7ce,
+        0xb676ae97741e6572,
+        0x5907e12307f3e883,
+        0x975ec45271087211,
     ];
     check_pins("fan room", &got, &want);
 }

@@ -106,19 +106,19 @@ fn a_link_column_cut_or_rewritten_under_a_distribution_is_an_error() {
 
     // Rewritten in place after opening: the window's checksum catches it.
     let a = Archive::open_streamed(&path, 1000).unwrap();
-    assert!(a.view().link_end_count() > 70_000, "the change lands in LWGT's second chunk");
-    let at = section_offset(&path, tag::LINK_WEIGHT);
+    assert!(a.view().link_end_count() > 70_000, "the change lands in LCNT's second chunk");
+    let at = section_offset(&path, tag::LINK_COUNT);
     let mut bytes = std::fs::read(&path).unwrap();
-    bytes[at as usize + 4 * 70_000] ^= 0x40;
+    bytes[at as usize + 70_000] ^= 0x40;
     std::fs::write(&path, &bytes).unwrap();
     let err = run(&a).unwrap_err().to_string();
-    assert!(err.contains("changed on disk") && err.contains("LWGT"), "{err}");
+    assert!(err.contains("changed on disk") && err.contains("LCNT"), "{err}");
     // Opening it now fails on the section checksum, before any use.
     let err = Archive::open_streamed(&path, 1000).err().unwrap().to_string();
-    assert!(err.contains("LWGT") && err.contains("checksum"), "{err}");
+    assert!(err.contains("LCNT") && err.contains("checksum"), "{err}");
 
     // Cut short after opening: a short read, never SIGBUS.
-    bytes[at as usize + 4 * 70_000] ^= 0x40;
+    bytes[at as usize + 70_000] ^= 0x40;
     std::fs::write(&path, &bytes).unwrap();
     let a = Archive::open_streamed(&path, 1000).unwrap();
     assert!(run(&a).is_ok());

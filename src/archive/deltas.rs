@@ -104,29 +104,6 @@ impl EncodedDeltas {
         Ok(Self::from_blocks(frames.len(), vec![blocks]))
     }
 
-    /// Whole frames in the layout of files written before version 5: one
-    /// zstd frame of plain 20-byte records per frame, `DIDX.checksum` of the
-    /// records. For compatibility tests; writers produce version 5 blocks.
-    pub fn version_4(frames: &[Vec<DeltaRecord>]) -> std::io::Result<Self> {
-        let mut index = Vec::with_capacity(frames.len());
-        let mut stored = Vec::with_capacity(frames.len());
-        let mut offset = 0u64;
-        for records in frames {
-            let raw: &[u8] = bytemuck::cast_slice(records);
-            let z = if records.is_empty() { Vec::new() } else { zstd::bulk::compress(raw, LEVEL)? };
-            let checksum = xxhash_rust::xxh3::xxh3_64(raw);
-            index.push(DeltaIndexRecord {
-                offset,
-                stored_length: z.len() as u64,
-                count: records.len() as u64,
-                checksum,
-            });
-            offset += z.len() as u64;
-            stored.push(if z.is_empty() { Vec::new() } else { vec![z] });
-        }
-        Ok(Self { index, frames: stored })
-    }
-
     /// The `DELT` payload, piece by piece.
     pub fn pieces(&self) -> impl Iterator<Item = &[u8]> {
         self.frames.iter().flatten().map(|p| &p[..])

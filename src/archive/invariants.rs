@@ -11,6 +11,7 @@
 use super::ArchiveError;
 use super::layout::DeltaRecord;
 use super::links::{Columns, LinkWindow, Links};
+use super::weights::Weights;
 
 /// Relative slack on sums of f32 ray counts (exact integers below 2²⁴;
 /// larger sums round).
@@ -37,13 +38,13 @@ impl<'a> WeightSums<'a> {
     }
 
     /// Adds the next `weights` (ends `self.end ..`).
-    pub(super) fn add(&mut self, weights: &[f32]) -> Result<(), ArchiveError> {
+    pub(super) fn add(&mut self, weights: Weights<'_>) -> Result<(), ArchiveError> {
         let mut i = 0;
         while i < weights.len() {
             self.finish_empty()?;
             let row_end = self.offsets[self.patch + 1] as usize;
             let take = (row_end - self.end).min(weights.len() - i);
-            self.sum += weights[i..i + take].iter().map(|&w| w as f64).sum::<f64>();
+            self.sum += weights.slice(i..i + take).iter().map(|w| w as f64).sum::<f64>();
             self.end += take;
             i += take;
         }
@@ -56,7 +57,7 @@ impl<'a> WeightSums<'a> {
             let h = self.hits[self.patch] as f64;
             if self.sum > h * (1.0 + SUM_SLACK) {
                 return Err(ArchiveError::corrupt(format!(
-                    "LWGT: patch {}'s link ends carry {} rays, more than the {h} that cross it (PHIT)",
+                    "LCNT: patch {}'s link ends carry {} rays, more than the {h} that cross it (PHIT)",
                     self.patch, self.sum
                 )));
             }
@@ -150,7 +151,8 @@ pub(super) fn check_frame(
                 let key = (bucket, direction / 2, link, direction);
                 let from = r.start + first_false(r.len(), |i| order_key(r.start + i) < key);
                 base.push(
-                    (from..r.end).take_while(|&e| order_key(e) == key).map(|e| w.weight[e] as f64).sum::<f64>() + 0.0,
+                    (from..r.end).take_while(|&e| order_key(e) == key).map(|e| w.weight.get(e) as f64).sum::<f64>()
+                        + 0.0,
                 );
             }
             for (k, &((_, _, direction, other), net, first)) in mine.iter().enumerate() {

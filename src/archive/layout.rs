@@ -1,4 +1,4 @@
-//! On-disk records of the archive format (version 6).
+//! On-disk records of the archive format (version 7).
 //!
 //! Every type here is `#[repr(C)]`, made of little-endian `u32`/`u64`/`f32`
 //! fields with no implicit padding, and is read zero-copy with `bytemuck`
@@ -10,29 +10,24 @@ use bytemuck::{Pod, Zeroable};
 /// File magic, bytes 0..8 (§3).
 pub const MAGIC: [u8; 8] = *b"ILLUMNET";
 /// The format version this code writes (§3, `version_write`).
-pub const VERSION_WRITE: u32 = 6;
-/// The oldest reader version able to read a geodesic archive this code
-/// writes (§3, `version_read`): version 2 only added optional content.
-pub const VERSION_READ: u32 = 1;
-/// `version_read` of ray-space baseline archives, which version 1 readers
-/// would misread as geodesic.
-pub const VERSION_READ_RAY_SPACE: u32 = 2;
-/// `version_read` of sequence archives (animation sections, §5.13): version
-/// 3 readers would render every temporal instance at once, version 4 readers
-/// would reject the per-frame checksums of version 5 (taken over the stored
-/// bytes) and frames of several zstd frames, and version 5 readers would keep
-/// frame 0's links to instances that have left (version 6 writers omit
-/// their removal).
-pub const VERSION_READ_SEQUENCE: u32 = 6;
+pub const VERSION_WRITE: u32 = 7;
+/// `version_read` of every archive this code writes: version 7 stores
+/// link-end weights as one byte (`LCNT`, with `LCNX` for the rest) where
+/// older readers expect `LWGT`, and numbers a quad's patches in tiles
+/// (`PRIM.cell_order`), which they would misplace.
+pub const VERSION_READ: u32 = 7;
+/// The oldest `version_write` this code reads: files written before
+/// version 7 hold `LWGT` and are rewritten by `illumnet upgrade`
+/// ([`super::upgrade`]).
+pub const OLDEST_READABLE: u32 = 7;
+/// The `version_write` of the files [`super::upgrade`] rewrites.
+pub const UPGRADABLE: u32 = 6;
 /// Files written before this version store each frame's delta as plain
 /// records in one zstd frame, checksummed after decompression; from it on,
 /// as blocks of columns, checksummed as stored (§5.13).
 pub const VERSION_DELTA_BLOCKS: u32 = 5;
-/// `version_read` of archives with non-diffuse materials (reflectance
-/// sections, §5.14), which older readers would render as black.
-pub const VERSION_READ_REFLECTANCE: u32 = 4;
 /// The highest `version_read` this code can read (§6).
-pub const READER_VERSION: u32 = 6;
+pub const READER_VERSION: u32 = 7;
 /// Header size in bytes (§3).
 pub const HEADER_SIZE: usize = 128;
 /// Section table entry size in bytes (§4).
@@ -125,8 +120,14 @@ pub mod tag {
     pub const LINK_OFFSETS: Tag = *b"LOFF";
     /// Link-end other patch (§5.10).
     pub const LINK_OTHER: Tag = *b"LOTH";
-    /// Link-end weight (§5.10).
-    pub const LINK_WEIGHT: Tag = *b"LWGT";
+    /// Link-end weight as f32, in files written before version 7 (§8;
+    /// `illumnet upgrade` rewrites it as `LCNT` and `LCNX`).
+    pub const LINK_WEIGHT_V6: Tag = *b"LWGT";
+    /// Link-end weight as a one-byte ray count, 0 for one kept in `LCNX`
+    /// (§5.10).
+    pub const LINK_COUNT: Tag = *b"LCNT";
+    /// Link-end weights that are not a count in 1..=255 (§5.10).
+    pub const LINK_ESCAPES: Tag = *b"LCNX";
     /// Link-end outgoing direction (§5.10).
     pub const LINK_DIRECTION: Tag = *b"LDIR";
     /// Link-end bucket (§5.12).
@@ -324,10 +325,34 @@ pub struct PrimitiveRecord {
     pub first_patch: u32,
     /// Global id of the first vertex.
     pub first_vertex: u32,
+    /// How the quad's cells are numbered: [`cell_order::ROWS`] or
+    /// [`cell_order::TILES`] (since version 7; triangles: rows).
+    pub cell_order: u32,
     /// Reserved, zero.
-    pub reserved: [u32; 2],
+    pub reserved: u32,
     /// Corners (m); the fourth equals the third for triangles.
     pub corners: [[f32; 3]; 4],
+}
+
+/// `PRIM.cell_order` values (§5.5).
+pub mod cell_order {
+    /// Row by row: cell `(i, j)` is `j·n_u + i`.
+    pub const ROWS: u32 = 0;
+    /// Tiles of 8×8 cells, row by row; a tile's cells row by row.
+    pub const TILES: u32 = 1;
+}
+
+/// A link end whose weight is not a whole number of rays in 1..=255, so
+/// that `LCNT` holds 0 for it (§5.10).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Default, Pod, Zeroable)]
+pub struct WeightEscape {
+    /// The link end (an index into `LOTH`).
+    pub end: u64,
+    /// Its weight.
+    pub weight: f32,
+    /// Reserved, zero.
+    pub reserved: u32,
 }
 
 /// A direction of the geodesic set (§5.6).
@@ -480,4 +505,5 @@ const _: () = {
     assert!(size_of::<MaterialRecord>() == 64);
     assert!(size_of::<PrimitiveRecord>() == 80);
     assert!(size_of::<DirectionRecord>() == 40);
+    assert!(size_of::<WeightEscape>() == 16);
 };

@@ -1,4 +1,5 @@
-//! Frame 0's link-end columns (`LOTH`, `LWGT`, `LDIR`, `LBKT`, §5.10),
+//! Frame 0's link-end columns (`LOTH`, `LCNT` with `LCNX`, `LDIR`,
+//! `LBKT`, §5.10),
 //! resident (slices of a mapped archive) or streamed (read window by
 //! window into reused buffers, [`LinkStream`]), behind one interface: the
 //! distribution walks them in windows of consecutive patches and never
@@ -8,6 +9,7 @@ use std::ops::Range;
 
 use super::ArchiveError;
 use super::stream::LinkStream;
+use super::weights::Weights;
 
 /// Patch indices proved below `bound` when made, so that per-patch state
 /// of at least `bound` entries can be indexed with them without a bounds
@@ -55,8 +57,8 @@ pub struct LinkSlices<'a> {
     /// `LOTH`, each below the patch count (validated when the archive was
     /// opened, §7).
     pub other: PatchIds<'a>,
-    /// `LWGT`.
-    pub weight: &'a [f32],
+    /// `LCNT` with `LCNX`.
+    pub weight: Weights<'a>,
     /// `LDIR`.
     pub direction: &'a [u32],
     /// `LBKT`, when present.
@@ -79,7 +81,7 @@ pub enum Links<'a> {
 pub struct Columns {
     /// `LOTH`.
     pub other: bool,
-    /// `LWGT`.
+    /// `LCNT` (and the escapes of `LCNX`, always held).
     pub weight: bool,
     /// `LDIR`.
     pub direction: bool,
@@ -88,7 +90,7 @@ pub struct Columns {
 }
 
 impl Columns {
-    /// `LOTH` and `LWGT`: what the diffuse gather reads.
+    /// `LOTH` and `LCNT`: what the diffuse gather reads.
     pub const GATHER: Self = Self { other: true, weight: true, direction: false, bucket: false };
     /// Every column.
     pub const ALL: Self = Self { other: true, weight: true, direction: true, bucket: true };
@@ -103,8 +105,8 @@ pub struct LinkWindow<'w> {
     pub first_end: usize,
     /// `LOTH`.
     pub other: PatchIds<'w>,
-    /// `LWGT`.
-    pub weight: &'w [f32],
+    /// `LCNT` with `LCNX`.
+    pub weight: Weights<'w>,
     /// `LDIR`.
     pub direction: &'w [u32],
     /// `LBKT`.
@@ -167,7 +169,18 @@ impl<'a> Links<'a> {
     pub fn rows(&self, offsets: &'a [u64], patches: &[u32]) -> Result<LinkRows<'a>, ArchiveError> {
         match self {
             Links::Resident(s) => {
-                Ok(LinkRows { patches: patches.to_vec(), store: RowStore::Borrowed { offsets, slices: *s } })
+                // Weights decoded to f32: these rows are read many times.
+                let mut starts = vec![0usize];
+                let mut weight = Vec::new();
+                for &q in patches {
+                    let (a, b) = (offsets[q as usize] as usize, offsets[q as usize + 1] as usize);
+                    weight.extend(s.weight.slice(a..b).iter());
+                    starts.push(weight.len());
+                }
+                Ok(LinkRows {
+                    patches: patches.to_vec(),
+                    store: RowStore::Borrowed { offsets, slices: *s, weight, starts },
+                })
             }
             Links::Streamed(stream) => {
                 let mut order: Vec<usize> = (0..patches.len()).collect();
@@ -182,7 +195,7 @@ impl<'a> Links<'a> {
                         let q = wanted[next] as usize;
                         let r = w.local(offsets[q] as usize..offsets[q + 1] as usize);
                         other.extend_from_slice(&w.other.ids()[r.clone()]);
-                        weight.extend_from_slice(&w.weight[r.clone()]);
+                        weight.extend(w.weight.slice(r.clone()).iter());
                         direction.extend_from_slice(&w.direction[r]);
                         row_of[order[next]] = (compact_offsets.len() - 1) as u32;
                         compact_offsets.push(other.len() as u64);
@@ -227,7 +240,7 @@ pub struct LinkRows<'a> {
 }
 
 enum RowStore<'a> {
-    Borrowed { offsets: &'a [u64], slices: LinkSlices<'a> },
+    Borrowed { offsets: &'a [u64], slices: LinkSlices<'a>, weight: Vec<f32>, starts: Vec<usize> },
     Owned { row_of: Vec<u32>, offsets: Vec<u64>, other: Vec<u32>, weight: Vec<f32>, direction: Vec<u32> },
 }
 
@@ -235,10 +248,10 @@ impl LinkRows<'_> {
     /// The ends of the `k`-th patch asked for: `(other, weight, direction)`.
     pub fn ends(&self, k: usize) -> (&[u32], &[f32], &[u32]) {
         match &self.store {
-            RowStore::Borrowed { offsets, slices } => {
+            RowStore::Borrowed { offsets, slices, weight, starts } => {
                 let q = self.patches[k] as usize;
                 let (a, b) = (offsets[q] as usize, offsets[q + 1] as usize);
-                (&slices.other.ids()[a..b], &slices.weight[a..b], &slices.direction[a..b])
+                (&slices.other.ids()[a..b], &weight[starts[k]..starts[k + 1]], &slices.direction[a..b])
             }
             RowStore::Owned { row_of, offsets, other, weight, direction } => {
                 let r = row_of[k] as usize;
@@ -251,7 +264,7 @@ impl LinkRows<'_> {
     /// Heap bytes held (zero when borrowed).
     pub fn heap_bytes(&self) -> usize {
         match &self.store {
-            RowStore::Borrowed { .. } => self.patches.len() * 4,
+            RowStore::Borrowed { weight, starts, .. } => self.patches.len() * 4 + weight.len() * 4 + starts.len() * 8,
             RowStore::Owned { other, .. } => self.patches.len() * 8 + other.len() * 12,
         }
     }

@@ -24,6 +24,8 @@ mod links;
 pub mod presence;
 mod read;
 mod stream;
+pub mod upgrade;
+pub mod weights;
 mod write;
 
 use std::fmt;
@@ -32,6 +34,7 @@ use std::path::PathBuf;
 pub use links::{Columns, LinkRows, LinkSlices, LinkWindow, Links, PatchIds};
 pub use read::{Archive, ArchiveSummary, InetView, ReflectanceView, SequenceView};
 pub use stream::{CHUNK_ENDS, LinkStream, bytes_per_end};
+pub use weights::Weights;
 pub use write::{LinkEndSink, LinkEndSource, reseal, write, write_to_vec, write_to_vec_with_links, write_with_links};
 
 use layout::{BuildRecord, CameraRecord, DirectionRecord, MaterialRecord, PrimitiveRecord, SurfaceRecord, Tag};
@@ -90,7 +93,7 @@ pub struct ArchiveContents {
     pub link_offsets: Vec<u64>,
     /// `LOTH`.
     pub link_other: Vec<u32>,
-    /// `LWGT`.
+    /// The link-end weights, stored as `LCNT` and `LCNX` (§5.10).
     pub link_weight: Vec<f32>,
     /// `LDIR`.
     pub link_direction: Vec<u32>,
@@ -162,6 +165,12 @@ pub enum ArchiveError {
         /// What this build reads.
         supports: u32,
     },
+    /// The file was written in an older format that this build reads only
+    /// after `illumnet upgrade` rewrites it.
+    Outdated {
+        /// `version_write` in the file.
+        written: u32,
+    },
 }
 
 impl ArchiveError {
@@ -178,6 +187,17 @@ impl fmt::Display for ArchiveError {
             Self::UnsupportedVersion { needs, supports } => write!(
                 f,
                 "archive needs reader version {needs}, this illumnet reads up to version {supports}: upgrade illumnet"
+            ),
+            Self::Outdated { written } if *written == layout::UPGRADABLE => write!(
+                f,
+                "archive written in format version {written}; this illumnet reads version {}: rewrite it with                  `illumnet upgrade ARCHIVE` (the same light, a smaller file) or build it again",
+                layout::VERSION_WRITE
+            ),
+            Self::Outdated { written } => write!(
+                f,
+                "archive written in format version {written}; this illumnet reads version {} and upgrades                  version {}: build it again",
+                layout::VERSION_WRITE,
+                layout::UPGRADABLE
             ),
         }
     }

@@ -9,11 +9,12 @@ use super::invariants::{self, WeightSums};
 use super::layout::{
     self, AnimationRecord, BuildRecord, CameraRecord, DeltaIndexRecord, DeltaRecord, DirectionRecord, HeaderRecord,
     InstanceRecord, MaterialRecord, NonDiffusePatchRecord, OrientationRecord, PrimitiveRecord, PrototypeRecord,
-    SectionEntry, SurfaceRecord, Tag, compression, tag,
+    SectionEntry, SurfaceRecord, Tag, WeightEscape, compression, tag,
 };
 use super::links::{LinkRows, LinkSlices, Links, PatchIds};
 use super::presence::{self, FramePresence, FrameSpan};
 use super::stream::{self, LinkStream};
+use super::weights::{self, Weights};
 use super::{ArchiveError, ArchiveMeta, tag_name};
 use crate::limits::{MAX_COORDINATE, MAX_PATCH_AREA, MAX_RADIANCE};
 
@@ -47,7 +48,7 @@ impl Storage {
 }
 
 /// Tags of the link-end columns a streamed archive reads from disk.
-const LINK_COLUMNS: [Tag; 4] = [tag::LINK_OTHER, tag::LINK_WEIGHT, tag::LINK_DIRECTION, tag::LINK_BUCKET];
+const LINK_COLUMNS: [Tag; 4] = [tag::LINK_OTHER, tag::LINK_COUNT, tag::LINK_DIRECTION, tag::LINK_BUCKET];
 
 /// An opened, fully validated archive.
 pub struct Archive {
@@ -328,7 +329,7 @@ fn bad(msg: impl Into<String>) -> ArchiveError {
 }
 
 /// Required sections: tag, record size, compression.
-const REQUIRED: [(Tag, u32, u32); 21] = [
+const REQUIRED: [(Tag, u32, u32); 22] = [
     (tag::BUILD, size_of::<BuildRecord>() as u32, compression::NONE),
     (tag::CAMERA, size_of::<CameraRecord>() as u32, compression::NONE),
     (tag::MATERIALS, size_of::<MaterialRecord>() as u32, compression::NONE),
@@ -347,7 +348,8 @@ const REQUIRED: [(Tag, u32, u32); 21] = [
     (tag::ADJACENCY, 4, compression::NONE),
     (tag::LINK_OFFSETS, 8, compression::NONE),
     (tag::LINK_OTHER, 4, compression::NONE),
-    (tag::LINK_WEIGHT, 4, compression::NONE),
+    (tag::LINK_COUNT, 1, compression::NONE),
+    (tag::LINK_ESCAPES, size_of::<WeightEscape>() as u32, compression::NONE),
     (tag::LINK_DIRECTION, 4, compression::NONE),
     (tag::META, 0, compression::ZSTD),
 ];
@@ -404,7 +406,8 @@ impl Archive {
         let (header, entries) = read_structure(&file, path)?;
         let mut words = Vec::new();
         let mut spans = Vec::new();
-        for e in entries.iter().filter(|e| !LINK_COLUMNS.contains(&e.tag)) {
+        // The link columns stay on disk; the stream holds `LCNX` itself.
+        for e in entries.iter().filter(|e| !LINK_COLUMNS.contains(&e.tag) && e.tag != tag::LINK_ESCAPES) {
             let at = words.len() * 8;
             words.resize(words.len() + (e.stored_length as usize).div_ceil(8), 0u64);
             let buf = &mut bytemuck::cast_slice_mut::<u64, u8>(&mut words)[at..at + e.stored_length as usize];
@@ -437,7 +440,16 @@ impl Archive {
             max_bucket: b.max_bucket.min(255) as u8,
         };
         let columns = LINK_COLUMNS.map(|t| archive.entries.iter().find(|e| e.tag == t));
-        let links = LinkStream::open(file, path, columns, offsets, &limits, window_ends)?;
+        let escapes: Vec<WeightEscape> = {
+            let e = archive.entry(tag::LINK_ESCAPES)?;
+            let mut records = vec![WeightEscape::default(); (e.stored_length as usize) / size_of::<WeightEscape>()];
+            let buf: &mut [u8] = bytemuck::cast_slice_mut(&mut records);
+            check(buf.len() as u64 == e.stored_length, || "section LCNX: not whole records".into())?;
+            stream_read(&file, buf, e.offset).map_err(io)?;
+            check_sum(e, buf)?;
+            records
+        };
+        let links = LinkStream::open(file, path, columns, escapes, offsets, &limits, window_ends)?;
         archive.stream = Some(links);
         validate_contents(&archive.view_unchecked()?, &archive.meta)?;
         Ok(archive)
@@ -597,7 +609,7 @@ impl Archive {
                         // Checked below the patch count by
                         // `validate_contents` before any view leaves `open`.
                         other: PatchIds::validated(other, b.patch_count as usize),
-                        weight: self.column(tag::LINK_WEIGHT)?,
+                        weight: Weights::new(self.column(tag::LINK_COUNT)?, self.column(tag::LINK_ESCAPES)?, 0),
                         direction: self.column(tag::LINK_DIRECTION)?,
                         bucket: match self.entries.iter().any(|e| e.tag == tag::LINK_BUCKET) {
                             true => Some(self.column(tag::LINK_BUCKET)?),
@@ -661,10 +673,10 @@ fn validate_structure(bytes: &[u8]) -> Result<(HeaderRecord, Vec<SectionEntry>),
     if bytes.len() < layout::HEADER_SIZE {
         return Err(bad(format!("file is {len} bytes, shorter than the header (truncated?)")));
     }
-    let header = parse_header(&bytes[..layout::HEADER_SIZE], len)?;
+    let header = parse_header(&bytes[..layout::HEADER_SIZE], len, false)?;
     let table_end = header.table_offset + header.section_count as u64 * layout::ENTRY_SIZE as u64;
     let entries = parse_table(&header, &bytes[header.table_offset as usize..table_end as usize])?;
-    check_entries(&header, &entries)?;
+    check_entries(&header, &entries, &REQUIRED)?;
     for e in &entries {
         check_sum(e, &bytes[e.offset as usize..(e.offset + e.stored_length) as usize])?;
     }
@@ -674,6 +686,25 @@ fn validate_structure(bytes: &[u8]) -> Result<(HeaderRecord, Vec<SectionEntry>),
 /// Like [`validate_structure`], read from `file` without the sections
 /// (their checksums are the caller's to verify as it reads them).
 fn read_structure(file: &std::fs::File, path: &Path) -> Result<(HeaderRecord, Vec<SectionEntry>), ArchiveError> {
+    read_structure_of(file, path, None)
+}
+
+/// The sections a version 6 file requires ([`crate::archive::upgrade`]
+/// rewrites them): version 7's, with `LWGT` for `LCNT` and `LCNX`.
+pub(super) fn required_v6() -> Vec<(Tag, u32, u32)> {
+    let mut r: Vec<_> =
+        REQUIRED.iter().copied().filter(|(t, _, _)| *t != tag::LINK_COUNT && *t != tag::LINK_ESCAPES).collect();
+    r.push((tag::LINK_WEIGHT_V6, 4, compression::NONE));
+    r
+}
+
+/// [`read_structure`], or, given `required`, the same for a file of any
+/// `version_write` with those required sections (for upgrades).
+pub(super) fn read_structure_of(
+    file: &std::fs::File,
+    path: &Path,
+    required: Option<&[(Tag, u32, u32)]>,
+) -> Result<(HeaderRecord, Vec<SectionEntry>), ArchiveError> {
     let io = |e: std::io::Error| ArchiveError::Io { path: path.into(), source: e };
     let len = file.metadata().map_err(io)?.len();
     if len < layout::HEADER_SIZE as u64 {
@@ -681,11 +712,11 @@ fn read_structure(file: &std::fs::File, path: &Path) -> Result<(HeaderRecord, Ve
     }
     let mut head = [0u8; layout::HEADER_SIZE];
     stream_read(file, &mut head, 0).map_err(io)?;
-    let header = parse_header(&head, len)?;
+    let header = parse_header(&head, len, required.is_some())?;
     let mut table = vec![0u8; header.section_count as usize * layout::ENTRY_SIZE];
     stream_read(file, &mut table, header.table_offset).map_err(io)?;
     let entries = parse_table(&header, &table)?;
-    check_entries(&header, &entries)?;
+    check_entries(&header, &entries, required.unwrap_or(&REQUIRED))?;
     Ok((header, entries))
 }
 
@@ -708,7 +739,7 @@ fn check_sum(e: &SectionEntry, stored: &[u8]) -> Result<(), ArchiveError> {
 
 /// The header's rules (§7, step 1, bar the checksums of sections) for a
 /// file of `len` bytes, and that its table lies in the file.
-fn parse_header(bytes: &[u8], len: u64) -> Result<HeaderRecord, ArchiveError> {
+fn parse_header(bytes: &[u8], len: u64, outdated_ok: bool) -> Result<HeaderRecord, ArchiveError> {
     let header: HeaderRecord = pod_read_unaligned(&bytes[..layout::HEADER_SIZE]);
     if header.magic != layout::MAGIC {
         return Err(bad(format!("not an illumnet archive (magic {:02x?})", header.magic)));
@@ -728,6 +759,9 @@ fn parse_header(bytes: &[u8], len: u64) -> Result<HeaderRecord, ArchiveError> {
             "header: versions (write {}, read {}) must be at least 1, write no older than read",
             header.version_write, header.version_read
         )));
+    }
+    if header.version_write < layout::OLDEST_READABLE && !outdated_ok {
+        return Err(ArchiveError::Outdated { written: header.version_write });
     }
     if header.header_size as usize != layout::HEADER_SIZE || header.entry_size as usize != layout::ENTRY_SIZE {
         return Err(bad(format!("unexpected header size {} or entry size {}", header.header_size, header.entry_size)));
@@ -765,7 +799,11 @@ fn parse_table(header: &HeaderRecord, table: &[u8]) -> Result<Vec<SectionEntry>,
 }
 
 /// The table's rules for every entry (§7, steps 3 and 4, bar checksums).
-fn check_entries(header: &HeaderRecord, entries: &[SectionEntry]) -> Result<(), ArchiveError> {
+fn check_entries(
+    header: &HeaderRecord,
+    entries: &[SectionEntry],
+    required: &[(Tag, u32, u32)],
+) -> Result<(), ArchiveError> {
     let mut spans: Vec<(u64, u64, Tag)> = Vec::new();
     for (i, e) in entries.iter().enumerate() {
         let name = tag_name(e.tag);
@@ -849,7 +887,7 @@ fn check_entries(header: &HeaderRecord, entries: &[SectionEntry]) -> Result<(), 
     {
         return Err(bad(format!("section META: count {} (expected 1)", e.count)));
     }
-    for (t, size, comp) in REQUIRED {
+    for &(t, size, comp) in required {
         let e =
             entries.iter().find(|e| e.tag == t).ok_or_else(|| bad(format!("section {} is missing", tag_name(t))))?;
         if e.record_size != size || e.compression != comp {
@@ -965,6 +1003,11 @@ fn validate_contents(v: &InetView<'_>, meta: &ArchiveMeta) -> Result<(), Archive
     let (mut next_patch, mut next_vertex) = (0u64, 0u64);
     for (i, r) in v.primitives.iter().enumerate() {
         check(r.kind <= 1, || format!("PRIM[{i}]: unknown kind {}", r.kind))?;
+        check(
+            (r.cell_order == layout::cell_order::ROWS || (r.kind == 0 && r.cell_order == layout::cell_order::TILES))
+                && r.reserved == 0,
+            || format!("PRIM[{i}]: unknown cell order {} for kind {} (or reserved not zero)", r.cell_order, r.kind),
+        )?;
         check((r.surface as usize) < v.surfaces.len(), || format!("PRIM[{i}]: surface out of range"))?;
         check(r.corners.iter().all(|c| within(c)), || format!("PRIM[{i}]: corner non-finite or beyond ±1e9 m"))?;
         let (gu, gv) = (r.grid_u as u64, r.grid_v as u64);
@@ -1037,13 +1080,16 @@ fn validate_contents(v: &InetView<'_>, meta: &ArchiveMeta) -> Result<(), Archive
     match v.links {
         Links::Resident(l) => {
             let ends = l.other.ids().len();
-            count("LWGT", l.weight.len(), ends)?;
+            count("LCNT", l.weight.len(), ends)?;
             count("LDIR", l.direction.len(), ends)?;
             check(b.link_end_count == ends as u64, || "BILD: link end count disagrees with LOTH".into())?;
             csr("LOFF", v.link_offsets.iter().copied(), ends)?;
             check(l.other.ids().iter().all(|&o| (o as usize) < p), || "LOTH: patch id out of range".into())?;
-            check(l.weight.iter().all(|&w| w.is_finite() && w >= 0.0), || {
-                "LWGT: weight negative or non-finite".into()
+            let escapes = l.weight.escapes();
+            let mut next = 0;
+            weights::check(l.weight.counts(), 0, escapes, &mut next).map_err(ArchiveError::Corrupt)?;
+            check(next == escapes.len(), || {
+                format!("LCNX: {} entries, but LCNT has {next} zero counts", escapes.len())
             })?;
             WeightSums::new(v.link_offsets, v.patch_hits).add(l.weight)?;
             check(l.direction.iter().all(|&d| (d as usize) < nd), || "LDIR: direction out of range".into())?;

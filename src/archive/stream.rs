@@ -20,14 +20,18 @@ use xxhash_rust::xxh3::{Xxh3, xxh3_64};
 
 use super::ArchiveError;
 use super::invariants::WeightSums;
-use super::layout::SectionEntry;
+use super::layout::{SectionEntry, WeightEscape};
 use super::links::{Columns, LinkWindow, PatchIds};
+use super::weights::{self, Weights};
 
 /// Link ends per checked chunk: windows are read in whole chunks.
 pub const CHUNK_ENDS: usize = 1 << 16;
 
-/// Bytes per link end of each column: `LOTH`, `LWGT`, `LDIR`, `LBKT`.
-const WIDTH: [usize; 4] = [4, 4, 4, 1];
+/// Bytes per link end of each column: `LOTH`, `LCNT`, `LDIR`, `LBKT`.
+const WIDTH: [usize; 4] = [4, 1, 4, 1];
+
+/// The columns' names, in that order.
+const NAMES: [&str; 4] = ["LOTH", "LCNT", "LDIR", "LBKT"];
 
 /// Chunks read per `pread` when opening (4 MiB of `LOTH`).
 const OPEN_READ_CHUNKS: usize = 16;
@@ -47,9 +51,11 @@ pub struct LinkStream {
     path: PathBuf,
     patches: usize,
     ends: usize,
-    /// File offset of each column (`LOTH`, `LWGT`, `LDIR`, `LBKT`), `None`
+    /// File offset of each column (`LOTH`, `LCNT`, `LDIR`, `LBKT`), `None`
     /// for an absent `LBKT`.
     at: [Option<u64>; 4],
+    /// `LCNX`, held whole (weights that are not a count in 1..=255: rare).
+    escapes: Vec<WeightEscape>,
     /// Per chunk, each column's XXH3-64.
     sums: Vec<[u64; 4]>,
     windows: Vec<Window>,
@@ -67,14 +73,14 @@ struct Window {
 #[derive(Default)]
 struct Buffers {
     other: Vec<u32>,
-    weight: Vec<f32>,
+    weight: Vec<u8>,
     direction: Vec<u32>,
     bucket: Vec<u8>,
 }
 
 impl Buffers {
     fn bytes(&self) -> usize {
-        self.other.capacity() * 4 + self.weight.capacity() * 4 + self.direction.capacity() * 4 + self.bucket.capacity()
+        self.other.capacity() * 4 + self.weight.capacity() + self.direction.capacity() * 4 + self.bucket.capacity()
     }
 }
 
@@ -107,14 +113,16 @@ pub(super) fn read_at(file: &File, mut buf: &mut [u8], mut offset: u64) -> std::
 }
 
 impl LinkStream {
-    /// Reads and checks the columns `entries` (`LOTH`, `LWGT`, `LDIR`,
+    /// Reads and checks the columns `entries` (`LOTH`, `LCNT`, `LDIR`,
     /// optional `LBKT`, already checked to lie in the file) of the archive
-    /// open as `file`, against their checksums and `limits`, and plans
-    /// windows of at most `window_ends` ends (more for a patch with more).
+    /// open as `file`, with `escapes` (`LCNX`, checked against its
+    /// checksum), against their checksums and `limits`, and plans windows
+    /// of at most `window_ends` ends (more for a patch with more).
     pub(super) fn open(
         file: File,
         path: &Path,
         entries: [Option<&SectionEntry>; 4],
+        escapes: Vec<WeightEscape>,
         offsets: &[u64],
         limits: &Limits<'_>,
         window_ends: usize,
@@ -122,9 +130,9 @@ impl LinkStream {
         let ends = offsets.last().copied().unwrap_or(0) as usize;
         let chunks = ends.div_ceil(CHUNK_ENDS);
         let mut sums = vec![[0u64; 4]; chunks];
-        let names = ["LOTH", "LWGT", "LDIR", "LBKT"];
+        let names = NAMES;
         let mut buf = Vec::new();
-        let mut weights: Vec<f32> = Vec::new();
+        let mut next_escape = 0;
         for (c, e) in entries.iter().enumerate() {
             let mut sums_of_rows = WeightSums::new(offsets, limits.hits);
             let Some(e) = e else { continue };
@@ -148,9 +156,8 @@ impl LinkStream {
                 }
                 check_column(c, &buf, limits)?;
                 if c == 1 {
-                    weights.clear();
-                    weights.extend(buf.chunks_exact(4).map(|x| f32::from_le_bytes(x.try_into().unwrap())));
-                    sums_of_rows.add(&weights)?;
+                    weights::check(&buf, a as u64, &escapes, &mut next_escape).map_err(ArchiveError::Corrupt)?;
+                    sums_of_rows.add(Weights::new(&buf, &escapes, a as u64))?;
                 }
             }
             let sum = section.digest();
@@ -161,6 +168,12 @@ impl LinkStream {
                 )));
             }
         }
+        if next_escape != escapes.len() {
+            return Err(ArchiveError::corrupt(format!(
+                "LCNX: {} entries, but LCNT has {next_escape} zero counts",
+                escapes.len()
+            )));
+        }
         let at = entries.map(|e| e.map(|e| e.offset));
         let (windows, capacity) = plan(offsets, window_ends.max(1));
         Ok(Self {
@@ -169,6 +182,7 @@ impl LinkStream {
             patches: limits.patches,
             ends,
             at,
+            escapes,
             sums,
             windows,
             capacity,
@@ -265,7 +279,7 @@ impl LinkStream {
                     patches: w.patches.clone(),
                     first_end: w.ends.start,
                     other,
-                    weight: &b.weight[pick(b.weight.len())],
+                    weight: Weights::new(&b.weight[pick(b.weight.len())], &self.escapes, w.ends.start as u64),
                     direction: &b.direction[pick(b.direction.len())],
                     bucket: &b.bucket[pick(b.bucket.len())],
                 })?;
@@ -290,16 +304,16 @@ impl LinkStream {
         let want = [columns.other, columns.weight, columns.direction, columns.bucket && self.at[3].is_some()];
         let n = |c: usize| if want[c] { e - a } else { 0 };
         b.other.resize(n(0), 0);
-        b.weight.resize(n(1), 0.0);
+        b.weight.resize(n(1), 0);
         b.direction.resize(n(2), 0);
         b.bucket.resize(n(3), 0);
         let bytes: [&mut [u8]; 4] = [
             bytemuck::cast_slice_mut(&mut b.other),
-            bytemuck::cast_slice_mut(&mut b.weight),
+            &mut b.weight,
             bytemuck::cast_slice_mut(&mut b.direction),
             &mut b.bucket,
         ];
-        let names = ["LOTH", "LWGT", "LDIR", "LBKT"];
+        let names = NAMES;
         for (c, buf) in bytes.into_iter().enumerate() {
             let Some(at) = self.at[c].filter(|_| want[c]) else { continue };
             // A chunk at a time, checked while it is in the cache.
@@ -364,10 +378,8 @@ fn plan(offsets: &[u64], window_ends: usize) -> (Vec<Window>, usize) {
 fn check_column(c: usize, bytes: &[u8], limits: &Limits<'_>) -> Result<(), ArchiveError> {
     let ok = match c {
         0 => bytes.chunks_exact(4).all(|x| (u32::from_le_bytes(x.try_into().unwrap()) as usize) < limits.patches),
-        1 => bytes.chunks_exact(4).all(|x| {
-            let w = f32::from_le_bytes(x.try_into().unwrap());
-            w.is_finite() && w >= 0.0
-        }),
+        // Any count is a weight; zeros are checked against LCNX.
+        1 => true,
         2 => bytes.chunks_exact(4).all(|x| (u32::from_le_bytes(x.try_into().unwrap()) as usize) < limits.directions),
         _ => bytes.iter().all(|&k| k <= limits.max_bucket),
     };
@@ -376,7 +388,7 @@ fn check_column(c: usize, bytes: &[u8], limits: &Limits<'_>) -> Result<(), Archi
     }
     Err(ArchiveError::corrupt(match c {
         0 => "LOTH: patch id out of range".to_string(),
-        1 => "LWGT: weight negative or non-finite".into(),
+        1 => "LCNT: bad count".into(),
         2 => "LDIR: direction out of range".into(),
         _ => format!("LBKT: bucket above BILD.max_bucket {}", limits.max_bucket),
     }))

@@ -6,14 +6,15 @@ use std::path::Path;
 use bytemuck::{Pod, bytes_of, cast_slice};
 use xxhash_rust::xxh3::{Xxh3, xxh3_64};
 
-use super::layout::{self, HeaderRecord, SectionEntry, Tag, compression, tag};
-use super::{ArchiveContents, ArchiveError};
+use super::layout::{self, HeaderRecord, SectionEntry, Tag, WeightEscape, compression, tag};
+use super::{ArchiveContents, ArchiveError, weights};
 use crate::scratch;
 
 /// Receives batches of link ends: other patch, weight, direction, bucket.
 pub type LinkEndSink<'a> = dyn FnMut(&[u32], &[f32], &[u32], &[u8]) -> std::io::Result<()> + 'a;
 
-/// The four link-end columns (`LOTH`, `LWGT`, `LDIR`, `LBKT`, §5.10) of
+/// The link-end columns (`LOTH`, the weights stored as `LCNT` and `LCNX`,
+/// `LDIR`, `LBKT`, §5.10) of
 /// an archive too large to hold them in memory, produced in file order
 /// (for example by merging sorted runs spilled to disk) while they are
 /// written: the archive's bytes are those of the same columns held in
@@ -56,7 +57,7 @@ impl PlacedColumn {
 }
 
 /// Writes sections one after another, then the table and the header.
-struct SectionWriter<W: Write + Seek> {
+pub(super) struct SectionWriter<W: Write + Seek> {
     out: W,
     position: u64,
     entries: Vec<SectionEntry>,
@@ -64,7 +65,7 @@ struct SectionWriter<W: Write + Seek> {
 }
 
 impl<W: Write + Seek> SectionWriter<W> {
-    fn new(mut out: W) -> std::io::Result<Self> {
+    pub(super) fn new(mut out: W) -> std::io::Result<Self> {
         out.write_all(&[0u8; layout::HEADER_SIZE])?;
         Ok(Self { out, position: layout::HEADER_SIZE as u64, entries: Vec::new(), version_read: layout::VERSION_READ })
     }
@@ -77,8 +78,53 @@ impl<W: Write + Seek> SectionWriter<W> {
         Ok(())
     }
 
+    /// Stores one section whose `stored_length` bytes `fill` hands to the
+    /// sink it is given, piece by piece (sections larger than memory).
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn streamed(
+        &mut self,
+        tag: Tag,
+        comp: u32,
+        stored_length: u64,
+        length: u64,
+        count: u64,
+        record_size: u32,
+        fill: impl FnOnce(&mut dyn FnMut(&[u8]) -> std::io::Result<()>) -> std::io::Result<()>,
+    ) -> std::io::Result<()> {
+        let align = if stored_length >= layout::LARGE_SECTION { layout::PAGE_ALIGN } else { layout::SECTION_ALIGN };
+        self.pad_to(align)?;
+        let mut hasher = Xxh3::new();
+        let mut written = 0u64;
+        let out = &mut self.out;
+        fill(&mut |piece: &[u8]| {
+            hasher.update(piece);
+            written += piece.len() as u64;
+            out.write_all(piece)
+        })?;
+        if written != stored_length {
+            return Err(std::io::Error::other(format!(
+                "section {}: {written} bytes given, {stored_length} announced",
+                super::tag_name(tag)
+            )));
+        }
+        self.entries.push(SectionEntry {
+            tag,
+            compression: comp,
+            offset: self.position,
+            stored_length,
+            length,
+            count,
+            record_size,
+            flags: 0,
+            checksum: hasher.digest(),
+            reserved: 0,
+        });
+        self.position += stored_length;
+        Ok(())
+    }
+
     /// Stores one section as is: `records` zero-copy readable.
-    fn column<T: Pod>(&mut self, tag: Tag, records: &[T]) -> std::io::Result<()> {
+    pub(super) fn column<T: Pod>(&mut self, tag: Tag, records: &[T]) -> std::io::Result<()> {
         let bytes: &[u8] = cast_slice(records);
         self.raw(tag, compression::NONE, bytes, bytes.len() as u64, records.len() as u64, size_of::<T>() as u32)
     }
@@ -106,37 +152,20 @@ impl<W: Write + Seek> SectionWriter<W> {
         record_size: u32,
     ) -> std::io::Result<()> {
         let stored_length: u64 = pieces.iter().map(|p| p.len() as u64).sum();
-        let align = if stored_length >= layout::LARGE_SECTION { layout::PAGE_ALIGN } else { layout::SECTION_ALIGN };
-        self.pad_to(align)?;
-        let mut hasher = Xxh3::new();
-        // Large columns are written in chunks so the hash streams with the write.
-        for chunk in pieces.iter().flat_map(|p| p.chunks(1 << 20)) {
-            hasher.update(chunk);
-            self.out.write_all(chunk)?;
-        }
-        self.entries.push(SectionEntry {
-            tag,
-            compression: comp,
-            offset: self.position,
-            stored_length,
-            length,
-            count,
-            record_size,
-            flags: 0,
-            checksum: hasher.digest(),
-            reserved: 0,
-        });
-        self.position += stored_length;
-        Ok(())
+        self.streamed(tag, comp, stored_length, length, count, record_size, |sink| {
+            // Large columns are written in chunks so the hash streams with the write.
+            pieces.iter().flat_map(|p| p.chunks(1 << 20)).try_for_each(sink)
+        })
     }
 
     /// Stores the link-end columns `source` gives, as [`Self::column`] of
     /// each would: their places follow from E alone, so the four are
-    /// written side by side while the source produces them.
+    /// written side by side while the source produces them; the weights'
+    /// escapes (`LCNX`, rare) are held and stored after them.
     fn link_columns(&mut self, source: &mut dyn LinkEndSource) -> std::io::Result<()> {
         let e = source.end_count();
-        let tags = [tag::LINK_OTHER, tag::LINK_WEIGHT, tag::LINK_DIRECTION, tag::LINK_BUCKET];
-        let widths = [4u64, 4, 4, 1];
+        let tags = [tag::LINK_OTHER, tag::LINK_COUNT, tag::LINK_DIRECTION, tag::LINK_BUCKET];
+        let widths = [4u64, 1, 4, 1];
         let mut columns = Vec::with_capacity(4);
         let mut position = self.position;
         for w in widths {
@@ -151,14 +180,17 @@ impl<W: Write + Seek> SectionWriter<W> {
         }
         let out = &mut self.out;
         let mut given = 0u64;
+        let (mut counts, mut escapes) = (Vec::new(), Vec::new());
         source.write_ends(&mut |other, weight, direction, bucket| {
             let n = other.len();
             if weight.len() != n || direction.len() != n || bucket.len() != n || given + n as u64 > e {
                 return Err(std::io::Error::other("link-end source gave columns of unequal length or too many ends"));
             }
+            counts.clear();
+            weights::encode(weight, given, &mut counts, &mut escapes);
             given += n as u64;
             columns[0].add(out, cast_slice(other))?;
-            columns[1].add(out, cast_slice(weight))?;
+            columns[1].add(out, &counts)?;
             columns[2].add(out, cast_slice(direction))?;
             columns[3].add(out, bucket)
         })?;
@@ -182,10 +214,10 @@ impl<W: Write + Seek> SectionWriter<W> {
         }
         self.out.seek(SeekFrom::Start(position))?;
         self.position = position;
-        Ok(())
+        self.column(tag::LINK_ESCAPES, &escapes)
     }
 
-    fn finish(mut self) -> std::io::Result<W> {
+    pub(super) fn finish(mut self) -> std::io::Result<W> {
         self.pad_to(layout::SECTION_ALIGN)?;
         let table_offset = self.position;
         let table: &[u8] = cast_slice(&self.entries);
@@ -223,15 +255,6 @@ fn write_all<W: Write + Seek>(
         .map_err(|e| ArchiveError::corrupt(format!("cannot serialise META: {e}")))?;
     let meta_z = zstd::bulk::compress(&meta, 3).map_err(io)?;
     let mut w = SectionWriter::new(out).map_err(io)?;
-    if c.build.direction_set != 0 {
-        w.version_read = layout::VERSION_READ_RAY_SPACE;
-    }
-    if c.reflectance.is_some() {
-        w.version_read = layout::VERSION_READ_REFLECTANCE;
-    }
-    if c.sequence.is_some() {
-        w.version_read = layout::VERSION_READ_SEQUENCE;
-    }
     let mut sections = || -> std::io::Result<()> {
         w.column(tag::BUILD, std::slice::from_ref(&c.build))?;
         w.column(tag::CAMERA, std::slice::from_ref(&c.camera))?;
@@ -253,10 +276,13 @@ fn write_all<W: Write + Seek>(
         match links.as_deref_mut() {
             Some(source) => w.link_columns(source)?,
             None => {
+                let (mut counts, mut escapes) = (Vec::new(), Vec::<WeightEscape>::new());
+                weights::encode(&c.link_weight, 0, &mut counts, &mut escapes);
                 w.column(tag::LINK_OTHER, &c.link_other)?;
-                w.column(tag::LINK_WEIGHT, &c.link_weight)?;
+                w.column(tag::LINK_COUNT, &counts)?;
                 w.column(tag::LINK_DIRECTION, &c.link_direction)?;
                 w.column(tag::LINK_BUCKET, &c.link_bucket)?;
+                w.column(tag::LINK_ESCAPES, &escapes)?;
             }
         }
         w.raw(tag::META, compression::ZSTD, &meta_z, meta.len() as u64, 1, 0)?;

@@ -32,6 +32,7 @@ use crate::archive::presence::{FramePresence, FrameSpan};
 use crate::archive::{ArchiveContents, ArchiveMeta, SequenceContents};
 use crate::geodesic::{DirectionSet, DirectionSetKind};
 use crate::geometry::Primitive;
+use crate::geometry::grid::CellOrder;
 use crate::patch::Patches;
 use crate::progress::Progress;
 use crate::scene::{ReflectanceModel, Scene};
@@ -440,7 +441,7 @@ fn build_impl(
         .enumerate()
         .flat_map(|(i, inst)| std::iter::repeat_n(i as u32, inst.primitives.len()))
         .collect();
-    let patches = Patches::new(&prims, &prim_instance, settings.patch_size)?;
+    let patches = Patches::new(&prims, &prim_instance, settings.patch_size, settings.cell_order)?;
     if let Some(p) = patches.area.iter().position(|&a| a > crate::limits::MAX_PATCH_AREA) {
         return Err(format!(
             "patch {p} has an area of {:e} m², above the {:e} an archive holds: use a smaller --patch-size",
@@ -618,7 +619,11 @@ fn build_impl(
             grid_v: pp.grid.n_v,
             first_patch: pp.first_patch,
             first_vertex: pp.first_vertex,
-            reserved: [0; 2],
+            cell_order: match pp.grid.order {
+                CellOrder::Rows => layout::cell_order::ROWS,
+                CellOrder::Tiles => layout::cell_order::TILES,
+            },
+            reserved: 0,
             corners: p.p.map(|v| v.to_array()),
         })
         .collect();

@@ -28,6 +28,9 @@ pub struct BuildSettings {
     pub map_method: crate::reflectance::MapMethod,
     /// Relative threshold below which prototype factors are dropped.
     pub table_threshold: f64,
+    /// How a quad's patches are numbered: tiles (default), or rows as
+    /// archives before version 7 (for comparisons).
+    pub cell_order: crate::geometry::grid::CellOrder,
 }
 
 /// Widest bucket supported (the archive's limit).
@@ -98,6 +101,7 @@ impl BuildSettings {
             prototype_library: crate::reflectance::library::Library::default_location(),
             map_method: crate::reflectance::MapMethod::default(),
             table_threshold: crate::reflectance::prototype::DEFAULT_THRESHOLD,
+            cell_order: crate::patch::DEFAULT_CELL_ORDER,
         }
     }
 

@@ -869,6 +869,21 @@ pub fn compare(image: &Path, reference: &Path, heatmap: Option<&Path>, full_scal
     Ok(())
 }
 
+pub fn upgrade(input: &Path, output: &Path) -> Result<()> {
+    let started = Instant::now();
+    let done = archive::upgrade::upgrade(input, output)?;
+    println!(
+        "upgraded {} to format version {}: {:.1} MB -> {:.1} MB ({} weights kept apart in LCNX), {:.2} s",
+        output.display(),
+        archive::layout::VERSION_WRITE,
+        done.bytes_before as f64 / 1e6,
+        done.bytes_after as f64 / 1e6,
+        done.escapes,
+        started.elapsed().as_secs_f64()
+    );
+    Ok(())
+}
+
 pub fn demo(dir: &Path, build_args: BuildArgs, render_args: RenderArgs, progress: &dyn Progress) -> Result<()> {
     std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     let scene = Scene::cornell_box();

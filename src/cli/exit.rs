@@ -102,7 +102,9 @@ impl<T, E> InputContext<T> for Result<T, E> {
 fn archive_code(e: &ArchiveError) -> u8 {
     match e {
         ArchiveError::Io { .. } => IO,
-        ArchiveError::Corrupt(_) | ArchiveError::UnsupportedVersion { .. } => CORRUPT_ARCHIVE,
+        ArchiveError::Corrupt(_) | ArchiveError::UnsupportedVersion { .. } | ArchiveError::Outdated { .. } => {
+            CORRUPT_ARCHIVE
+        }
     }
 }
 

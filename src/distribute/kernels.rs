@@ -48,9 +48,10 @@ impl Ends {
 /// `Σ w·shoot[other]` over a run of link ends, in four partial sums (ends
 /// `4i + j` go to sum `j`): one sum would chain every addition on the one
 /// before it, and the latency of that chain (4 cycles per end) was the
-/// gather's limit.
+/// gather's limit. Generic over the weight's storage: f32 (overlays) or
+/// the archive's one-byte counts (`LCNT`), which convert to the same f32.
 #[inline(always)]
-pub(super) fn weighted_sum(other: Bounded<'_>, weight: &[f32], shoot: &[[f32; 4]]) -> [f32; 4] {
+pub(super) fn weighted_sum<W: Copy + Into<f32>>(other: Bounded<'_>, weight: &[W], shoot: &[[f32; 4]]) -> [f32; 4] {
     assert!(shoot.len() >= other.bound, "per-patch state shorter than the patch indices allow");
     let n = other.other.len().min(weight.len());
     let (other, weight) = (&other.other[..n], &weight[..n]);
@@ -64,18 +65,47 @@ pub(super) fn weighted_sum(other: Bounded<'_>, weight: &[f32], shoot: &[[f32; 4]
     for (o, w) in o4.zip(w4) {
         for j in 0..4 {
             let s = at(o[j]);
+            let wj: f32 = w[j].into();
             for c in 0..4 {
-                acc[j][c] += w[j] * s[c];
+                acc[j][c] += wj * s[c];
             }
         }
     }
     for (j, (&o, &w)) in o_rest.iter().zip(w_rest).enumerate() {
         let s = at(o);
+        let w: f32 = w.into();
         for c in 0..4 {
             acc[j][c] += w * s[c];
         }
     }
     [0, 1, 2, 3].map(|c| (acc[0][c] + acc[1][c]) + (acc[2][c] + acc[3][c]))
+}
+
+/// Adds what the window's weights kept apart (`LCNX`: weights that are
+/// not a count in 1..=255, whose `LCNT` byte 0 gave nothing in the gather)
+/// to their owners' slots, `bucket(q, end)` choosing the slot of owner
+/// `q`'s end. Serial: escapes are rare (none in the scenes we ship).
+fn add_escapes(
+    w: &LinkWindow<'_>,
+    offsets: &[u64],
+    present: Option<&[bool]>,
+    shoot: &[[f32; 4]],
+    recv: &mut [[f32; 4]],
+    slot: impl Fn(usize, usize) -> usize,
+) {
+    for x in w.weight.escapes() {
+        let end = x.end as usize;
+        // The owner: the last patch whose row starts at or before the end.
+        let q = w.patches.start + offsets[w.patches.clone()].partition_point(|&o| o as usize <= end) - 1;
+        if present.is_some_and(|p| !p[q]) {
+            continue;
+        }
+        let s = shoot[w.other.ids()[end - w.first_end] as usize];
+        let r = &mut recv[slot(q, end)];
+        for c in 0..4 {
+            r[c] += x.weight * s[c];
+        }
+    }
 }
 
 /// Gathers `recv[q] = Σ w·shoot[other]` over the link ends of the
@@ -100,9 +130,10 @@ pub(super) fn gather(
                 continue;
             }
             let e = w.local(offsets[q] as usize..offsets[q + 1] as usize);
-            *r = weighted_sum(other.slice(e.clone()), &w.weight[e], shoot);
+            *r = weighted_sum(other.slice(e.clone()), &w.weight.counts()[e], shoot);
         }
     });
+    add_escapes(w, offsets, present, shoot, recv, |q, _| q);
 }
 
 /// The runs of equal bucket in each patch's link ends (`LBKT`), found once
@@ -169,7 +200,7 @@ pub(super) fn gather_buckets(
             let mut e = offsets[q] as usize - w.first_end;
             for run in runs.offsets[q] as usize..runs.offsets[q + 1] as usize {
                 let end = runs.end[run] as usize - w.first_end;
-                let acc = weighted_sum(other.slice(e..end), &w.weight[e..end], shoot);
+                let acc = weighted_sum(other.slice(e..end), &w.weight.counts()[e..end], shoot);
                 let slot = &mut r[runs.bucket[run] as usize];
                 for c in 0..4 {
                     slot[c] += acc[c];
@@ -177,6 +208,12 @@ pub(super) fn gather_buckets(
                 e = end;
             }
         }
+    });
+    add_escapes(w, offsets, present, shoot, recv, |q, end| {
+        // The run of `q` that holds the end gives its bucket.
+        let r = runs.offsets[q] as usize..runs.offsets[q + 1] as usize;
+        let k = r.start + runs.end[r.clone()].partition_point(|&x| x as usize <= end);
+        q * buckets + runs.bucket[k.min(r.end - 1)] as usize
     });
 }
 
@@ -323,12 +360,16 @@ mod tests {
             offsets.push(other.len() as u64);
         }
         let shoot: Vec<[f32; 4]> = (0..n).map(|p| [p as f32 + 1.0, 0.5, 2.0 - p as f32, 0.0]).collect();
+        // Weights 1 + e/4: whole ones are one-byte counts, the rest escapes.
+        let (mut counts, mut escapes) = (Vec::new(), Vec::new());
+        crate::archive::weights::encode(&weight, 0, &mut counts, &mut escapes);
+        assert!(!escapes.is_empty() && escapes.len() < weight.len());
         let window = |patches: std::ops::Range<usize>| {
             let ends = offsets[patches.start] as usize..offsets[patches.end] as usize;
             LinkWindow {
                 first_end: ends.start,
                 other: PatchIds::check(&other[ends.clone()], n).unwrap(),
-                weight: &weight[ends.clone()],
+                weight: crate::archive::Weights::new(&counts[ends.clone()], &escapes, ends.start as u64),
                 direction: &[],
                 bucket: &bucket[ends],
                 patches,
@@ -349,7 +390,7 @@ mod tests {
         for w in [0..2, 2..3, 3..n] {
             gather_buckets(&window(w), &offsets, &split_runs, 2, None, &shoot, &mut split);
         }
-        assert_eq!(split, recv, "windows give the same sums bit for bit");
+        assert_eq!(split, recv, "windows give the same sums in any windows");
         let mut want = vec![[0.0f64; 4]; n * 2];
         for q in 0..n {
             for e in offsets[q] as usize..offsets[q + 1] as usize {

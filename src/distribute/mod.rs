@@ -339,7 +339,7 @@ impl<'a> Distributor<'a> {
         v.links.for_each_window(columns, n, |w| {
             for q in w.patches.clone() {
                 let e = w.local(v.link_offsets[q] as usize..v.link_offsets[q + 1] as usize);
-                linked[q] = w.weight[e].iter().map(|&x| x as f64).sum();
+                linked[q] = w.weight.slice(e).iter().map(|x| x as f64).sum();
                 in_base[q] |= linked[q] > 0.0;
             }
             for &o in w.other.ids() {

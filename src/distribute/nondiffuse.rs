@@ -138,7 +138,7 @@ impl<'a> NonDiffuse<'a> {
                 for e in w.local(v.link_offsets[q] as usize..v.link_offsets[q + 1] as usize) {
                     let k = nd_of[w.other.ids()[e] as usize];
                     if k != u32::MAX {
-                        corr_weight.push(w.weight[e]);
+                        corr_weight.push(w.weight.get(e));
                         // The sender sends along the antipode of the receiver's direction.
                         corr_slot.push(k * n as u32 + (w.direction[e] ^ 1));
                         corr_bucket.push(w.bucket.get(e).copied().unwrap_or(0));

@@ -76,7 +76,7 @@ pub fn solve(
         for q in w.patches.clone() {
             for e in w.local(v.link_offsets[q] as usize..v.link_offsets[q + 1] as usize) {
                 let bucket = if use_buckets { w.bucket[e] } else { 0 };
-                ends.push(End { owner: q as u32, other: w.other.ids()[e], weight: w.weight[e] as f64, bucket });
+                ends.push(End { owner: q as u32, other: w.other.ids()[e], weight: w.weight.get(e) as f64, bucket });
             }
         }
         Ok::<(), ArchiveError>(())

@@ -202,7 +202,9 @@ impl Distributor<'_> {
             let stop = v.primitives.get(prims.end).map_or(n, |p| p.first_patch);
             start..stop
         };
-        let grids = |i: &InstanceRecord| v.primitives[i.primitive_range()].iter().map(|p| (p.kind, p.grid_u, p.grid_v));
+        let grids = |i: &InstanceRecord| {
+            v.primitives[i.primitive_range()].iter().map(|p| (p.kind, p.grid_u, p.grid_v, p.cell_order))
+        };
         let mut out = Vec::new();
         for i in s.instances.iter().filter(|i| i.span().contains(frame) && !i.span().contains(earlier)) {
             let Some(j) = s.instances.iter().find(|j| j.surface == i.surface && j.span().contains(earlier)) else {

@@ -1,9 +1,16 @@
 //! Patch grids: how a primitive's surface coordinates name patches and
 //! patch vertices.
 //!
-//! A quad is cut into `n_u × n_v` bilinear cells; cell `(i, j)` is local patch
-//! `j·n_u + i` and its corners are grid vertices `(i, j) (i+1, j) (i+1, j+1)
-//! (i, j+1)`, vertex `(i, j)` having local index `j·(n_u+1) + i`.
+//! A quad is cut into `n_u × n_v` bilinear cells whose corners are grid
+//! vertices `(i, j) (i+1, j) (i+1, j+1) (i, j+1)`, vertex `(i, j)` having
+//! local index `j·(n_u+1) + i`. Cells are numbered row by row (`j·n_u + i`,
+//! [`CellOrder::Rows`], archives before version 7) or in square tiles
+//! ([`CellOrder::Tiles`], the default since version 7): tiles of T×T cells
+//! row by row, the cells of a tile row by row, tiles cut short at the far
+//! edges. Tiles keep cells that are near in space near in number in both
+//! directions, so the distribution's gathers, whose neighbouring receivers
+//! read neighbouring senders along a direction, stay in the cache (issue 11;
+//! docs/PERFORMANCE.md).
 //!
 //! A triangle is cut into `k²` similar sub-triangles (`k = n_u = n_v`). Grid
 //! vertex `(i, j)` (`i + j ≤ k`, at barycentrics `(i/k, j/k)`) has local index
@@ -21,6 +28,20 @@ use super::PrimitiveKind;
 /// Marks an unused corner (the fourth corner of a triangular cell).
 pub const NO_VERTEX: u32 = u32::MAX;
 
+/// How a quad's cells are numbered (triangles' cells always go row by row).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum CellOrder {
+    /// Row by row: cell `(i, j)` is `j·n_u + i` (archives before version 7).
+    Rows,
+    /// Square tiles of `TILE`×`TILE` cells, row by row, and the cells of a
+    /// tile row by row (since version 7).
+    Tiles,
+}
+
+/// The tile edge of [`CellOrder::Tiles`], in cells: 8×8 patches hold
+/// 1 KiB of the distribution's 16-byte state, a few dozen cache lines.
+pub const TILE: u32 = 8;
+
 /// The patch grid of one primitive.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct PatchGrid {
@@ -30,6 +51,8 @@ pub struct PatchGrid {
     pub n_u: u32,
     /// Cells along `v` (for triangles, equal to `n_u`).
     pub n_v: u32,
+    /// How a quad's cells are numbered.
+    pub order: CellOrder,
 }
 
 /// Where a surface point falls: its cell and interpolation weights.
@@ -57,6 +80,38 @@ impl PatchGrid {
         match self.kind {
             PrimitiveKind::Quad => (self.n_u + 1) * (self.n_v + 1),
             PrimitiveKind::Triangle => (self.n_u + 1) * (self.n_u + 2) / 2,
+        }
+    }
+
+    /// The local index of quad cell `(i, j)`.
+    #[inline]
+    pub fn quad_cell(&self, i: u32, j: u32) -> u32 {
+        match self.order {
+            CellOrder::Rows => j * self.n_u + i,
+            CellOrder::Tiles => {
+                let (ti, tj) = (i / TILE, j / TILE);
+                // Tile rows above are full: TILE rows of n_u cells each.
+                let h = TILE.min(self.n_v - tj * TILE);
+                let w = TILE.min(self.n_u - ti * TILE);
+                tj * TILE * self.n_u + ti * TILE * h + (j - tj * TILE) * w + (i - ti * TILE)
+            }
+        }
+    }
+
+    /// The `(i, j)` of local quad cell `cell` (inverse of [`Self::quad_cell`]).
+    #[inline]
+    pub fn quad_ij(&self, cell: u32) -> (u32, u32) {
+        match self.order {
+            CellOrder::Rows => (cell % self.n_u, cell / self.n_u),
+            CellOrder::Tiles => {
+                let tj = cell / (TILE * self.n_u);
+                let r = cell - tj * TILE * self.n_u;
+                let h = TILE.min(self.n_v - tj * TILE);
+                let ti = r / (TILE * h);
+                let r = r - ti * TILE * h;
+                let w = TILE.min(self.n_u - ti * TILE);
+                (ti * TILE + r % w, tj * TILE + r / w)
+            }
         }
     }
 
@@ -89,7 +144,7 @@ impl PatchGrid {
     pub fn cell_corners(&self, cell: u32) -> [u32; 4] {
         match self.kind {
             PrimitiveKind::Quad => {
-                let (i, j) = (cell % self.n_u, cell / self.n_u);
+                let (i, j) = self.quad_ij(cell);
                 let w = self.n_u + 1;
                 [j * w + i, j * w + i + 1, (j + 1) * w + i + 1, (j + 1) * w + i]
             }
@@ -122,7 +177,7 @@ impl PatchGrid {
                 let i = (a as u32).min(self.n_u - 1);
                 let j = (b as u32).min(self.n_v - 1);
                 let (s, t) = (a - i as f32, b - j as f32);
-                let cell = j * self.n_u + i;
+                let cell = self.quad_cell(i, j);
                 CellLocation {
                     cell,
                     corners: self.cell_corners(cell),
@@ -177,19 +232,20 @@ impl PatchGrid {
         out.clear();
         match self.kind {
             PrimitiveKind::Quad => {
-                let (i, j) = (cell % self.n_u, cell / self.n_u);
+                let (i, j) = self.quad_ij(cell);
                 if j > 0 {
-                    out.push(cell - self.n_u);
+                    out.push(self.quad_cell(i, j - 1));
                 }
                 if i > 0 {
-                    out.push(cell - 1);
+                    out.push(self.quad_cell(i - 1, j));
                 }
                 if i + 1 < self.n_u {
-                    out.push(cell + 1);
+                    out.push(self.quad_cell(i + 1, j));
                 }
                 if j + 1 < self.n_v {
-                    out.push(cell + self.n_u);
+                    out.push(self.quad_cell(i, j + 1));
                 }
+                out.sort_unstable();
             }
             PrimitiveKind::Triangle => {
                 // Cells sharing two corners share an edge.
@@ -216,7 +272,7 @@ mod tests {
     #[test]
     fn triangle_grid_locates_every_cell_centre_in_that_cell() {
         for k in 1..6 {
-            let g = PatchGrid { kind: PrimitiveKind::Triangle, n_u: k, n_v: k };
+            let g = PatchGrid { kind: PrimitiveKind::Triangle, n_u: k, n_v: k, order: CellOrder::Rows };
             assert_eq!(g.vertex_count(), (k + 1) * (k + 2) / 2);
             for cell in 0..g.cell_count() {
                 let c = g.cell_corners(cell);
@@ -235,7 +291,7 @@ mod tests {
 
     #[test]
     fn quad_grid_cells_and_neighbours() {
-        let g = PatchGrid { kind: PrimitiveKind::Quad, n_u: 3, n_v: 2 };
+        let g = PatchGrid { kind: PrimitiveKind::Quad, n_u: 3, n_v: 2, order: CellOrder::Rows };
         assert_eq!(g.cell_count(), 6);
         assert_eq!(g.vertex_count(), 12);
         let loc = g.locate(Vec2::new(0.5, 0.75));
@@ -243,8 +299,46 @@ mod tests {
         let mut n = Vec::new();
         g.cell_neighbours(4, &mut n);
         assert_eq!(n, vec![1, 3, 5]);
-        let tg = PatchGrid { kind: PrimitiveKind::Triangle, n_u: 2, n_v: 2 };
+        let tg = PatchGrid { kind: PrimitiveKind::Triangle, n_u: 2, n_v: 2, order: CellOrder::Rows };
         tg.cell_neighbours(1, &mut n);
         assert_eq!(n.len(), 3, "the inverted middle cell touches all three");
+    }
+
+    #[test]
+    fn tiled_quad_cells_are_a_bijection_with_the_same_neighbours() {
+        // Grids around and across the tile size, with cut tiles at both edges.
+        for (nu, nv) in [(1, 1), (3, 2), (8, 8), (9, 17), (16, 5), (23, 31)] {
+            let rows = PatchGrid { kind: PrimitiveKind::Quad, n_u: nu, n_v: nv, order: CellOrder::Rows };
+            let tiles = PatchGrid { order: CellOrder::Tiles, ..rows };
+            let mut seen = vec![false; (nu * nv) as usize];
+            let (mut a, mut b) = (Vec::new(), Vec::new());
+            for j in 0..nv {
+                for i in 0..nu {
+                    let c = tiles.quad_cell(i, j);
+                    assert!(c < nu * nv && !seen[c as usize], "{nu}×{nv}: ({i}, {j}) -> {c}");
+                    seen[c as usize] = true;
+                    assert_eq!(tiles.quad_ij(c), (i, j));
+                    assert_eq!(tiles.cell_corners(c), rows.cell_corners(rows.quad_cell(i, j)), "same corners");
+                    let centre = Vec2::new((i as f32 + 0.5) / nu as f32, (j as f32 + 0.5) / nv as f32);
+                    assert_eq!(tiles.locate(centre).cell, c);
+                    // The same neighbours, as (i, j).
+                    tiles.cell_neighbours(c, &mut a);
+                    rows.cell_neighbours(rows.quad_cell(i, j), &mut b);
+                    let mut a: Vec<_> = a.iter().map(|&x| tiles.quad_ij(x)).collect();
+                    let mut b: Vec<_> = b.iter().map(|&x| rows.quad_ij(x)).collect();
+                    a.sort_unstable();
+                    b.sort_unstable();
+                    assert_eq!(a, b);
+                }
+            }
+            // Cells of one tile are consecutive.
+            if nu >= TILE && nv >= TILE {
+                let first: Vec<u32> = (0..TILE)
+                    .flat_map(|j| (0..TILE).map(move |i| (i, j)))
+                    .map(|(i, j)| tiles.quad_cell(i, j))
+                    .collect();
+                assert_eq!(first, (0..TILE * TILE).collect::<Vec<_>>());
+            }
+        }
     }
 }

@@ -11,7 +11,7 @@
 //! edge overlaps another's over a positive length; it never crosses a crease,
 //! where spreading light would be wrong.
 
-use crate::geometry::grid::{NO_VERTEX, PatchGrid};
+use crate::geometry::grid::{CellOrder, NO_VERTEX, PatchGrid};
 use glam::Vec3;
 
 use crate::geometry::{Primitive, PrimitiveKind};
@@ -20,6 +20,10 @@ use crate::geometry::{Primitive, PrimitiveKind};
 pub const MAX_PATCHES: u64 = 1 << 30;
 /// Most cells along one edge of a primitive (the archive's limit, §5.5).
 pub const MAX_GRID: u32 = 1 << 16;
+
+/// How builds number a quad's patches unless told otherwise: in tiles,
+/// whose locality the distribution's gathers use (docs/PERFORMANCE.md).
+pub const DEFAULT_CELL_ORDER: CellOrder = CellOrder::Tiles;
 
 /// Where one primitive's patches and vertices start.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -62,17 +66,17 @@ fn cells(len: f32, size: f32) -> u32 {
 }
 
 /// The grid a primitive gets for a target patch size (m).
-pub fn grid_for(p: &Primitive, size: f32) -> PatchGrid {
+pub fn grid_for(p: &Primitive, size: f32, order: CellOrder) -> PatchGrid {
     match p.kind {
         PrimitiveKind::Quad => {
             let lu = (p.p[1] - p.p[0]).length().max((p.p[2] - p.p[3]).length());
             let lv = (p.p[3] - p.p[0]).length().max((p.p[2] - p.p[1]).length());
-            PatchGrid { kind: p.kind, n_u: cells(lu, size), n_v: cells(lv, size) }
+            PatchGrid { kind: p.kind, n_u: cells(lu, size), n_v: cells(lv, size), order }
         }
         PrimitiveKind::Triangle => {
             let l = (p.p[1] - p.p[0]).length().max((p.p[2] - p.p[0]).length()).max((p.p[2] - p.p[1]).length());
             let k = cells(l, size);
-            PatchGrid { kind: p.kind, n_u: k, n_v: k }
+            PatchGrid { kind: p.kind, n_u: k, n_v: k, order: CellOrder::Rows }
         }
     }
 }
@@ -149,8 +153,9 @@ impl Patches {
     /// Cuts `primitives` into patches of about `size` metres. Adjacency
     /// crosses the edges between coplanar primitives with the same
     /// `group_of` value (the same surface, or the same temporal instance).
-    pub fn new(primitives: &[Primitive], group_of: &[u32], size: f32) -> Result<Self, String> {
-        let grids: Vec<PatchGrid> = primitives.iter().map(|p| grid_for(p, size)).collect();
+    /// Quads' cells are numbered in `order`.
+    pub fn new(primitives: &[Primitive], group_of: &[u32], size: f32, order: CellOrder) -> Result<Self, String> {
+        let grids: Vec<PatchGrid> = primitives.iter().map(|p| grid_for(p, size, order)).collect();
         // Per-axis cell counts saturate at u32::MAX; bound them before any u32 product.
         if let Some(g) = grids.iter().find(|g| g.n_u > MAX_GRID || g.n_v > MAX_GRID) {
             return Err(format!(
@@ -234,7 +239,7 @@ mod tests {
         let scene = crate::scene::Scene::cornell_box();
         let prims: Vec<Primitive> = scene.primitives().map(|(_, p)| *p).collect();
         let surfaces: Vec<u32> = scene.primitives().map(|(s, _)| s).collect();
-        let patches = Patches::new(&prims, &surfaces, 0.02).unwrap();
+        let patches = Patches::new(&prims, &surfaces, 0.02, DEFAULT_CELL_ORDER).unwrap();
         for (i, (prim, pp)) in prims.iter().zip(&patches.primitives).enumerate() {
             let n = pp.grid.cell_count() as usize;
             let s: f64 = patches.area[pp.first_patch as usize..][..n].iter().map(|&a| a as f64).sum();
@@ -245,7 +250,7 @@ mod tests {
             );
         }
         let tri = Primitive::triangle(Vec3::ZERO, Vec3::new(1.0, 0.0, 0.0), Vec3::new(0.0, 0.0, -1.0));
-        let p = Patches::new(&[tri], &[0], 0.1).unwrap();
+        let p = Patches::new(&[tri], &[0], 0.1, DEFAULT_CELL_ORDER).unwrap();
         assert_eq!(p.len(), 14 * 14, "k = round(hypotenuse / size)");
         let s: f32 = p.area.iter().sum();
         assert!((s - 0.5).abs() < 1e-5);

@@ -22,9 +22,9 @@ pub use direct::DirectLight;
 pub use view::{frame_radiance, indirect_frame_radiance, radiance_seen_from};
 
 use crate::archive::InetView;
-use crate::archive::layout::PrimitiveRecord;
+use crate::archive::layout::{PrimitiveRecord, cell_order};
 use crate::geometry::accel::PrimitiveBvh;
-use crate::geometry::grid::{NO_VERTEX, PatchGrid};
+use crate::geometry::grid::{CellOrder, NO_VERTEX, PatchGrid};
 use crate::geometry::{Primitive, PrimitiveKind};
 
 /// A linear-RGB floating-point image, rows top to bottom.
@@ -109,7 +109,9 @@ fn vertex_mean(v: &InetView<'_>, patch_radiance: &[[f32; 3]], weight: impl Fn(us
 fn primitive_of(r: &PrimitiveRecord) -> (Primitive, PatchGrid) {
     let kind = if r.kind == 0 { PrimitiveKind::Quad } else { PrimitiveKind::Triangle };
     let p = r.corners.map(Vec3::from);
-    (Primitive { kind, p }, PatchGrid { kind, n_u: r.grid_u, n_v: r.grid_v })
+    // Validated: tiles only for quads.
+    let order = if r.cell_order == cell_order::TILES { CellOrder::Tiles } else { CellOrder::Rows };
+    (Primitive { kind, p }, PatchGrid { kind, n_u: r.grid_u, n_v: r.grid_v, order })
 }
 
 /// Renders the archive's camera view from per-patch radiance.

@@ -16,10 +16,10 @@ use crate::archive::{ArchiveSummary, CHUNK_ENDS, layout::tag};
 use crate::distribute::memory::{StateShape, state_bytes};
 use crate::memory::{Bytes, MemoryBudget};
 
-/// Bytes per link end a window's buffers hold at most (`LOTH`, `LWGT`,
+/// Bytes per link end a window's buffers hold at most (`LOTH`, `LCNT`,
 /// `LDIR`, `LBKT`).
-const WINDOW_BYTES_PER_END: u64 = 13;
-/// The largest window planned: 2 MiB of `LOTH` and `LWGT` stays in the
+const WINDOW_BYTES_PER_END: u64 = 10;
+/// The largest window planned: 1.25 MiB of `LOTH` and `LCNT` stays in the
 /// cache between the reader and the gather (2^18 ends measured 1.5× the
 /// rate of 2^22, 1.3× that of 2^16, on the Cornell box).
 const MAX_WINDOW_ENDS: u64 = 1 << 18;
