@@ -163,3 +163,37 @@ fn link_ends_to_missing_patches_cannot_reach_the_distributor() {
     changed.links = Links::Resident(LinkSlices { other: checked, ..l });
     assert!(Distributor::new(&changed, &opts, &Lighting::from_view(&changed)).is_ok());
 }
+
+#[test]
+fn every_weight_escape_record_is_checked_mapped_or_streamed() {
+    // See: format-spec/archive.md §5.10. LCNX holds one record per zero of
+    // LCNT and no other: a record more (here the zeros after the section,
+    // taken in by a longer table entry) is refused, whichever way the
+    // archive is opened.
+    let mut c = small_contents();
+    for w in c.link_weight.iter_mut().step_by(50) {
+        *w -= 0.5;
+    }
+    let good = archive::write_to_vec(&c).unwrap();
+    let a = Archive::from_bytes(&good).unwrap();
+    let escapes = a.view().links.resident().unwrap().weight.escapes().len();
+    assert_eq!(escapes, c.link_weight.len().div_ceil(50));
+    let i = a.sections().iter().position(|e| e.tag == layout::tag::LINK_ESCAPES).unwrap();
+    let mut bad = good.clone();
+    let t = a.header().table_offset as usize + i * layout::ENTRY_SIZE;
+    let mut entry: layout::SectionEntry = bytemuck::pod_read_unaligned(&bad[t..t + layout::ENTRY_SIZE]);
+    entry.count += 1;
+    entry.length += 16;
+    entry.stored_length += 16;
+    bad[t..t + layout::ENTRY_SIZE].copy_from_slice(bytemuck::bytes_of(&entry));
+    archive::reseal(&mut bad);
+    let err = Archive::from_bytes(&bad).err().expect("an extra LCNX record must be refused").to_string();
+    assert!(err.contains("LCNX"), "{err}");
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("a.inet");
+    std::fs::write(&path, &bad).unwrap();
+    let err = Archive::open_streamed(&path, 1000).err().expect("streamed too").to_string();
+    assert!(err.contains("LCNX"), "{err}");
+    std::fs::write(&path, &good).unwrap();
+    assert!(Archive::open_streamed(&path, 1000).is_ok());
+}

@@ -26,8 +26,8 @@ declare -A scene_args=(
   [cornell]=""
   [million]="--patch-size 0.0014 --ray-spacing 0.0007 --frequency 4"
 )
-# Budgets that stream the link ends (the state of 10^6 patches is ~450 MB).
-declare -A budget=([cornell]=32M [million]=700M)
+# Budgets that stream the link ends (a distribution over 10^6 patches holds ~820 MiB).
+declare -A budget=([cornell]=32M [million]=1200M)
 for s in cornell million; do
   for v in old new; do
     bin=${!v}

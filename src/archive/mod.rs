@@ -190,12 +190,14 @@ impl fmt::Display for ArchiveError {
             ),
             Self::Outdated { written } if *written == layout::UPGRADABLE => write!(
                 f,
-                "archive written in format version {written}; this illumnet reads version {}: rewrite it with                  `illumnet upgrade ARCHIVE` (the same light, a smaller file) or build it again",
+                "archive written in format version {written}; this illumnet reads version {}: rewrite it with \
+                 `illumnet upgrade ARCHIVE` (the same light, a smaller file) or build it again",
                 layout::VERSION_WRITE
             ),
             Self::Outdated { written } => write!(
                 f,
-                "archive written in format version {written}; this illumnet reads version {} and upgrades                  version {}: build it again",
+                "archive written in format version {written}; this illumnet reads version {} and upgrades \
+                 version {}: build it again",
                 layout::VERSION_WRITE,
                 layout::UPGRADABLE
             ),

@@ -137,7 +137,7 @@ pub struct InetView<'a> {
     pub adjacency: &'a [u32],
     /// `LOFF`.
     pub link_offsets: &'a [u64],
-    /// `LOTH`, `LWGT`, `LDIR` and `LBKT` (when present, written since
+    /// `LOTH`, `LCNT` with `LCNX`, `LDIR` and `LBKT` (when present, written since
     /// version 2: the bucket of the light each link end's owner
     /// receives), in memory or streamed from disk.
     pub links: Links<'a>,
@@ -523,7 +523,9 @@ impl Archive {
     pub fn held_bytes(&self) -> usize {
         match &self.storage {
             Storage::Mapped(_) => 0,
-            Storage::Owned(words, _) | Storage::Sparse { words, .. } => words.len() * 8,
+            Storage::Owned(words, _) | Storage::Sparse { words, .. } => {
+                words.len() * 8 + self.stream.as_ref().map_or(0, LinkStream::held_bytes)
+            }
         }
     }
 
@@ -609,7 +611,8 @@ impl Archive {
                         // Checked below the patch count by
                         // `validate_contents` before any view leaves `open`.
                         other: PatchIds::validated(other, b.patch_count as usize),
-                        weight: Weights::new(self.column(tag::LINK_COUNT)?, self.column(tag::LINK_ESCAPES)?, 0),
+                        // Every LCNX record, so that validation sees extras.
+                        weight: Weights::whole(self.column(tag::LINK_COUNT)?, self.column(tag::LINK_ESCAPES)?),
                         direction: self.column(tag::LINK_DIRECTION)?,
                         bucket: match self.entries.iter().any(|e| e.tag == tag::LINK_BUCKET) {
                             true => Some(self.column(tag::LINK_BUCKET)?),

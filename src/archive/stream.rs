@@ -14,6 +14,7 @@ use std::fs::File;
 use std::ops::Range;
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc::sync_channel;
 
 use xxhash_rust::xxh3::{Xxh3, xxh3_64};
@@ -63,6 +64,8 @@ pub struct LinkStream {
     capacity: usize,
     /// Buffers kept between passes.
     pool: Mutex<Vec<Buffers>>,
+    /// Drop the file's cached pages before every full pass (measurement).
+    evict: AtomicBool,
 }
 
 struct Window {
@@ -187,7 +190,22 @@ impl LinkStream {
             windows,
             capacity,
             pool: Mutex::new(Vec::new()),
+            evict: AtomicBool::new(false),
         })
+    }
+
+    /// For measurement: before every pass over all windows, ask the kernel
+    /// to drop the file's pages from its cache (`posix_fadvise`
+    /// `DONTNEED`), so that each pass reads the disk, as passes over an
+    /// archive larger than memory do. Linux only; elsewhere a no-op.
+    pub fn evict_each_pass(&self, on: bool) {
+        self.evict.store(on, Ordering::Relaxed);
+    }
+
+    /// Heap bytes held for the whole pass: `LCNX` and the chunk checksums
+    /// (windows' buffers are [`Self::pass_bytes`]).
+    pub fn held_bytes(&self) -> usize {
+        self.escapes.len() * size_of::<WeightEscape>() + self.sums.len() * 32
     }
 
     /// Link ends in all.
@@ -242,6 +260,9 @@ impl LinkStream {
         };
         if selected.is_empty() {
             return Ok(());
+        }
+        if wanted.is_none() && self.evict.load(Ordering::Relaxed) {
+            drop_cached(&self.file);
         }
         std::thread::scope(|scope| -> Result<(), E> {
             let (full_tx, full_rx) = sync_channel::<Result<Buffers, ArchiveError>>(1);
@@ -335,6 +356,23 @@ impl LinkStream {
         }
         Ok(())
     }
+}
+
+/// Asks the kernel to drop `file`'s clean cached pages (advice: errors
+/// are ignored, and the pages of a file being written stay).
+fn drop_cached(file: &File) {
+    #[cfg(target_os = "linux")]
+    {
+        use std::os::fd::AsRawFd;
+        // SAFETY: posix_fadvise reads no memory of ours; it takes an open
+        // descriptor (borrowed from `file`, alive for the call) and
+        // integers, and only advises the page cache.
+        unsafe {
+            libc::posix_fadvise(file.as_raw_fd(), 0, 0, libc::POSIX_FADV_DONTNEED);
+        }
+    }
+    #[cfg(not(target_os = "linux"))]
+    let _ = file;
 }
 
 /// Heap bytes per link end of a window reading `columns`.

@@ -39,6 +39,8 @@ pub struct Upgraded {
     pub bytes_after: u64,
     /// Link ends whose weight went to `LCNX`.
     pub escapes: u64,
+    /// The file was in the current format already: nothing was written.
+    pub already_current: bool,
 }
 
 /// Rewrites the version 6 archive `input` as a version 7 archive at
@@ -49,10 +51,14 @@ pub fn upgrade(input: &Path, output: &Path) -> Result<Upgraded, ArchiveError> {
     let io_in = |e: std::io::Error| ArchiveError::Io { path: input.into(), source: e };
     let file = File::open(input).map_err(io_in)?;
     let (header, _) = read_structure_of(&file, input, Some(&[]))?;
+    if header.version_write >= layout::OLDEST_READABLE && input == output {
+        let len = header.file_length;
+        return Ok(Upgraded { bytes_before: len, bytes_after: len, escapes: 0, already_current: true });
+    }
     if header.version_write != layout::UPGRADABLE {
         return Err(match header.version_write {
             v if v >= layout::OLDEST_READABLE => ArchiveError::corrupt(format!(
-                "{} is already in format version {v}: nothing to upgrade",
+                "{} is already in format version {v}: copy it instead of upgrading it",
                 input.display()
             )),
             v => ArchiveError::Outdated { written: v },
@@ -66,15 +72,13 @@ pub fn upgrade(input: &Path, output: &Path) -> Result<Upgraded, ArchiveError> {
     let _ = scratch::remove_stale(output);
     let (tmp_file, tmp_path) = scratch::temp_file(output).map_err(io_out)?.into_parts();
     let mut w = SectionWriter::new(BufWriter::with_capacity(1 << 20, tmp_file)).map_err(io_out)?;
-    // LCNX goes right after the last link column, where a build puts it.
-    let last_link_column = entries
-        .iter()
-        .filter(|e| [tag::LINK_OTHER, tag::LINK_WEIGHT_V6, tag::LINK_DIRECTION, tag::LINK_BUCKET].contains(&e.tag))
-        .map(|e| e.offset)
-        .max();
+    // LCNX goes right after the last link column, where a build puts it
+    // (by index: with no link ends, several sections share an offset).
+    let link_columns = [tag::LINK_OTHER, tag::LINK_WEIGHT_V6, tag::LINK_DIRECTION, tag::LINK_BUCKET];
+    let last_link_column = entries.iter().rposition(|e| link_columns.contains(&e.tag));
     let mut escapes: Vec<WeightEscape> = Vec::new();
     let mut buf = Vec::new();
-    for e in &entries {
+    for (i, e) in entries.iter().enumerate() {
         if e.tag == tag::LINK_WEIGHT_V6 {
             copy_weights(&file, input, e, &mut w, &mut escapes, &mut buf)?;
         } else {
@@ -88,7 +92,7 @@ pub fn upgrade(input: &Path, output: &Path) -> Result<Upgraded, ArchiveError> {
             .map_err(|x| either(x, input, output))?;
             verify(e, hasher.digest())?;
         }
-        if Some(e.offset) == last_link_column {
+        if Some(i) == last_link_column {
             w.column(tag::LINK_ESCAPES, &escapes).map_err(io_out)?;
         }
     }
@@ -103,7 +107,12 @@ pub fn upgrade(input: &Path, output: &Path) -> Result<Upgraded, ArchiveError> {
     })?;
     tmp_path.persist(output).map_err(|e| io_out(e.error))?;
     drop(tmp_file);
-    Ok(Upgraded { bytes_before: header.file_length, bytes_after, escapes: escapes.len() as u64 })
+    Ok(Upgraded {
+        bytes_before: header.file_length,
+        bytes_after,
+        escapes: escapes.len() as u64,
+        already_current: false,
+    })
 }
 
 /// Writes `LWGT` (`e`) as `LCNT`, collecting the escapes.

@@ -6,9 +6,10 @@
 //! Builds merge a few rays per link (the Cornell box at default settings:
 //! 76% of ends carry 1 ray, none more than 6), so one byte holds nearly
 //! every weight exactly: the gather's stream is 5 bytes per end (`LOTH` +
-//! `LCNT`) instead of 8, and its sums are those of the f32 weights bit for
-//! bit (a byte converts to the same f32). Escapes are added by a separate,
-//! sparse pass.
+//! `LCNT`) instead of 8, and, where no weight escapes, its sums are those
+//! of the f32 weights bit for bit (a byte converts to the same f32).
+//! Escapes are added by a separate, sparse pass (in another order than a
+//! sum over f32 weights would take).
 
 use std::ops::Range;
 
@@ -32,6 +33,12 @@ impl<'a> Weights<'a> {
         let a = escapes.partition_point(|x| x.end < first_end);
         let b = a + escapes[a..].partition_point(|x| x.end < end);
         Self { counts, escapes: &escapes[a..b], first_end }
+    }
+
+    /// The weights of all E ends, `counts` being `LCNT` and `escapes` all
+    /// of `LCNX` (not narrowed, so that validation sees every record).
+    pub fn whole(counts: &'a [u8], escapes: &'a [WeightEscape]) -> Self {
+        Self { counts, escapes, first_end: 0 }
     }
 
     /// No weights (a column not read).

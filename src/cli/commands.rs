@@ -412,9 +412,17 @@ pub fn render(
         ));
     }
     let archive = match memory.access {
+        plan::LinkAccess::Mapped if args.evict_each_pass => {
+            bail_input!(
+                "--evict-each-pass needs the link ends streamed: give a --memory-budget below the archive's size"
+            )
+        }
         plan::LinkAccess::Mapped => open_archive(path)?,
         plan::LinkAccess::Streamed { window_ends } => opened(path, Archive::open_streamed(path, window_ends))?,
     };
+    if let Some(stream) = archive.link_stream() {
+        stream.evict_each_pass(args.evict_each_pass);
+    }
     if budget.source == BudgetSource::Given || memory.access != plan::LinkAccess::Mapped {
         println!("memory: {memory}");
     }
@@ -872,6 +880,10 @@ pub fn compare(image: &Path, reference: &Path, heatmap: Option<&Path>, full_scal
 pub fn upgrade(input: &Path, output: &Path) -> Result<()> {
     let started = Instant::now();
     let done = archive::upgrade::upgrade(input, output)?;
+    if done.already_current {
+        println!("{} is in format version {} already: nothing to do", input.display(), archive::layout::VERSION_WRITE);
+        return Ok(());
+    }
     println!(
         "upgraded {} to format version {}: {:.1} MB -> {:.1} MB ({} weights kept apart in LCNX), {:.2} s",
         output.display(),

@@ -136,6 +136,12 @@ struct RenderArgs {
     /// Peak memory stays below the budget plus 64 MiB.
     #[arg(long, value_name = "SIZE", value_parser = illumnet::memory::parse_size)]
     memory_budget: Option<u64>,
+    /// For measurement: drop the archive's pages from the kernel's cache
+    /// before every pass over its link ends, so each distribution
+    /// iteration reads them from disk (needs a --memory-budget that
+    /// streams them; Linux).
+    #[arg(long)]
+    evict_each_pass: bool,
 }
 
 /// Build resolution presets (see `--quality`).

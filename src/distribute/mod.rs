@@ -20,7 +20,7 @@
 //! `A_eff = A_p·H_p/E[H_p]`, the area the rays "saw".
 //!
 //! The hot loop is a gather over the CSR link-end columns (`LOFF`, `LOTH`,
-//! `LWGT`: 8 bytes per end), parallel over blocks of patches; the per-patch
+//! `LCNT`: 5 bytes per end), parallel over blocks of patches; the per-patch
 //! state it gathers from is 16 bytes per patch, cache-resident for scenes of
 //! up to ~10⁵ patches.
 //!
