@@ -16,7 +16,8 @@ and says what it skipped. Large rungs take many minutes: run them once
 and record them in docs/PERFORMANCE.md; they are not for CI.
 
 Usage: tools/bench_ladder.py [--rungs 1,2,3,4] [--dir DIR] [--keep]
-                             [--plot docs/images/ladder.png]
+                             [--plot docs/images/ladder.png] [--threads1]
+       tools/bench_ladder.py --replot DIR/ladder.jsonl --plot OUT.png
 """
 
 import argparse
@@ -32,12 +33,13 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 BIN = os.path.join(ROOT, "target", "release", "illumnet")
 
 # name, rooms (nx, nz), boxes a room, frequency, patch size, ray spacing,
-# link ends expected (for the disk check), build budget, render budget.
+# link ends expected (for the disk check), build budget, render budget
+# (below the archive's size: renders stream the link ends, as out of core).
 RUNGS = [
-    ("1e7", (2, 1), 3, 16, 0.15, 0.075, 1.0e7, "1G", "200M"),
-    ("1e8", (3, 3), 3, 16, 0.10, 0.05, 1.2e8, "1G", "600M"),
-    ("3e8", (4, 4), 3, 8, 0.038, 0.019, 3.5e8, "1900M", "960M"),
-    ("1e9", (4, 4), 3, 16, 0.038, 0.019, 1.1e9, "1900M", "960M"),
+    ("1e7", (2, 1), 3, 16, 0.15, 0.075, 1.0e7, "1G", "48M"),
+    ("1e8", (3, 3), 3, 16, 0.10, 0.05, 1.2e8, "1G", "400M"),
+    ("5e8", (4, 4), 3, 8, 0.036, 0.018, 5.0e8, "1900M", "960M"),
+    ("2e9", (4, 4), 3, 16, 0.036, 0.018, 2.0e9, "1900M", "960M"),
 ]
 HOT_BYTES_PER_END = 5  # LOTH (4) + LCNT (1)
 DISK_BYTES_PER_END = 10  # + LDIR (4) + LBKT (1)
@@ -124,7 +126,12 @@ def main():
     ap.add_argument("--keep", action="store_true", help="keep the archives")
     ap.add_argument("--plot", default=None)
     ap.add_argument("--threads1", action="store_true", help="also distribute the largest rung run on one thread")
+    ap.add_argument("--replot", metavar="JSONL", help="only plot the results recorded in JSONL (to --plot)")
     a = ap.parse_args()
+    if a.replot:
+        with open(a.replot) as f:
+            plot([json.loads(line) for line in f if line.strip()], a.plot or "ladder.png")
+        return
     os.makedirs(a.dir, exist_ok=True)
     log = os.path.join(a.dir, "ladder.log")
     subprocess.run(["cargo", "build", "--release", "--quiet"], cwd=ROOT, check=True)
@@ -185,27 +192,36 @@ def main():
         if not a.keep:
             os.remove(archive)
     if a.plot and results:
-        try:
-            import matplotlib
-            matplotlib.use("Agg")
-            import matplotlib.pyplot as plt
-        except ImportError:
-            print("no matplotlib: no plot")
-            return
-        xs = [r["ends"] for r in results]
-        fig, ax = plt.subplots(figsize=(6, 4))
-        ax.loglog(xs, [r["cached"]["per_iteration_s"] for r in results], "o-", label="page-cached")
-        ax.loglog(xs, [r["evicted"]["per_iteration_s"] for r in results], "s-", label="evicted before each pass")
-        lo, hi = min(xs), max(xs)
-        ref = results[0]["cached"]["per_iteration_s"] / xs[0]
-        ax.loglog([lo, hi], [ref * lo, ref * hi], "k:", label="linear in link ends")
-        ax.set_xlabel("link ends")
-        ax.set_ylabel("seconds per distribution iteration")
-        ax.set_title("illumnet ladder: buildings of furnished rooms")
-        ax.legend()
-        fig.tight_layout()
-        fig.savefig(a.plot, dpi=110)
-        print(f"wrote {a.plot}")
+        plot(results, a.plot)
+
+
+def plot(results, path):
+    """Log-log time per iteration against link ends, cached and evicted."""
+    try:
+        import matplotlib
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        print("no matplotlib: no plot")
+        return
+    results = sorted(results, key=lambda r: r["ends"])
+    xs = [r["ends"] for r in results]
+    fig, ax = plt.subplots(figsize=(6, 4))
+    ax.loglog(xs, [r["cached"]["per_iteration_s"] for r in results], "o-", label="page-cached (streamed)")
+    ax.loglog(xs, [r["evicted"]["per_iteration_s"] for r in results], "s-", label="evicted before each pass")
+    lo, hi = min(xs), max(xs)
+    ref = results[-1]["cached"]["per_iteration_s"] / xs[-1]
+    ax.loglog([lo, hi], [ref * lo, ref * hi], "k:", label="linear in link ends")
+    for r in results:
+        ax.annotate(f"{r['patches']:,} patches", (r["ends"], r["cached"]["per_iteration_s"]),
+                    textcoords="offset points", xytext=(4, -12), fontsize=7)
+    ax.set_xlabel("link ends")
+    ax.set_ylabel("seconds per distribution iteration")
+    ax.set_title("illumnet ladder: buildings of furnished rooms (2 cores)")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    print(f"wrote {path}")
 
 
 if __name__ == "__main__":
