@@ -79,7 +79,13 @@ impl fmt::Display for Bytes {
             x /= 1024.0;
             u += 1;
         }
-        if u == 0 { write!(f, "{} B", self.0) } else { write!(f, "{x:.1} {}", units[u]) }
+        // Two decimals from GiB on: peaks near a budget of a few GiB
+        // must show whether they are over it.
+        match u {
+            0 => write!(f, "{} B", self.0),
+            1 | 2 => write!(f, "{x:.1} {}", units[u]),
+            _ => write!(f, "{x:.2} {}", units[u]),
+        }
     }
 }
 
@@ -165,7 +171,7 @@ mod tests {
     fn bytes_print_in_binary_units() {
         assert_eq!(Bytes(48 << 20).to_string(), "48.0 MiB");
         assert_eq!(Bytes(1000).to_string(), "1000 B");
-        assert_eq!(Bytes(3 << 29).to_string(), "1.5 GiB");
+        assert_eq!(Bytes(3 << 29).to_string(), "1.50 GiB");
     }
 
     #[test]
