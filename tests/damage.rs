@@ -475,10 +475,10 @@ fn write_fuzz_seed_corpus() {
             let a = Archive::from_bytes(&bytes).unwrap();
             let s = a.view().sequence.unwrap();
             for (f, ix) in s.index.iter().enumerate() {
-                let stored = &s.payload[ix.offset as usize..(ix.offset + ix.stored_length) as usize];
+                let stored = s.frame_stored(f as u32).unwrap();
                 let mut input = vec![1u8];
                 input.extend_from_slice(&(ix.count as u32).to_le_bytes());
-                input.extend_from_slice(stored);
+                input.extend_from_slice(&stored);
                 put("frame_delta", &format!("frame{f}"), &input);
             }
         }

@@ -129,3 +129,39 @@ fn a_link_column_cut_or_rewritten_under_a_distribution_is_an_error() {
     let err = Archive::open_streamed(&path, 1000).err().unwrap().to_string();
     assert!(err.contains("truncated"), "{err}");
 }
+
+#[test]
+fn a_streamed_sequence_reads_its_frames_from_disk_and_notices_changes() {
+    // A streamed archive leaves DELT on disk too (its memory then holds one
+    // frame's changes at a time): each frame is read when it is applied
+    // and checked against its own checksum (DIDX), so a frame rewritten
+    // or cut off under a render is an error.
+    let dir = tempfile::tempdir().unwrap();
+    let hints = BuildHints { patch_size: Some(0.4), frequency: Some(4), ray_spacing: Some(0.06), buckets: None };
+    let path = write(&scene_file("fan_room.toml"), hints, dir.path());
+    let mapped = Archive::open(&path).unwrap();
+    let a = Archive::open_streamed(&path, 1000).unwrap();
+    let delt = Archive::summary(&path).unwrap().sections.iter().find(|e| e.tag == tag::DELTAS).unwrap().stored_length;
+    assert!(delt > 100_000, "DELT {delt} bytes");
+    assert!((a.held_bytes() as u64) < Archive::summary(&path).unwrap().held_bytes() + 1_000_000);
+    let (m, s) = (mapped.view().sequence.unwrap(), a.view().sequence.unwrap());
+    assert!(matches!(s.payload, archive::DeltaBytes::OnDisk(_)));
+    for f in 0..s.frames() {
+        assert_eq!(m.frame_delta(f).unwrap(), s.frame_delta(f).unwrap(), "frame {f}");
+    }
+    // A frame's bytes rewritten after opening: that frame's checksum.
+    let ix = s.index.iter().enumerate().rfind(|(_, ix)| ix.stored_length > 0).unwrap();
+    let at = section_offset(&path, tag::DELTAS) + ix.1.offset + ix.1.stored_length / 2;
+    let mut bytes = std::fs::read(&path).unwrap();
+    bytes[at as usize] ^= 0x20;
+    std::fs::write(&path, &bytes).unwrap();
+    let frame = ix.0 as u32;
+    let err = a.view().frame_links(frame).unwrap_err().to_string();
+    assert!(err.contains(&format!("DELT frame {frame}")) && err.contains("checksum"), "{err}");
+    assert!(a.view().frame_links(0).is_ok(), "other frames still read");
+    // Cut off: a short read, never SIGBUS.
+    let file = std::fs::OpenOptions::new().write(true).open(&path).unwrap();
+    file.set_len(at).unwrap();
+    let err = a.view().frame_links(frame).unwrap_err().to_string();
+    assert!(err.contains("ended early"), "{err}");
+}

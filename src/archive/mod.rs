@@ -32,7 +32,7 @@ use std::fmt;
 use std::path::PathBuf;
 
 pub use links::{Columns, LinkRows, LinkSlices, LinkWindow, Links, PatchIds};
-pub use read::{Archive, ArchiveSummary, InetView, ReflectanceView, SequenceView};
+pub use read::{Archive, ArchiveSummary, DeltaBytes, InetView, OnDisk, ReflectanceView, SequenceView};
 pub use stream::{CHUNK_ENDS, LinkStream, bytes_per_end};
 pub use weights::Weights;
 pub use write::{LinkEndSink, LinkEndSource, reseal, write, write_to_vec, write_to_vec_with_links, write_with_links};

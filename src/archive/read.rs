@@ -1,6 +1,7 @@
 //! Opening archives: map, validate everything, then hand out zero-copy views.
 
-use std::path::Path;
+use std::borrow::Cow;
+use std::path::{Path, PathBuf};
 
 use bytemuck::{Pod, pod_read_unaligned};
 use xxhash_rust::xxh3::xxh3_64;
@@ -58,6 +59,43 @@ pub struct Archive {
     meta: ArchiveMeta,
     /// The link ends, when they are streamed rather than held.
     stream: Option<LinkStream>,
+    /// A streamed sequence's `DELT`, left on disk and read a frame at a time.
+    deltas_on_disk: Option<OnDisk>,
+}
+
+/// A section left on disk: read in pieces with `pread` (never mapped, so a
+/// file cut short under a render is an error, not a SIGBUS).
+pub struct OnDisk {
+    file: std::fs::File,
+    path: PathBuf,
+    offset: u64,
+    len: u64,
+}
+
+/// Where a sequence's `DELT` bytes are: in memory (a mapped or owned
+/// archive), or on disk (a streamed one), read one frame at a time and
+/// checked against that frame's checksum (`DIDX`) when read.
+#[derive(Clone, Copy)]
+pub enum DeltaBytes<'a> {
+    /// The whole payload.
+    Held(&'a [u8]),
+    /// The payload in the file.
+    OnDisk(&'a OnDisk),
+}
+
+impl DeltaBytes<'_> {
+    /// Bytes in the payload.
+    pub fn len(&self) -> u64 {
+        match self {
+            DeltaBytes::Held(b) => b.len() as u64,
+            DeltaBytes::OnDisk(d) => d.len,
+        }
+    }
+
+    /// True when the payload is empty.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
 }
 
 /// What an archive's header, section table and build record say, read
@@ -75,6 +113,9 @@ pub struct ArchiveSummary {
     /// The most delta records a frame of a sequence has (`DIDX`, checked
     /// against its checksum; 0 for a still).
     pub max_delta_records: u64,
+    /// The most stored bytes a frame's delta has (what a streamed
+    /// sequence reads at once).
+    pub max_delta_stored: u64,
 }
 
 impl ArchiveSummary {
@@ -94,9 +135,10 @@ impl ArchiveSummary {
         LINK_COLUMNS.iter().map(|&t| self.section_bytes(t)).sum()
     }
 
-    /// Stored bytes of every other section: what a streamed archive holds.
+    /// Stored bytes of every other section but `DELT` (read a frame at a
+    /// time): what a streamed archive holds.
     pub fn held_bytes(&self) -> u64 {
-        self.sections.iter().map(|e| e.stored_length).sum::<u64>() - self.link_bytes()
+        self.sections.iter().map(|e| e.stored_length).sum::<u64>() - self.link_bytes() - self.section_bytes(tag::DELTAS)
     }
 }
 
@@ -204,7 +246,7 @@ pub struct SequenceView<'a> {
     /// `DIDX`.
     pub index: &'a [DeltaIndexRecord],
     /// `DELT` payload.
-    pub payload: &'a [u8],
+    pub payload: DeltaBytes<'a>,
     /// `CAMF`: the camera of every frame, when it moves.
     pub cameras: Option<&'a [CameraRecord]>,
     /// `EMIF`: frames × surfaces emitted radiances, when emission is keyed.
@@ -226,6 +268,31 @@ impl SequenceView<'_> {
         self.record.frames
     }
 
+    /// Frame `frame`'s stored `DELT` bytes (its blocks), not yet checked
+    /// against its checksum: borrowed when held, read from the file when
+    /// the archive is streamed.
+    pub fn frame_stored(&self, frame: u32) -> Result<Cow<'_, [u8]>, ArchiveError> {
+        let Some(ix) = self.index.get(frame as usize) else {
+            return Err(ArchiveError::corrupt(format!("frame {frame} is outside the sequence 0..{}", self.frames())));
+        };
+        // Validated when the archive was opened; checked again here, as the
+        // view's fields are public.
+        let end = ix.offset.checked_add(ix.stored_length).filter(|&e| e <= self.payload.len());
+        let Some(end) = end else {
+            return Err(bad(format!("DIDX[{frame}]: outside DELT")));
+        };
+        let range = ix.offset as usize..end as usize;
+        match self.payload {
+            DeltaBytes::Held(b) => Ok(Cow::Borrowed(&b[range])),
+            DeltaBytes::OnDisk(d) => {
+                let mut buf = vec![0u8; range.len()];
+                stream::read_at(&d.file, &mut buf, d.offset + ix.offset)
+                    .map_err(|e| stream::short(&d.path, &format!("DELT frame {frame}"), e))?;
+                Ok(Cow::Owned(buf))
+            }
+        }
+    }
+
     /// Decodes and validates frame `frame`'s changes relative to frame 0.
     /// The frame's links are frame 0's plus these, less every link with an
     /// end at a patch absent from the frame (§5.13, step 2: since version 6
@@ -237,7 +304,8 @@ impl SequenceView<'_> {
         if ix.count == 0 {
             return Ok(Vec::new());
         }
-        let stored = &self.payload[ix.offset as usize..(ix.offset + ix.stored_length) as usize];
+        let stored = self.frame_stored(frame)?;
+        let stored = &stored[..];
         if self.version_5 && xxh3_64(stored) != ix.checksum {
             return Err(bad(format!("DELT frame {frame}: checksum mismatch")));
         }
@@ -406,8 +474,10 @@ impl Archive {
         let (header, entries) = read_structure(&file, path)?;
         let mut words = Vec::new();
         let mut spans = Vec::new();
-        // The link columns stay on disk; the stream holds `LCNX` itself.
-        for e in entries.iter().filter(|e| !LINK_COLUMNS.contains(&e.tag) && e.tag != tag::LINK_ESCAPES) {
+        // The link columns and `DELT` stay on disk; the stream holds `LCNX`
+        // itself.
+        let on_disk = |t: Tag| LINK_COLUMNS.contains(&t) || t == tag::LINK_ESCAPES || t == tag::DELTAS;
+        for e in entries.iter().filter(|e| !on_disk(e.tag)) {
             let at = words.len() * 8;
             words.resize(words.len() + (e.stored_length as usize).div_ceil(8), 0u64);
             let buf = &mut bytemuck::cast_slice_mut::<u64, u8>(&mut words)[at..at + e.stored_length as usize];
@@ -415,12 +485,32 @@ impl Archive {
             check_sum(e, buf)?;
             spans.push((e.offset, at));
         }
+        // `DELT`: its section checksum taken by one pass over it now; each
+        // frame is checked against its own when read.
+        let deltas_on_disk = match entries.iter().find(|e| e.tag == tag::DELTAS) {
+            Some(e) => {
+                let mut hasher = xxhash_rust::xxh3::Xxh3::new();
+                let mut buf = vec![0u8; (4usize << 20).min(e.stored_length as usize)];
+                let mut at = 0u64;
+                while at < e.stored_length {
+                    let n = (e.stored_length - at).min(buf.len() as u64) as usize;
+                    stream::read_at(&file, &mut buf[..n], e.offset + at).map_err(|x| stream::short(path, "DELT", x))?;
+                    hasher.update(&buf[..n]);
+                    at += n as u64;
+                }
+                check_digest(e, hasher.digest())?;
+                let file = file.try_clone().map_err(io)?;
+                Some(OnDisk { file, path: path.into(), offset: e.offset, len: e.stored_length })
+            }
+            None => None,
+        };
         let mut archive = Self {
             storage: Storage::Sparse { words, spans },
             header,
             entries,
             meta: ArchiveMeta::default(),
             stream: None,
+            deltas_on_disk,
         };
         archive.meta = archive.read_meta()?;
         let b: BuildRecord = *archive.one(tag::BUILD)?;
@@ -477,18 +567,26 @@ impl Archive {
             pod_read_unaligned(&record(tag::BUILD, size_of::<BuildRecord>())?[..size_of::<BuildRecord>()]);
         let camera: CameraRecord =
             pod_read_unaligned(&record(tag::CAMERA, size_of::<CameraRecord>())?[..size_of::<CameraRecord>()]);
-        let mut max_delta_records = 0;
+        let (mut max_delta_records, mut max_delta_stored) = (0, 0);
         if let Some(e) = entries.iter().find(|e| e.tag == tag::DELTA_INDEX) {
             let mut buf = vec![0u8; e.stored_length as usize];
             stream_read(&file, &mut buf, e.offset).map_err(io)?;
             check_sum(e, &buf)?;
-            max_delta_records = buf
-                .chunks_exact(size_of::<DeltaIndexRecord>())
-                .map(|r| pod_read_unaligned::<DeltaIndexRecord>(r).count)
-                .max()
-                .unwrap_or(0);
+            let records =
+                || buf.chunks_exact(size_of::<DeltaIndexRecord>()).map(pod_read_unaligned::<DeltaIndexRecord>);
+            max_delta_records = records().map(|r| r.count).max().unwrap_or(0);
+            // Capped by the payload: DIDX ranges are checked only at open.
+            let payload = entries.iter().find(|e| e.tag == tag::DELTAS).map_or(0, |e| e.stored_length);
+            max_delta_stored = records().map(|r| r.stored_length).max().unwrap_or(0).min(payload);
         }
-        Ok(ArchiveSummary { file_length: header.file_length, sections: entries, build, camera, max_delta_records })
+        Ok(ArchiveSummary {
+            file_length: header.file_length,
+            sections: entries,
+            build,
+            camera,
+            max_delta_records,
+            max_delta_stored,
+        })
     }
 
     /// Validates an archive held in memory (the bytes are copied once into
@@ -506,7 +604,8 @@ impl Archive {
             Storage::Sparse { .. } => unreachable!("sparse storage is made by open_streamed"),
         };
         let (header, entries) = validate_structure(bytes)?;
-        let mut archive = Self { storage, header, entries, meta: ArchiveMeta::default(), stream: None };
+        let mut archive =
+            Self { storage, header, entries, meta: ArchiveMeta::default(), stream: None, deltas_on_disk: None };
         archive.meta = archive.read_meta()?;
         validate_contents(&archive.view_unchecked()?, &archive.meta)?;
         Ok(archive)
@@ -629,7 +728,10 @@ impl Archive {
                         record: self.one(tag::ANIMATION)?,
                         instances: self.column(tag::INSTANCES)?,
                         index: self.column(tag::DELTA_INDEX)?,
-                        payload: self.stored(self.entry(tag::DELTAS)?),
+                        payload: match &self.deltas_on_disk {
+                            Some(d) => DeltaBytes::OnDisk(d),
+                            None => DeltaBytes::Held(self.stored(self.entry(tag::DELTAS)?)),
+                        },
                         payload_count: self.entry(tag::DELTAS)?.count,
                         cameras: match self.entries.iter().any(|e| e.tag == tag::FRAME_CAMERAS) {
                             true => Some(self.column(tag::FRAME_CAMERAS)?),
@@ -729,7 +831,11 @@ fn stream_read(file: &std::fs::File, buf: &mut [u8], offset: u64) -> std::io::Re
 
 /// Verifies a section's stored bytes against the table's checksum.
 fn check_sum(e: &SectionEntry, stored: &[u8]) -> Result<(), ArchiveError> {
-    let sum = xxh3_64(stored);
+    check_digest(e, xxh3_64(stored))
+}
+
+/// Verifies a section's checksum against `sum`, its stored bytes' XXH3-64.
+fn check_digest(e: &SectionEntry, sum: u64) -> Result<(), ArchiveError> {
     if sum != e.checksum {
         return Err(bad(format!(
             "section {}: checksum mismatch (stored {:#018x}, computed {sum:#018x})",
@@ -1148,7 +1254,7 @@ fn validate_contents(v: &InetView<'_>, meta: &ArchiveMeta) -> Result<(), Archive
         }
         for (f, ix) in s.index.iter().enumerate() {
             let end = ix.offset.checked_add(ix.stored_length);
-            check(end.is_some_and(|e| e <= s.payload.len() as u64), || format!("DIDX[{f}]: outside DELT"))?;
+            check(end.is_some_and(|e| e <= s.payload.len()), || format!("DIDX[{f}]: outside DELT"))?;
             check(
                 ix.count <= u32::MAX as u64 && (ix.count == 0) == (ix.stored_length == 0) && (f > 0 || ix.count == 0),
                 || format!("DIDX[{f}]: bad count"),

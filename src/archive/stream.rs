@@ -87,7 +87,7 @@ impl Buffers {
     }
 }
 
-fn short(path: &Path, what: &str, e: std::io::Error) -> ArchiveError {
+pub(super) fn short(path: &Path, what: &str, e: std::io::Error) -> ArchiveError {
     let source = if e.kind() == std::io::ErrorKind::UnexpectedEof {
         std::io::Error::new(e.kind(), format!("{what}: the file ended early (truncated while in use?)"))
     } else {

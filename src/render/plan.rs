@@ -191,7 +191,8 @@ pub fn plan(s: &ArchiveSummary, job: &RenderJob, budget: MemoryBudget) -> Result
     // open's read buffer, two windows.
     let ends = s.build.link_end_count;
     let sums = ends.div_ceil(CHUNK_ENDS as u64) * 32;
-    let held = s.held_bytes() + sums + OPEN_BUFFER;
+    // `DELT` stays on disk: one frame's stored bytes at a time.
+    let held = s.held_bytes() + sums + OPEN_BUFFER + s.max_delta_stored;
     let window_bytes = |w: u64| 2 * (w + 2 * CHUNK_ENDS as u64) * WINDOW_BYTES_PER_END;
     let base = with(vec![("archive sections held", held)]);
     let base_total = sum(&base);
