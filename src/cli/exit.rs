@@ -6,7 +6,7 @@
 //! | 1 | failure not covered below |
 //! | 2 | usage: unknown option, missing argument (clap) |
 //! | 3 | bad input: a scene file, an option's value, a frame the archive does not have |
-//! | 4 | corrupt or unsupported archive |
+//! | 4 | corrupt or unsupported archive, or one in an older format (`illumnet upgrade`) |
 //! | 5 | I/O: a file could not be read or written |
 //! | 6 | the job does not fit the memory budget (said before work starts) |
 //! | 7 | the result is not finite, or did not converge (without `--allow-unconverged`) |
@@ -28,7 +28,7 @@ use illumnet::scene::SceneError;
 pub const FAILURE: u8 = 1;
 /// An input (scene, option value, frame) is wrong.
 pub const BAD_INPUT: u8 = 3;
-/// The archive is corrupt or needs a newer reader.
+/// The archive is corrupt, needs a newer reader, or is in an older format.
 pub const CORRUPT_ARCHIVE: u8 = 4;
 /// Reading or writing a file failed.
 pub const IO: u8 = 5;
