@@ -2,7 +2,7 @@
 //! before any of it is read, so that a memory budget can be checked before
 //! work starts (`render --memory-budget`). The estimate counts every
 //! per-patch vector of the distributor, the frame setup, the iteration,
-//! the warm start and the two solutions a sequence keeps (the previous
+//! the warm start and the solutions (a sequence keeps two: the previous
 //! frame's and the current), field by field, and the frame overlays; it is
 //! checked against measured peaks in `tests/budget.rs`.
 
@@ -56,7 +56,10 @@ pub fn state_bytes(s: &StateShape) -> u64 {
     // Glossy: per ray slot three [f32; 4] vectors, rays, linked, incoming
     // scale; the directional radiance of two solutions; the copied ends.
     let glossy = s.nondiffuse_slots * (3 * 16 + 4 + 4 + 12 + 2 * 12) + s.nondiffuse_ends * 12;
-    distributor + setup + iteration + 2 * solution + overlay + glossy
+    // A sequence keeps the previous frame's solution while it solves the
+    // next (warm starts); a still has one frame, one solution.
+    let solutions = if s.sequence { 2 } else { 1 };
+    distributor + setup + iteration + solutions * solution + overlay + glossy
 }
 
 #[cfg(test)]
