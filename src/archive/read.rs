@@ -490,14 +490,11 @@ impl Archive {
         let deltas_on_disk = match entries.iter().find(|e| e.tag == tag::DELTAS) {
             Some(e) => {
                 let mut hasher = xxhash_rust::xxh3::Xxh3::new();
-                let mut buf = vec![0u8; (4usize << 20).min(e.stored_length as usize)];
-                let mut at = 0u64;
-                while at < e.stored_length {
-                    let n = (e.stored_length - at).min(buf.len() as u64) as usize;
-                    stream::read_at(&file, &mut buf[..n], e.offset + at).map_err(|x| stream::short(path, "DELT", x))?;
-                    hasher.update(&buf[..n]);
-                    at += n as u64;
-                }
+                stream::for_each_piece(&file, e.offset, e.stored_length, &mut Vec::new(), |piece| {
+                    hasher.update(piece);
+                    Ok(())
+                })
+                .map_err(|x| stream::short(path, "DELT", x))?;
                 check_digest(e, hasher.digest())?;
                 let file = file.try_clone().map_err(io)?;
                 Some(OnDisk { file, path: path.into(), offset: e.offset, len: e.stored_length })
@@ -835,7 +832,7 @@ fn check_sum(e: &SectionEntry, stored: &[u8]) -> Result<(), ArchiveError> {
 }
 
 /// Verifies a section's checksum against `sum`, its stored bytes' XXH3-64.
-fn check_digest(e: &SectionEntry, sum: u64) -> Result<(), ArchiveError> {
+pub(super) fn check_digest(e: &SectionEntry, sum: u64) -> Result<(), ArchiveError> {
     if sum != e.checksum {
         return Err(bad(format!(
             "section {}: checksum mismatch (stored {:#018x}, computed {sum:#018x})",

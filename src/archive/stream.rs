@@ -358,6 +358,26 @@ impl LinkStream {
     }
 }
 
+/// Calls `f` with the `len` bytes of `file` at `offset`, read in pieces
+/// of up to 4 MiB into `buf` (whole sections larger than memory).
+pub(super) fn for_each_piece(
+    file: &File,
+    offset: u64,
+    len: u64,
+    buf: &mut Vec<u8>,
+    mut f: impl FnMut(&[u8]) -> std::io::Result<()>,
+) -> std::io::Result<()> {
+    const PIECE: u64 = 4 << 20;
+    let mut at = 0u64;
+    while at < len {
+        buf.resize((len - at).min(PIECE) as usize, 0);
+        read_at(file, buf, offset + at)?;
+        f(buf)?;
+        at += buf.len() as u64;
+    }
+    Ok(())
+}
+
 /// Asks the kernel to drop `file`'s clean cached pages (advice: errors
 /// are ignored, and the pages of a file being written stay).
 fn drop_cached(file: &File) {

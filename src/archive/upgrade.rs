@@ -21,14 +21,11 @@ use std::path::Path;
 use xxhash_rust::xxh3::Xxh3;
 
 use super::layout::{self, SectionEntry, WeightEscape, compression, tag};
-use super::read::{read_structure_of, required_v6};
-use super::stream::read_at;
+use super::read::{check_digest, read_structure_of, required_v6};
+use super::stream::for_each_piece;
 use super::write::SectionWriter;
-use super::{Archive, ArchiveError, tag_name, weights};
+use super::{Archive, ArchiveError, weights};
 use crate::scratch;
-
-/// Bytes copied per read.
-const PIECE: usize = 4 << 20;
 
 /// What an upgrade did.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -84,13 +81,13 @@ pub fn upgrade(input: &Path, output: &Path) -> Result<Upgraded, ArchiveError> {
         } else {
             let mut hasher = Xxh3::new();
             w.streamed(e.tag, e.compression, e.stored_length, e.length, e.count, e.record_size, |sink| {
-                for_each_piece(&file, e, &mut buf, |piece| {
+                for_each_piece(&file, e.offset, e.stored_length, &mut buf, |piece| {
                     hasher.update(piece);
                     sink(piece)
                 })
             })
             .map_err(|x| either(x, input, output))?;
-            verify(e, hasher.digest())?;
+            check_digest(e, hasher.digest())?;
         }
         if Some(i) == last_link_column {
             w.column(tag::LINK_ESCAPES, &escapes).map_err(io_out)?;
@@ -133,7 +130,7 @@ fn copy_weights<W: Write + std::io::Seek>(
     let mut first = 0u64;
     let mut bad = None;
     w.streamed(tag::LINK_COUNT, compression::NONE, ends, ends, ends, 1, |sink| {
-        for_each_piece(file, e, buf, |piece| {
+        for_each_piece(file, e.offset, e.stored_length, buf, |piece| {
             hasher.update(piece);
             floats.clear();
             floats.extend(piece.chunks_exact(4).map(|x| f32::from_le_bytes([x[0], x[1], x[2], x[3]])));
@@ -147,42 +144,11 @@ fn copy_weights<W: Write + std::io::Seek>(
         })
     })
     .map_err(|x| ArchiveError::Io { path: input.into(), source: x })?;
-    verify(e, hasher.digest())?;
+    check_digest(e, hasher.digest())?;
     match bad {
         Some(i) => Err(ArchiveError::corrupt(format!("LWGT[{i}]: weight negative or non-finite"))),
         None => Ok(()),
     }
-}
-
-/// Calls `f` with the stored bytes of section `e`, piece by piece (whole
-/// records: pieces are a multiple of 16 bytes).
-fn for_each_piece(
-    file: &File,
-    e: &SectionEntry,
-    buf: &mut Vec<u8>,
-    mut f: impl FnMut(&[u8]) -> std::io::Result<()>,
-) -> std::io::Result<()> {
-    let mut at = 0u64;
-    while at < e.stored_length {
-        let n = (e.stored_length - at).min(PIECE as u64) as usize;
-        buf.resize(n, 0);
-        read_at(file, buf, e.offset + at)?;
-        f(buf)?;
-        at += n as u64;
-    }
-    Ok(())
-}
-
-/// Section `e`'s bytes as read hash to its checksum.
-fn verify(e: &SectionEntry, sum: u64) -> Result<(), ArchiveError> {
-    if sum == e.checksum {
-        return Ok(());
-    }
-    Err(ArchiveError::corrupt(format!(
-        "section {}: checksum mismatch (stored {:#018x}, computed {sum:#018x})",
-        tag_name(e.tag),
-        e.checksum
-    )))
 }
 
 /// An I/O error of the copy: reading `input` or writing `output` (the
