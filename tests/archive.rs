@@ -87,12 +87,12 @@ fn truncated_and_garbage_files_are_errors() {
 #[test]
 fn newer_reader_version_is_refused_with_a_clear_message() {
     let mut bytes = archive::write_to_vec(&small_contents()).unwrap();
-    bytes[8..12].copy_from_slice(&8u32.to_le_bytes()); // version_write
-    bytes[12..16].copy_from_slice(&8u32.to_le_bytes()); // version_read
+    bytes[8..12].copy_from_slice(&9u32.to_le_bytes()); // version_write
+    bytes[12..16].copy_from_slice(&9u32.to_le_bytes()); // version_read
     let sum = xxhash_rust::xxh3::xxh3_64(&bytes[..120]);
     bytes[120..128].copy_from_slice(&sum.to_le_bytes());
     let err = Archive::from_bytes(&bytes).err().unwrap();
-    assert!(matches!(err, ArchiveError::UnsupportedVersion { needs: 8, supports: 7 }), "{err}");
+    assert!(matches!(err, ArchiveError::UnsupportedVersion { needs: 9, supports: 8 }), "{err}");
 }
 
 #[test]
@@ -114,7 +114,7 @@ fn versions_follow_the_compatibility_rule() {
     // before).
     let bytes = archive::write_to_vec(&small_contents()).unwrap();
     let a = Archive::from_bytes(&bytes).unwrap();
-    assert_eq!((a.header().version_write, a.header().version_read), (7, 7));
+    assert_eq!((a.header().version_write, a.header().version_read), (8, 7));
     assert!(a.view().links.has_bucket());
     // Ray-space baseline archives (version_read 2 before version 7).
     let scene = Scene::cornell_box();
@@ -123,7 +123,7 @@ fn versions_follow_the_compatibility_rule() {
     settings.direction_set = illumnet::geodesic::DirectionSetKind::RaySpace;
     let contents = build::build(&scene, &settings, &NoProgress).unwrap().0;
     let a = Archive::from_bytes(&archive::write_to_vec(&contents).unwrap()).unwrap();
-    assert_eq!((a.header().version_write, a.header().version_read), (7, 7));
+    assert_eq!((a.header().version_write, a.header().version_read), (8, 7));
     // f = 4 gives 162 geodesic directions; m = round(√(162/6)) = 5 gives 150.
     assert_eq!(a.view().directions.len(), 6 * 5 * 5);
 }

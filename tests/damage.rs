@@ -263,7 +263,7 @@ fn flipped_zeroed_misdeclared_and_cut_archives_are_errors() {
         for (what, at, value) in [
             ("version_write 0", 8, 0u32),
             ("version_read 0", 12, 0),
-            ("version_read 8", 12, 8),
+            ("version_read 9", 12, 9),
             ("version_write 6", 8, 6),
         ] {
             let mut b = good.clone();

@@ -14,12 +14,23 @@ surface area and --patch-size (illumnet build --patch-size; this script
 writes no [build] table), the link ends roughly patches x ~0.6 x
 directions. Primitives: ~18 per room plus 5 per furniture box.
 
+With --mesh OBJ, every room also holds a copy of that mesh (for example
+scenes/meshes/bunny.obj), --mesh-height metres tall, standing in the
+room's centre turned a different way in each room; --mesh-subdivide L
+cuts each triangle into 4^L first (tools/obj_subdivide.py), and the mesh
+is written next to the output (its triangles count as primitives).
+
 Usage: tools/gen_building.py NX NZ [--furniture K] [--lamp-every N]
-                             [--seed S] -o building.toml
+                             [--mesh OBJ [--mesh-subdivide L]
+                             [--mesh-height H]] [--seed S] -o building.toml
 """
 
 import argparse
+import math
+import os
 import random
+
+import obj_subdivide
 
 
 def quad(p0, p1, p2, p3):
@@ -64,6 +75,9 @@ def main():
     ap.add_argument("--furniture", type=int, default=3)
     ap.add_argument("--lamp-every", type=int, default=3)
     ap.add_argument("--lamp-radiance", type=float, default=30.0)
+    ap.add_argument("--mesh", help="a Wavefront OBJ to stand in every room")
+    ap.add_argument("--mesh-subdivide", type=int, default=0, metavar="L")
+    ap.add_argument("--mesh-height", type=float, default=0.6, metavar="H")
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--size", type=int, nargs=2, default=[320, 240], metavar=("WIDTH", "HEIGHT"))
     ap.add_argument("-o", "--output", required=True)
@@ -161,6 +175,30 @@ reflectance = [0.8, 0.8, 0.8]
         lines.append("quads = [\n  " + ",\n  ".join(fmt(q) for q in quads) + "\n]")
         out.append("\n".join(lines))
 
+    mesh_triangles = 0
+    if a.mesh:
+        verts, faces = obj_subdivide.subdivide(*obj_subdivide.load(a.mesh), a.mesh_subdivide)
+        name = os.path.splitext(os.path.basename(a.output))[0] + ".mesh.obj"
+        obj_subdivide.save(os.path.join(os.path.dirname(os.path.abspath(a.output)), name), verts, faces,
+                           f"{a.mesh} cut {4 ** a.mesh_subdivide} ways (tools/gen_building.py)")
+        lo = [min(v[i] for v in verts) for i in range(3)]
+        hi = [max(v[i] for v in verts) for i in range(3)]
+        scale = a.mesh_height / (hi[1] - lo[1])
+        centre = [(lo[0] + hi[0]) / 2, lo[1], (lo[2] + hi[2]) / 2]
+        for i in range(a.nx):
+            for k in range(a.nz):
+                # Rotation about y keeps the base on the floor: translate
+                # the scaled, turned centre of the base to the room's centre.
+                turn = rnd.uniform(0.0, 360.0)
+                c, s_ = math.cos(math.radians(turn)), math.sin(math.radians(turn))
+                bx, bz = centre[0] * scale, centre[2] * scale
+                rx, rz = c * bx + s_ * bz, -s_ * bx + c * bz
+                tx, tz = i * px + w / 2 - rx, k * pz + d / 2 - rz
+                out.append(f"\n[[surface]]\nname = \"mesh{i * a.nz + k}\"\nmaterial = \"wall\"\nmesh = \"{name}\"\n"
+                           f"transform = {{ scale = [{scale:.6g}, {scale:.6g}, {scale:.6g}], rotate_deg = [0.0, {turn:.2f}, 0.0], "
+                           f"translate = [{tx:.4f}, {-lo[1] * scale + 1e-4:.6f}, {tz:.4f}] }}")
+                mesh_triangles += len(faces)
+
     surface("walls", "wall", walls + jambs)
     surface("floors", "floor", floors)
     surface("ceilings", "wall", ceilings)
@@ -171,7 +209,7 @@ reflectance = [0.8, 0.8, 0.8]
                    f"max = [{hi[0]:.4f}, {hi[1]:.4f}, {hi[2]:.4f}], omit = [\"-y\"] }}")
     with open(a.output, "w") as f:
         f.write("\n".join(out) + "\n")
-    prims = len(walls) + len(jambs) + len(floors) + len(ceilings) + len(lamps) + 5 * len(furniture)
+    prims = len(walls) + len(jambs) + len(floors) + len(ceilings) + len(lamps) + 5 * len(furniture) + mesh_triangles
     area = a.nx * a.nz * (2 * w * d + 2 * (w + d) * h)
     print(f"wrote {a.output}: {a.nx * a.nz} rooms, {prims} primitives, {len(lamps)} lamps, "
           f"about {area:.0f} m2 of walls, floors and ceilings")

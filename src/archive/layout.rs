@@ -1,4 +1,4 @@
-//! On-disk records of the archive format (version 7).
+//! On-disk records of the archive format (version 8).
 //!
 //! Every type here is `#[repr(C)]`, made of little-endian `u32`/`u64`/`f32`
 //! fields with no implicit padding, and is read zero-copy with `bytemuck`
@@ -10,12 +10,16 @@ use bytemuck::{Pod, Zeroable};
 /// File magic, bytes 0..8 (§3).
 pub const MAGIC: [u8; 8] = *b"ILLUMNET";
 /// The format version this code writes (§3, `version_write`).
-pub const VERSION_WRITE: u32 = 7;
-/// `version_read` of every archive this code writes: version 7 stores
-/// link-end weights as one byte (`LCNT`, with `LCNX` for the rest) where
-/// older readers expect `LWGT`, and numbers a quad's patches in tiles
-/// (`PRIM.cell_order`), which they would misplace.
+pub const VERSION_WRITE: u32 = 8;
+/// `version_read` of the archives this code writes without grouped
+/// triangles: version 7 stores link-end weights as one byte (`LCNT`, with
+/// `LCNX` for the rest) where older readers expect `LWGT`, and numbers a
+/// quad's patches in tiles (`PRIM.cell_order`), which they would misplace.
+/// Such a file is a version 7 file in every byte but `version_write`.
 pub const VERSION_READ: u32 = 7;
+/// `version_read` of archives with grouped triangles (`PRIM.kind` 2 and
+/// `TVTX`, since version 8), which version 7 readers refuse.
+pub const VERSION_READ_GROUPED: u32 = 8;
 /// The oldest `version_write` this code reads: files written before
 /// version 7 hold `LWGT` and are rewritten by `illumnet upgrade`
 /// ([`super::upgrade`]).
@@ -27,7 +31,7 @@ pub const UPGRADABLE: u32 = 6;
 /// as blocks of columns, checksummed as stored (§5.13).
 pub const VERSION_DELTA_BLOCKS: u32 = 5;
 /// The highest `version_read` this code can read (§6).
-pub const READER_VERSION: u32 = 7;
+pub const READER_VERSION: u32 = 8;
 /// Header size in bytes (§3).
 pub const HEADER_SIZE: usize = 128;
 /// Section table entry size in bytes (§4).
@@ -112,6 +116,8 @@ pub mod tag {
     pub const PATCH_EXPECTED_HITS: Tag = *b"PEXP";
     /// Vertex positions (§5.8).
     pub const VERTEX_POSITION: Tag = *b"VPOS";
+    /// Corner vertex ids of grouped triangles (§5.8, since version 8).
+    pub const GROUPED_TRIANGLE_VERTICES: Tag = *b"TVTX";
     /// Patch adjacency offsets (§5.9).
     pub const ADJACENCY_OFFSETS: Tag = *b"ADJO";
     /// Patch adjacency ids (§5.9).
@@ -323,7 +329,8 @@ pub struct PrimitiveRecord {
     pub grid_v: u32,
     /// Global id of the first patch.
     pub first_patch: u32,
-    /// Global id of the first vertex.
+    /// Global id of the first vertex; for a grouped triangle, its row in
+    /// `TVTX`.
     pub first_vertex: u32,
     /// How the quad's cells are numbered: [`cell_order::ROWS`] or
     /// [`cell_order::TILES`] (since version 7; triangles: rows).
@@ -332,6 +339,17 @@ pub struct PrimitiveRecord {
     pub reserved: u32,
     /// Corners (m); the fourth equals the third for triangles.
     pub corners: [[f32; 3]; 4],
+}
+
+/// `PRIM.kind` values (§5.5).
+pub mod kind {
+    /// A planar convex quad with its own grid of patches.
+    pub const QUAD: u32 = 0;
+    /// A triangle with its own grid of patches.
+    pub const TRIANGLE: u32 = 1;
+    /// A triangle of a group of small triangles that make one patch
+    /// (since version 8).
+    pub const GROUPED_TRIANGLE: u32 = 2;
 }
 
 /// `PRIM.cell_order` values (§5.5).

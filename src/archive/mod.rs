@@ -85,6 +85,9 @@ pub struct ArchiveContents {
     pub patch_expected_hits: Vec<f32>,
     /// `VPOS`.
     pub vertex_position: Vec<[f32; 3]>,
+    /// `TVTX`: per grouped triangle (`PRIM.kind` 2), its corners' vertex
+    /// ids; empty (and the section left out) when there are none.
+    pub grouped_triangles: Vec<[u32; 3]>,
     /// `ADJO`.
     pub adjacency_offsets: Vec<u32>,
     /// `ADJI`.

@@ -173,6 +173,9 @@ pub struct InetView<'a> {
     pub patch_expected_hits: &'a [f32],
     /// `VPOS`.
     pub vertex_position: &'a [[f32; 3]],
+    /// Corner vertex ids of each grouped triangle (`TVTX`; empty when
+    /// there are none), indexed by the triangle's `first_vertex`.
+    pub grouped_triangles: &'a [[u32; 3]],
     /// `ADJO`.
     pub adjacency_offsets: &'a [u32],
     /// `ADJI`.
@@ -423,7 +426,8 @@ const REQUIRED: [(Tag, u32, u32); 22] = [
 ];
 
 /// Optional sections, when present: tag, record size, compression.
-const OPTIONAL: [(Tag, u32, u32); 15] = [
+const OPTIONAL: [(Tag, u32, u32); 16] = [
+    (tag::GROUPED_TRIANGLE_VERTICES, 12, compression::NONE),
     (tag::PROTOTYPES, size_of::<PrototypeRecord>() as u32, compression::NONE),
     (tag::PROTOTYPE_ROWS, 4, compression::NONE),
     (tag::PROTOTYPE_DIRECTIONS, 4, compression::NONE),
@@ -695,6 +699,10 @@ impl Archive {
             patch_hits: self.column(tag::PATCH_HITS)?,
             patch_expected_hits: self.column(tag::PATCH_EXPECTED_HITS)?,
             vertex_position: self.column(tag::VERTEX_POSITION)?,
+            grouped_triangles: match self.entries.iter().any(|e| e.tag == tag::GROUPED_TRIANGLE_VERTICES) {
+                true => self.column(tag::GROUPED_TRIANGLE_VERTICES)?,
+                false => &[],
+            },
             adjacency_offsets: self.column(tag::ADJACENCY_OFFSETS)?,
             adjacency: self.column(tag::ADJACENCY)?,
             link_offsets: self.column(tag::LINK_OFFSETS)?,
@@ -1106,17 +1114,40 @@ fn validate_contents(v: &InetView<'_>, meta: &ArchiveMeta) -> Result<(), Archive
             || format!("SURF[{i}]: a non-diffuse material needs the reflectance sections"),
         )?;
     }
-    let (mut next_patch, mut next_vertex) = (0u64, 0u64);
+    let (mut next_patch, mut next_vertex, mut next_grouped) = (0u64, 0u64, 0u64);
     for (i, r) in v.primitives.iter().enumerate() {
-        check(r.kind <= 1, || format!("PRIM[{i}]: unknown kind {}", r.kind))?;
+        check(r.kind <= layout::kind::GROUPED_TRIANGLE, || format!("PRIM[{i}]: unknown kind {}", r.kind))?;
         check(
-            (r.cell_order == layout::cell_order::ROWS || (r.kind == 0 && r.cell_order == layout::cell_order::TILES))
+            (r.cell_order == layout::cell_order::ROWS
+                || (r.kind == layout::kind::QUAD && r.cell_order == layout::cell_order::TILES))
                 && r.reserved == 0,
             || format!("PRIM[{i}]: unknown cell order {} for kind {} (or reserved not zero)", r.cell_order, r.kind),
         )?;
         check((r.surface as usize) < v.surfaces.len(), || format!("PRIM[{i}]: surface out of range"))?;
         check(r.corners.iter().all(|c| within(c)), || format!("PRIM[{i}]: corner non-finite or beyond ±1e9 m"))?;
         let (gu, gv) = (r.grid_u as u64, r.grid_v as u64);
+        if r.kind == layout::kind::GROUPED_TRIANGLE {
+            // One cell: a new patch, or the patch of the previous
+            // primitive, a grouped triangle of the same surface.
+            let joins = i > 0 && {
+                let q = &v.primitives[i - 1];
+                q.kind == layout::kind::GROUPED_TRIANGLE && q.surface == r.surface && q.first_patch == r.first_patch
+            };
+            check(
+                gu == 1
+                    && gv == 1
+                    && r.first_vertex as u64 == next_grouped
+                    && (r.first_patch as u64 == next_patch || joins),
+                || {
+                    format!(
+                        "PRIM[{i}]: a grouped triangle must have one cell, its patch new or its predecessor's, and its TVTX row in order"
+                    )
+                },
+            )?;
+            next_patch += u64::from(!joins);
+            next_grouped += 1;
+            continue;
+        }
         check(gu >= 1 && gv >= 1 && gu <= 1 << 16 && gv <= 1 << 16 && (r.kind == 0 || gu == gv), || {
             format!("PRIM[{i}]: bad grid {gu}×{gv}")
         })?;
@@ -1128,9 +1159,19 @@ fn validate_contents(v: &InetView<'_>, meta: &ArchiveMeta) -> Result<(), Archive
         next_patch += cells;
         next_vertex += verts;
     }
-    check(next_patch == p as u64 && next_vertex == nv as u64, || {
-        "PRIM: grids do not cover all patches and vertices".into()
-    })?;
+    // Grouped triangles' corners come after the grids' vertices.
+    check(
+        next_patch == p as u64
+            && next_vertex <= nv as u64
+            && (next_grouped > 0 || next_vertex == nv as u64)
+            && next_grouped == v.grouped_triangles.len() as u64,
+        || "PRIM: grids and grouped triangles do not cover all patches, vertices and TVTX rows".into(),
+    )?;
+    for (i, t) in v.grouped_triangles.iter().enumerate() {
+        check(t.iter().all(|&c| c as u64 >= next_vertex && (c as usize) < nv), || {
+            format!("TVTX[{i}]: a corner is not a vertex after the grids' ({next_vertex}..{nv})")
+        })?;
+    }
     for (i, d) in v.directions.iter().enumerate() {
         check(finite(&d.direction), || format!("DIRS[{i}]: non-finite"))?;
         let len2: f32 = d.direction.iter().map(|x| x * x).sum();

@@ -40,7 +40,7 @@ pub struct Upgraded {
     pub already_current: bool,
 }
 
-/// Rewrites the version 6 archive `input` as a version 7 archive at
+/// Rewrites the version 6 archive `input` in the current format at
 /// `output` (which may be `input`: it is replaced atomically). Fails,
 /// leaving `output` as it was, on a file of another version, a damaged
 /// one, or one whose result does not validate.

@@ -270,6 +270,11 @@ fn write_all<W: Write + Seek>(
         w.column(tag::PATCH_HITS, &c.patch_hits)?;
         w.column(tag::PATCH_EXPECTED_HITS, &c.patch_expected_hits)?;
         w.column(tag::VERTEX_POSITION, &c.vertex_position)?;
+        if !c.grouped_triangles.is_empty() {
+            // Version 7 readers would take kind 2 for a grid of their own.
+            w.version_read = w.version_read.max(layout::VERSION_READ_GROUPED);
+            w.column(tag::GROUPED_TRIANGLE_VERTICES, &c.grouped_triangles)?;
+        }
         w.column(tag::ADJACENCY_OFFSETS, &c.adjacency_offsets)?;
         w.column(tag::ADJACENCY, &c.adjacency)?;
         w.column(tag::LINK_OFFSETS, &c.link_offsets)?;

@@ -398,7 +398,7 @@ fn build_impl(
         DirectionSetKind::Geodesic => DirectionSet::new(settings.frequency)?,
         DirectionSetKind::RaySpace => crate::geodesic::ray_space(ray_space_divisions(settings.frequency))?,
     };
-    let instances = instances(scene);
+    let mut instances = instances(scene);
     // Motion is applied after parsing checked the base geometry: check again.
     for inst in &instances {
         for p in &inst.primitives {
@@ -418,6 +418,20 @@ fn build_impl(
                     crate::limits::MAX_COORDINATE
                 )));
             }
+        }
+    }
+    // Small triangles of still, diffuse surfaces become patches of several
+    // (patch::mesh), their instance's primitives reordered group by group.
+    let mut triangle_group = Vec::new();
+    for inst in &mut instances {
+        let surface = &scene.surfaces[inst.surface as usize];
+        let diffuse = matches!(scene.materials[surface.material as usize].model, ReflectanceModel::Diffuse { .. });
+        if settings.group_triangles && surface.motion.is_none() && diffuse {
+            let g = crate::patch::mesh::group_triangles(&inst.primitives, settings.patch_size);
+            inst.primitives = g.order.iter().map(|&i| inst.primitives[i as usize]).collect();
+            triangle_group.extend_from_slice(&g.group);
+        } else {
+            triangle_group.extend(std::iter::repeat_n(crate::patch::mesh::UNGROUPED, inst.primitives.len()));
         }
     }
     let mut prims: Vec<Primitive> = Vec::new();
@@ -441,7 +455,8 @@ fn build_impl(
         .enumerate()
         .flat_map(|(i, inst)| std::iter::repeat_n(i as u32, inst.primitives.len()))
         .collect();
-    let patches = Patches::new(&prims, &prim_instance, settings.patch_size, settings.cell_order)?;
+    let patches =
+        Patches::with_groups(&prims, &prim_instance, &triangle_group, settings.patch_size, settings.cell_order)?;
     if let Some(p) = patches.area.iter().position(|&a| a > crate::limits::MAX_PATCH_AREA) {
         return Err(format!(
             "patch {p} has an area of {:e} m², above the {:e} an archive holds: use a smaller --patch-size",
@@ -570,8 +585,18 @@ fn build_impl(
                 .sum()
         })
         .collect();
-    let expected: Vec<f32> =
-        (0..patches.len()).map(|i| (patches.area[i] as f64 * coverage[patches.primitive[i] as usize]) as f32).collect();
+    // A grouped patch sums its triangles', each with its own normal.
+    let mut expected = vec![0.0f64; patches.len()];
+    for (pi, pp) in patches.primitives.iter().enumerate() {
+        if pp.grouped() {
+            expected[pp.first_patch as usize] += prims[pi].area() as f64 * coverage[pi];
+        } else {
+            for p in pp.first_patch..pp.first_patch + pp.grid.cell_count() {
+                expected[p as usize] += patches.area[p as usize] as f64 * coverage[pi];
+            }
+        }
+    }
+    let expected: Vec<f32> = expected.into_iter().map(|e| e as f32).collect();
 
     let mut surfaces = Vec::with_capacity(scene.surfaces.len());
     let mut first = 0u32;
@@ -613,7 +638,7 @@ fn build_impl(
         .zip(&patches.primitives)
         .zip(&prim_surface)
         .map(|((p, pp), &s)| PrimitiveRecord {
-            kind: p.kind as u32,
+            kind: if pp.grouped() { layout::kind::GROUPED_TRIANGLE } else { p.kind as u32 },
             surface: s,
             grid_u: pp.grid.n_u,
             grid_v: pp.grid.n_v,
@@ -684,6 +709,7 @@ fn build_impl(
         patch_hits: traced_hits,
         patch_expected_hits: expected,
         vertex_position: patches.vertex_position,
+        grouped_triangles: patches.mesh_triangles,
         adjacency_offsets: patches.adjacency_offsets,
         adjacency: patches.adjacency,
         link_offsets: table.offsets,
@@ -702,7 +728,7 @@ fn build_impl(
     };
     let mut patch_identity = Vec::with_capacity(prims.len());
     for (pi, pp) in seq_primitives.iter().enumerate() {
-        for cell in 0..pp.grid.cell_count() {
+        for cell in 0..pp.owned_patches() {
             patch_identity.push((prim_surface[pi], (sort_key[pi] & 0xffff_ffff) as u32, cell));
         }
     }

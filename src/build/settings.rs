@@ -31,6 +31,9 @@ pub struct BuildSettings {
     /// How a quad's patches are numbered: tiles (default), or rows as
     /// archives before version 7 (for comparisons).
     pub cell_order: crate::geometry::grid::CellOrder,
+    /// Whether small triangles of still, diffuse surfaces are grouped into
+    /// patches of several (`patch::mesh`; default), or each keeps its own.
+    pub group_triangles: bool,
 }
 
 /// Widest bucket supported (the archive's limit).
@@ -102,6 +105,7 @@ impl BuildSettings {
             map_method: crate::reflectance::MapMethod::default(),
             table_threshold: crate::reflectance::prototype::DEFAULT_THRESHOLD,
             cell_order: crate::patch::DEFAULT_CELL_ORDER,
+            group_triangles: true,
         }
     }
 

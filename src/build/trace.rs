@@ -421,7 +421,11 @@ impl Walk<'_> {
                 }
             }
             // A link: the previous hit faces down the ray, this one faces back.
-            if let (Some((prev_patch, pt, _, true, pcos)), false) = (prev, forward) {
+            // (Two triangles of one grouped patch can face each other at
+            // grazing incidence; light a patch sends itself is no link.)
+            if let (Some((prev_patch, pt, _, true, pcos)), false) = (prev, forward)
+                && prev_patch != patch
+            {
                 // Buckets: each end's footprint from its own incidence.
                 let r = h.t - pt;
                 let area = &self.patches.area;

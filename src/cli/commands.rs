@@ -31,6 +31,7 @@ fn build_scene(scene: &Scene, output: &Path, args: &BuildArgs, progress: &dyn Pr
     if args.ray_space {
         settings.direction_set = DirectionSetKind::RaySpace;
     }
+    settings.group_triangles = !args.no_grouping;
     if args.no_prototype_library {
         settings.prototype_library = None;
     } else if let Some(dir) = &args.prototype_library {
@@ -881,7 +882,7 @@ pub fn upgrade(input: &Path, output: &Path) -> Result<()> {
     let started = Instant::now();
     let done = archive::upgrade::upgrade(input, output)?;
     if done.already_current {
-        println!("{} is in format version {} already: nothing to do", input.display(), archive::layout::VERSION_WRITE);
+        println!("{} is in a current format (version 7 or later) already: nothing to do", input.display());
         return Ok(());
     }
     println!(

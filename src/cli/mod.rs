@@ -61,6 +61,11 @@ struct BuildArgs {
     /// geodesic set, with about as many directions as --frequency gives.
     #[arg(long)]
     ray_space: bool,
+    /// Give every triangle of a mesh its own patch (or grid of patches)
+    /// instead of grouping triangles smaller than the patch size into
+    /// patches of several (for comparison: docs/MESHES.md).
+    #[arg(long)]
+    no_grouping: bool,
     /// Turn a planar surface about its normal by DEG degrees before building
     /// (repeatable), e.g. `--turn plate=45` for the brushed plate.
     #[arg(long, value_name = "SURFACE=DEG")]

@@ -11,8 +11,11 @@
 //! edge overlaps another's over a positive length; it never crosses a crease,
 //! where spreading light would be wrong.
 
+pub mod mesh;
+
 use crate::geometry::grid::{CellOrder, NO_VERTEX, PatchGrid};
 use glam::Vec3;
+use mesh::UNGROUPED;
 
 use crate::geometry::{Primitive, PrimitiveKind};
 
@@ -32,8 +35,40 @@ pub struct PrimitivePatches {
     pub grid: PatchGrid,
     /// Global id of its first patch.
     pub first_patch: u32,
-    /// Global id of its first grid vertex.
+    /// Global id of its first grid vertex; for a grouped triangle, its
+    /// row in [`Patches::mesh_triangles`].
     pub first_vertex: u32,
+    /// Whether it keeps its own grid or is a triangle of a group.
+    pub role: PatchRole,
+}
+
+/// How a primitive's patches are made.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PatchRole {
+    /// Its own grid of cells, each a patch.
+    Grid,
+    /// A small triangle that starts a patch of several (`mesh`): its one
+    /// cell is the patch `first_patch`.
+    Opens,
+    /// A small triangle of the patch the previous primitive belongs to.
+    Joins,
+}
+
+impl PrimitivePatches {
+    /// Whether it is a triangle of a group (the archive's kind 2).
+    pub fn grouped(&self) -> bool {
+        self.role != PatchRole::Grid
+    }
+
+    /// Patches it adds: its cells, one for a group's first triangle, none
+    /// for the others.
+    pub fn owned_patches(&self) -> u32 {
+        match self.role {
+            PatchRole::Grid => self.grid.cell_count(),
+            PatchRole::Opens => 1,
+            PatchRole::Joins => 0,
+        }
+    }
 }
 
 /// All patches of a scene, as columns.
@@ -52,13 +87,20 @@ pub struct Patches {
     /// Global vertex ids of the corners, counter-clockwise; `u32::MAX` marks
     /// the unused fourth corner of a triangular patch.
     pub corners: Vec<[u32; 4]>,
-    /// Vertex positions (m).
+    /// Vertex positions (m): the grids' vertices, then the corners of the
+    /// grouped triangles (shared by the triangles of one mesh).
     pub vertex_position: Vec<[f32; 3]>,
+    /// Per grouped triangle, in primitive order: its corners' vertex ids.
+    pub mesh_triangles: Vec<[u32; 3]>,
     /// CSR offsets into [`Self::adjacency`], one per patch plus one.
     pub adjacency_offsets: Vec<u32>,
     /// Edge-adjacent patches of each patch, ascending.
     pub adjacency: Vec<u32>,
 }
+
+/// The vertices at one point of a mesh, one per side of a crease: the
+/// normal of the group that made each, and its id.
+type CreaseSides = Vec<(Vec3, u32)>;
 
 /// Cells along an edge of length `len` for a target size.
 fn cells(len: f32, size: f32) -> u32 {
@@ -138,7 +180,8 @@ fn coplanar_neighbours(prims: &[Primitive], group_of: &[u32], patches: &Patches)
         })
         .collect();
     let key = |i: usize| span[i];
-    let mut order: Vec<usize> = (0..n).collect();
+    // Grouped triangles meet their neighbours through their mesh's edges.
+    let mut order: Vec<usize> = (0..n).filter(|&i| !patches.primitives[i].grouped()).collect();
     order.sort_by(|&a, &b| group_of[a].cmp(&group_of[b]).then(key(a).0.total_cmp(&key(b).0)));
     let mut pairs = Vec::new();
     let mut active: Vec<usize> = Vec::new();
@@ -199,7 +242,31 @@ impl Patches {
     /// `group_of` value (the same surface, or the same temporal instance).
     /// Quads' cells are numbered in `order`.
     pub fn new(primitives: &[Primitive], group_of: &[u32], size: f32, order: CellOrder) -> Result<Self, String> {
-        let grids: Vec<PatchGrid> = primitives.iter().map(|p| grid_for(p, size, order)).collect();
+        Self::with_groups(primitives, group_of, &vec![UNGROUPED; primitives.len()], size, order)
+    }
+
+    /// As [`Self::new`], with small triangles grouped into patches:
+    /// `triangle_group[i]` is primitive i's group ([`mesh::group_triangles`],
+    /// numbered apart per instance) or [`UNGROUPED`]. A group's triangles
+    /// are consecutive primitives of one `group_of`; each group is one
+    /// patch, and its triangles' corners are vertices shared across the
+    /// mesh, welded by position within a `group_of`.
+    pub fn with_groups(
+        primitives: &[Primitive],
+        group_of: &[u32],
+        triangle_group: &[u32],
+        size: f32,
+        order: CellOrder,
+    ) -> Result<Self, String> {
+        let grouped = |i: usize| triangle_group[i] != UNGROUPED;
+        let grids: Vec<PatchGrid> = primitives
+            .iter()
+            .enumerate()
+            .map(|(i, p)| match grouped(i) {
+                true => PatchGrid { kind: p.kind, n_u: 1, n_v: 1, order: CellOrder::Rows },
+                false => grid_for(p, size, order),
+            })
+            .collect();
         // Per-axis cell counts saturate at u32::MAX; bound them before any u32 product.
         if let Some(g) = grids.iter().find(|g| g.n_u > MAX_GRID || g.n_v > MAX_GRID) {
             return Err(format!(
@@ -207,16 +274,41 @@ impl Patches {
                 g.n_u, g.n_v
             ));
         }
-        let total: u64 = grids.iter().map(|g| g.cell_count() as u64).sum();
+        let total: u64 =
+            grids.iter().enumerate().filter(|(i, _)| !grouped(*i)).map(|(_, g)| g.cell_count() as u64).sum();
         if total > MAX_PATCHES {
             return Err(format!("patch size {size} m gives {total} patches, more than the {MAX_PATCHES} supported"));
         }
         let mut out = Patches::default();
         let mut nb = Vec::new();
+        // Grouped triangles' corners, welded per `group_of`, numbered after the grids' vertices.
+        let mut mesh_vertex: std::collections::HashMap<(u32, [u32; 3]), CreaseSides> = Default::default();
+        let mut mesh_position: Vec<[f32; 3]> = Vec::new();
         for (pi, (prim, grid)) in primitives.iter().zip(&grids).enumerate() {
+            if grouped(pi) {
+                let joins = pi > 0 && triangle_group[pi - 1] == triangle_group[pi] && group_of[pi - 1] == group_of[pi];
+                let role = if joins { PatchRole::Joins } else { PatchRole::Opens };
+                if role == PatchRole::Opens {
+                    // Shape filled in below, from all the group's triangles.
+                    out.centre.push([0.0; 3]);
+                    out.normal.push([0.0; 3]);
+                    out.area.push(0.0);
+                    out.primitive.push(pi as u32);
+                    out.corners.push([NO_VERTEX; 4]);
+                }
+                out.primitives.push(PrimitivePatches {
+                    grid: *grid,
+                    first_patch: out.area.len() as u32 - 1,
+                    first_vertex: out.mesh_triangles.len() as u32,
+                    role,
+                });
+                // Corners welded below, once the groups' normals are known.
+                out.mesh_triangles.push([NO_VERTEX; 3]);
+                continue;
+            }
             let first_patch = out.area.len() as u32;
             let first_vertex = out.vertex_position.len() as u32;
-            out.primitives.push(PrimitivePatches { grid: *grid, first_patch, first_vertex });
+            out.primitives.push(PrimitivePatches { grid: *grid, first_patch, first_vertex, role: PatchRole::Grid });
             for v in 0..grid.vertex_count() {
                 out.vertex_position.push(prim.point(grid.vertex_uv(v)).to_array());
             }
@@ -240,15 +332,56 @@ impl Patches {
                 out.corners.push(local.map(|c| if c == NO_VERTEX { NO_VERTEX } else { first_vertex + c }));
             }
         }
-        // Adjacency: within each grid, then across coplanar primitive edges.
+        let mut pi = 0;
+        while pi < primitives.len() {
+            let pp = out.primitives[pi];
+            let end = pi + 1 + out.primitives[pi + 1..].iter().take_while(|q| q.role == PatchRole::Joins).count();
+            if pp.role == PatchRole::Opens {
+                let (c, n, a) = mesh::group_shape(primitives[pi..end].iter().copied());
+                let p = pp.first_patch as usize;
+                (out.centre[p], out.normal[p], out.area[p]) = (c.to_array(), n.to_array(), a);
+            }
+            pi = end;
+        }
+        // Grouped triangles' corners: one vertex per point of a mesh and
+        // side of a crease, numbered after the grids' vertices. Triangles
+        // share a corner's vertex when their groups' normals are within
+        // 45° of the group that made it, so light is interpolated across
+        // the mesh but never round a fold (the two faces of an ear).
+        let grid_vertices = out.vertex_position.len() as u32;
+        for (pi, pp) in out.primitives.iter().enumerate().filter(|(_, pp)| pp.grouped()) {
+            let n = Vec3::from(out.normal[pp.first_patch as usize]);
+            out.mesh_triangles[pp.first_vertex as usize] = [0, 1, 2].map(|k| {
+                let p = primitives[pi].p[k];
+                let side = mesh_vertex.entry((group_of[pi], mesh::position_key(p))).or_default();
+                match side.iter().find(|(m, _)| m.dot(n) >= mesh::ADJACENT_COS) {
+                    Some(&(_, id)) => id,
+                    None => {
+                        let id = grid_vertices + mesh_position.len() as u32;
+                        mesh_position.push(p.to_array());
+                        side.push((n, id));
+                        id
+                    }
+                }
+            });
+        }
+        out.vertex_position.extend_from_slice(&mesh_position);
+        // Adjacency: within each grid, across coplanar primitive edges, and
+        // across the edges groups share where they do not fold.
         let mut lists: Vec<Vec<u32>> = Vec::with_capacity(out.len());
-        for pp in &out.primitives {
+        for pp in out.primitives.iter().filter(|pp| !pp.grouped()) {
             for cell in 0..pp.grid.cell_count() {
                 pp.grid.cell_neighbours(cell, &mut nb);
+                lists.resize(pp.first_patch as usize + cell as usize, Vec::new());
                 lists.push(nb.iter().map(|&c| pp.first_patch + c).collect());
             }
         }
+        lists.resize(out.len(), Vec::new());
         for (a, b) in coplanar_neighbours(primitives, group_of, &out) {
+            lists[a as usize].push(b);
+            lists[b as usize].push(a);
+        }
+        for (a, b) in out.group_neighbours() {
             lists[a as usize].push(b);
             lists[b as usize].push(a);
         }
@@ -260,6 +393,34 @@ impl Patches {
             out.adjacency_offsets.push(out.adjacency.len() as u32);
         }
         Ok(out)
+    }
+
+    /// Pairs of groups whose triangles share an edge and whose normals
+    /// differ by less than 45° ([`mesh::ADJACENT_COS`]).
+    fn group_neighbours(&self) -> Vec<(u32, u32)> {
+        let mut edges: Vec<(u64, u32)> = Vec::new();
+        for pp in self.primitives.iter().filter(|pp| pp.grouped()) {
+            let c = self.mesh_triangles[pp.first_vertex as usize];
+            for k in 0..3 {
+                let (a, b) = (c[k].min(c[(k + 1) % 3]), c[k].max(c[(k + 1) % 3]));
+                edges.push((((a as u64) << 32) | b as u64, pp.first_patch));
+            }
+        }
+        edges.sort_unstable();
+        edges.dedup();
+        let mut pairs = Vec::new();
+        for run in edges.chunk_by(|a, b| a.0 == b.0) {
+            for (x, &(_, a)) in run.iter().enumerate() {
+                for &(_, b) in &run[x + 1..] {
+                    if Vec3::from(self.normal[a as usize]).dot(Vec3::from(self.normal[b as usize]))
+                        >= mesh::ADJACENT_COS
+                    {
+                        pairs.push((a, b));
+                    }
+                }
+            }
+        }
+        pairs
     }
 
     /// Number of patches.

@@ -22,7 +22,7 @@ pub use direct::DirectLight;
 pub use view::{frame_radiance, indirect_frame_radiance, radiance_seen_from};
 
 use crate::archive::InetView;
-use crate::archive::layout::{PrimitiveRecord, cell_order};
+use crate::archive::layout::{self, PrimitiveRecord, cell_order};
 use crate::geometry::accel::PrimitiveBvh;
 use crate::geometry::grid::{CellOrder, NO_VERTEX, PatchGrid};
 use crate::geometry::{Primitive, PrimitiveKind};
@@ -73,9 +73,10 @@ impl Default for RenderOptions {
     }
 }
 
-/// Radiance at every patch vertex: area-weighted mean of adjacent patches.
+/// Radiance at every patch vertex: area-weighted mean of adjacent patches
+/// (for a grouped patch, of its triangles around the vertex).
 pub fn vertex_radiance(v: &InetView<'_>, patch_radiance: &[[f32; 3]]) -> Vec<[f32; 3]> {
-    vertex_mean(v, patch_radiance, |p| v.patch_area[p] as f64)
+    vertex_mean(v, patch_radiance, |_| 1.0)
 }
 
 /// Radiance at every patch vertex, weighted by the area of each adjacent
@@ -86,15 +87,15 @@ pub fn vertex_radiance(v: &InetView<'_>, patch_radiance: &[[f32; 3]]) -> Vec<[f3
 pub fn vertex_radiance_seen(v: &InetView<'_>, patch_radiance: &[[f32; 3]]) -> Vec<[f32; 3]> {
     vertex_mean(v, patch_radiance, |p| {
         let expected = v.patch_expected_hits[p] as f64;
-        let seen = if expected > 0.0 { (v.patch_hits[p] as f64 / expected).min(1.0) } else { 1.0 };
-        v.patch_area[p] as f64 * seen
+        if expected > 0.0 { (v.patch_hits[p] as f64 / expected).min(1.0) } else { 1.0 }
     })
 }
 
-fn vertex_mean(v: &InetView<'_>, patch_radiance: &[[f32; 3]], weight: impl Fn(usize) -> f64) -> Vec<[f32; 3]> {
+/// Mean of the patches' radiance at each vertex, weighted by the area
+/// each patch (or grouped triangle) has at it times `seen(patch)`.
+fn vertex_mean(v: &InetView<'_>, patch_radiance: &[[f32; 3]], seen: impl Fn(usize) -> f64) -> Vec<[f32; 3]> {
     let mut sum = vec![[0.0f64; 4]; v.vertex_position.len()];
-    for (p, corners) in v.patch_corners.iter().enumerate() {
-        let a = weight(p);
+    let mut add = |corners: &[u32], p: usize, a: f64| {
         for &c in corners.iter().filter(|&&c| c != NO_VERTEX) {
             let s = &mut sum[c as usize];
             for k in 0..3 {
@@ -102,8 +103,60 @@ fn vertex_mean(v: &InetView<'_>, patch_radiance: &[[f32; 3]], weight: impl Fn(us
             }
             s[3] += a;
         }
+    };
+    // Grouped patches have no corners of their own (PCOR is all NO_VERTEX).
+    for (p, corners) in v.patch_corners.iter().enumerate() {
+        add(corners, p, v.patch_area[p] as f64 * seen(p));
     }
+    grouped_vertex_mean(v, patch_radiance, &seen, &mut sum);
     sum.iter().map(|s| if s[3] > 0.0 { [0, 1, 2].map(|k| (s[k] / s[3]) as f32) } else { [0.0; 3] }).collect()
+}
+
+/// The vertices of grouped triangles (§5.8 of the format): a smooth field
+/// over the mesh, not one flat value per group. Each vertex takes the
+/// groups its triangles belong to and their neighbours (`ADJI`: groups
+/// sharing an edge without a fold), weighted by `A_g·seen(g)/(d² + A_g/4)`,
+/// `d` the distance to the group's centre: close to a group's own light
+/// at its centre, blending into its neighbours' towards its edges.
+fn grouped_vertex_mean(
+    v: &InetView<'_>,
+    patch_radiance: &[[f32; 3]],
+    seen: &dyn Fn(usize) -> f64,
+    sum: &mut [[f64; 4]],
+) {
+    let grouped = |q: u32| v.primitives[v.patch_primitive[q as usize] as usize].kind == layout::kind::GROUPED_TRIANGLE;
+    let mut incident: Vec<(u32, u32)> = v
+        .primitives
+        .iter()
+        .filter(|r| r.kind == layout::kind::GROUPED_TRIANGLE)
+        .flat_map(|r| v.grouped_triangles[r.first_vertex as usize].map(|c| (c, r.first_patch)))
+        .collect();
+    incident.sort_unstable();
+    incident.dedup();
+    let mut near: Vec<u32> = Vec::new();
+    for run in incident.chunk_by(|a, b| a.0 == b.0) {
+        let vertex = run[0].0 as usize;
+        near.clear();
+        for &(_, g) in run {
+            near.push(g);
+            let (a, b) = (v.adjacency_offsets[g as usize] as usize, v.adjacency_offsets[g as usize + 1] as usize);
+            near.extend(v.adjacency[a..b].iter().copied().filter(|&q| grouped(q)));
+        }
+        near.sort_unstable();
+        near.dedup();
+        let x = Vec3::from(v.vertex_position[vertex]).as_dvec3();
+        let s = &mut sum[vertex];
+        for &g in &near {
+            let g = g as usize;
+            let area = v.patch_area[g] as f64;
+            let d2 = (Vec3::from(v.patch_centre[g]).as_dvec3() - x).length_squared();
+            let w = area * seen(g) / (d2 + 0.25 * area);
+            for k in 0..3 {
+                s[k] += w * patch_radiance[g][k] as f64;
+            }
+            s[3] += w;
+        }
+    }
 }
 
 fn primitive_of(r: &PrimitiveRecord) -> (Primitive, PatchGrid) {
@@ -396,12 +449,17 @@ impl<'a> Renderer<'a> {
                 return SampleHit { t: hit.hit.t, primitive: pi as u32, ..NO_HIT };
             }
             let loc = self.grids[pi].locate(hit.hit.uv);
-            let first_vertex = v.primitives[pi].first_vertex;
+            let record = &v.primitives[pi];
+            // A grouped triangle's one cell has local corners 0, 1, 2: its TVTX row.
+            let vertex = |c: u32| match record.kind == layout::kind::GROUPED_TRIANGLE {
+                true => v.grouped_triangles[record.first_vertex as usize][c as usize],
+                false => record.first_vertex + c,
+            };
             let mut vertices = [NO_VERTEX; 4];
             let mut weights = [0.0; 4];
             for k in 0..4 {
                 if loc.corners[k] != NO_VERTEX && loc.weights[k] != 0.0 {
-                    vertices[k] = first_vertex + loc.corners[k];
+                    vertices[k] = vertex(loc.corners[k]);
                     weights[k] = loc.weights[k];
                 }
             }

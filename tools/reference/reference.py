@@ -52,6 +52,45 @@ def _quad(value, what):
     return [_vec3(p, f"{what} vertex {i}") for i, p in enumerate(value)]
 
 
+def _load_obj(path, what):
+    """Vertices and triangles of a Wavefront OBJ (`v` and `f` lines; polygons
+    as fans from their first corner, as illumnet's loader triangulates)."""
+    verts, faces = [], []
+    try:
+        lines = open(path).read().splitlines()
+    except OSError as e:
+        raise SceneError(f"{what}: cannot read {path}: {e}")
+    for line in lines:
+        parts = line.split()
+        if not parts:
+            continue
+        if parts[0] == "v":
+            verts.append([float(x) for x in parts[1:4]])
+        elif parts[0] == "f":
+            idx = [int(c.split("/")[0]) for c in parts[1:]]
+            idx = [i - 1 if i > 0 else len(verts) + i for i in idx]
+            faces.extend([idx[0], idx[k], idx[k + 1]] for k in range(1, len(idx) - 1))
+    if not faces:
+        raise SceneError(f"{what}: {path} has no faces")
+    return np.asarray(verts, dtype=np.float64), np.asarray(faces, dtype=np.int64)
+
+
+def _transform(verts, faces, t, what):
+    """`p' = translate + Rz·Ry·Rx·(scale ⊙ p)` (format-spec/scene.md); a
+    mirroring scale reverses the winding so fronts stay on the same side."""
+    scale = np.asarray(_vec3(t.get("scale", [1, 1, 1]), f"{what}.scale"))
+    rx, ry, rz = np.radians(_vec3(t.get("rotate_deg", [0, 0, 0]), f"{what}.rotate_deg"))
+    translate = np.asarray(_vec3(t.get("translate", [0, 0, 0]), f"{what}.translate"))
+    cx, sx, cy, sy, cz, sz = np.cos(rx), np.sin(rx), np.cos(ry), np.sin(ry), np.cos(rz), np.sin(rz)
+    r_x = np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]])
+    r_y = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
+    r_z = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
+    verts = (verts * scale) @ (r_z @ r_y @ r_x).T + translate
+    if np.prod(scale) < 0:
+        faces = faces[:, ::-1]
+    return verts, faces
+
+
 def load_scene(path):
     """Parse the TOML scene into a plain description (dicts and lists)."""
     with open(path, "rb") as f:
@@ -105,7 +144,8 @@ def load_scene(path):
         materials[name] = mat
 
     surfaces = []
-    known_geometry = ("quad", "quads")
+    known_geometry = ("quad", "quads", "mesh")
+    base = os.path.dirname(os.path.abspath(path))
     for s in doc.get("surface", []):
         name = s.get("name", f"surface#{len(surfaces)}")
         mat = s.get("material")
@@ -114,23 +154,30 @@ def load_scene(path):
         if mat not in materials:
             raise SceneError(f"surface '{name}': unknown material '{mat}'")
         geo = [k for k in known_geometry if k in s]
-        others = [k for k in s if k not in ("name", "material", "emission", "grain") + known_geometry]
+        others = [k for k in s if k not in ("name", "material", "emission", "grain", "transform") + known_geometry]
         if others:
             raise SceneError(
                 f"surface '{name}': unsupported key(s) {others} "
-                "(the reference tool supports only 'quad' and 'quads' geometry)")
+                "(the reference tool supports 'quad', 'quads' and 'mesh' geometry with a 'transform')")
         if len(geo) != 1:
-            raise SceneError(f"surface '{name}' needs exactly one of 'quad' or 'quads'")
-        if geo[0] == "quad":
-            quads = [_quad(s["quad"], f"surface '{name}'.quad")]
+            raise SceneError(f"surface '{name}' needs exactly one of 'quad', 'quads' or 'mesh'")
+        if geo[0] == "mesh":
+            verts, faces = _load_obj(os.path.join(base, s["mesh"]), f"surface '{name}'.mesh")
         else:
-            if not isinstance(s["quads"], list) or not s["quads"]:
-                raise SceneError(f"surface '{name}'.quads must be a non-empty list")
-            quads = [_quad(q, f"surface '{name}'.quads[{i}]") for i, q in enumerate(s["quads"])]
+            if geo[0] == "quad":
+                quads = [_quad(s["quad"], f"surface '{name}'.quad")]
+            else:
+                if not isinstance(s["quads"], list) or not s["quads"]:
+                    raise SceneError(f"surface '{name}'.quads must be a non-empty list")
+                quads = [_quad(q, f"surface '{name}'.quads[{i}]") for i, q in enumerate(s["quads"])]
+            verts = np.asarray(quads, dtype=np.float64).reshape(-1, 3)
+            # Each quad as the triangles (v0, v1, v2), (v0, v2, v3).
+            faces = np.asarray([[4 * q + i for i in t] for q in range(len(quads)) for t in ((0, 1, 2), (0, 2, 3))])
+        verts, faces = _transform(verts, faces, s.get("transform", {}), f"surface '{name}'.transform")
         emission = None
         if "emission" in s:
             emission = _vec3(s["emission"], f"surface '{name}'.emission")
-        surfaces.append({"name": name, "material": mat, "quads": quads, "emission": emission})
+        surfaces.append({"name": name, "material": mat, "verts": verts, "faces": faces, "emission": emission})
 
     if not surfaces:
         raise SceneError("scene has no [[surface]]")
@@ -142,15 +189,8 @@ def load_scene(path):
 # --------------------------------------------------------------------------
 
 def _make_mesh(mi, dr, surf, bsdf):
-    quads = np.asarray(surf["quads"], dtype=np.float64)  # (n, 4, 3)
-    n = quads.shape[0]
-    verts = quads.reshape(-1, 3).astype(np.float32)
-    faces = []
-    for q in range(n):
-        b = 4 * q
-        faces.append([b, b + 1, b + 2])  # (v0, v1, v2)
-        faces.append([b, b + 2, b + 3])  # (v0, v2, v3)
-    faces = np.asarray(faces, dtype=np.uint32)
+    verts = np.asarray(surf["verts"], dtype=np.float32)
+    faces = np.asarray(surf["faces"], dtype=np.uint32)
 
     props = mi.Properties()
     props["bsdf"] = bsdf
