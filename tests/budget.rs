@@ -159,3 +159,52 @@ fn a_build_budget_too_small_is_refused_before_tracing() {
     assert!(stderr.contains("the build needs at least"), "{stderr}");
     assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0, "nothing is written");
 }
+
+#[test]
+fn a_scene_of_many_primitives_is_refused_before_its_patches_are_cut() {
+    // A floor of 204 800 small triangles needs about 120 MB for its
+    // primitives and BVH before any link: refused under 64M at once, and
+    // built under 256M within it.
+    let dir = tempfile::tempdir().unwrap();
+    let n = 320;
+    let mut obj = String::new();
+    for j in 0..=n {
+        for i in 0..=n {
+            obj += &format!("v {} 0 {}\n", i as f32 / n as f32, j as f32 / n as f32);
+        }
+    }
+    let at = |i: u32, j: u32| j * (n + 1) + i + 1;
+    for j in 0..n {
+        for i in 0..n {
+            obj += &format!(
+                "f {} {} {}\nf {} {} {}\n",
+                at(i, j),
+                at(i, j + 1),
+                at(i + 1, j + 1),
+                at(i, j),
+                at(i + 1, j + 1),
+                at(i + 1, j)
+            );
+        }
+    }
+    std::fs::write(dir.path().join("floor.obj"), obj).unwrap();
+    let scene = dir.path().join("floor.toml");
+    std::fs::write(
+        &scene,
+        "[camera]\nposition = [0.5, 1.5, -1.0]\nlook_at = [0.5, 0.0, 0.5]\nfov_y_deg = 50\nwidth = 32\nheight = 32\n\
+         [[material]]\nname = 'grey'\ntype = 'diffuse'\nreflectance = [0.5, 0.5, 0.5]\n\
+         [[surface]]\nname = 'lamp'\nmaterial = 'grey'\nemission = [1, 1, 1]\n\
+         quad = [[0, 1, 0], [1, 1, 0], [1, 1, 1], [0, 1, 1]]\n\
+         [[surface]]\nname = 'floor'\nmaterial = 'grey'\nmesh = 'floor.obj'\n",
+    )
+    .unwrap();
+    let (s, a) = (scene.to_str().unwrap(), dir.path().join("floor.inet"));
+    let out = illumnet(&["build", s, "-q", "-o", a.to_str().unwrap(), "--frequency", "4", "--memory-budget", "64M"]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(6), "{stderr}");
+    assert!(stderr.contains("the build needs at least") && stderr.contains("primitives and BVH"), "{stderr}");
+    assert!(!a.exists(), "nothing is written");
+    let out = ok(&["build", s, "-q", "-o", a.to_str().unwrap(), "--frequency", "4", "--memory-budget", "256M"]);
+    eprintln!("{out}");
+    assert!(peak(&out) <= (256 << 20) + UNCOUNTED, "{out}");
+}

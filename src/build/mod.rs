@@ -20,6 +20,8 @@ mod trace;
 
 use std::time::Instant;
 
+use rayon::prelude::*;
+
 pub use settings::{BuildSettings, DEFAULT_MAX_BUCKET, MAX_BUCKET, Quality, ray_space_divisions};
 pub use spill::SpilledLinks;
 pub use trace::BundleStats;
@@ -370,6 +372,23 @@ pub fn build_sequence_with_links(
     build_impl(scene, settings, true, None, progress).map(|(s, _)| s).map_err(|e| e.to_string())
 }
 
+/// Resident bytes a build holds per primitive before tracing: the scene's
+/// copy, its instances' and the build's columns, the patches' per-primitive
+/// records, a grouped mesh's shared vertices and welding map, and their
+/// peaks while being made. Measured with a building of 18 rooms holding
+/// 4.2·10⁶ triangles of meshes (tools/gen_building.py --mesh,
+/// docs/PERFORMANCE.md): 386 bytes at its peak before tracing.
+const SETUP_BYTES_PER_PRIMITIVE: u64 = 400;
+
+/// Resident bytes per primitive of the BVH while it is built (the same
+/// building: 185 bytes above the setup's resident bytes) and of the
+/// per-primitive normals tracing keeps.
+const BVH_BYTES_PER_PRIMITIVE: u64 = 200;
+
+/// Links held while tracing, at least; the merge's buffers (after
+/// tracing, in the tracers' place) fit in as much.
+const LEAST_LINKS: u64 = 16 << 20;
+
 /// Resident bytes a build needs whatever its links: per patch (geometry,
 /// adjacency, hit counts and each tracer's counts), per vertex and per
 /// primitive (with the BVH), each tracer's scratch, the non-diffuse hit
@@ -379,7 +398,7 @@ fn fixed_build_bytes(patches: &Patches, prims: usize, nd_patches: usize, pairs: 
     let p = patches.len() as u64;
     vec![
         ("patches", p * (12 + 12 + 4 + 4 + 16 + 16 + 8 + 4 + 4) + patches.vertex_position.len() as u64 * 12),
-        ("primitives and BVH", prims as u64 * 400),
+        ("primitives and BVH", prims as u64 * (SETUP_BYTES_PER_PRIMITIVE + BVH_BYTES_PER_PRIMITIVE)),
         ("tracers' scratch", threads * (p * 4 + (4 << 20))),
         ("non-diffuse hit counts", (nd_patches * pairs) as u64 * 8),
     ]
@@ -420,9 +439,23 @@ fn build_impl(
             }
         }
     }
+    // Under a budget, a scene of many primitives is refused before its
+    // patches are cut (they are counted again, with the patches, below).
+    if let Some(b) = bound.filter(|_| !keep_links) {
+        let n: u64 = instances.iter().map(|i| i.primitives.len() as u64).sum();
+        let threads = rayon::current_num_threads() as u64;
+        let parts = vec![
+            ("primitives and BVH", n * (SETUP_BYTES_PER_PRIMITIVE + BVH_BYTES_PER_PRIMITIVE)),
+            ("tracers' scratch", threads * (4 << 20)),
+            ("links", LEAST_LINKS),
+        ];
+        if b.budget < parts.iter().map(|p| p.1).sum() {
+            return Err(BuildError::OverBudget { budget: b.budget, parts });
+        }
+    }
     // Small triangles of still, diffuse surfaces become patches of several
     // (patch::mesh), their instance's primitives reordered group by group.
-    let mut triangle_group = Vec::new();
+    let mut triangle_group = Vec::with_capacity(instances.iter().map(|i| i.primitives.len()).sum());
     for inst in &mut instances {
         let surface = &scene.surfaces[inst.surface as usize];
         let diffuse = matches!(scene.materials[surface.material as usize].model, ReflectanceModel::Diffuse { .. });
@@ -434,11 +467,14 @@ fn build_impl(
             triangle_group.extend(std::iter::repeat_n(crate::patch::mesh::UNGROUPED, inst.primitives.len()));
         }
     }
-    let mut prims: Vec<Primitive> = Vec::new();
-    let mut prim_grain = Vec::new();
-    let mut prim_surface = Vec::new();
-    let mut active = Vec::new();
-    let mut sort_key = Vec::new();
+    // Columns of exactly the primitives' count: a mesh of 10⁶ triangles
+    // must not hold twice its columns while they grow.
+    let n_prims: usize = instances.iter().map(|i| i.primitives.len()).sum();
+    let mut prims: Vec<Primitive> = Vec::with_capacity(n_prims);
+    let mut prim_grain = Vec::with_capacity(n_prims);
+    let mut prim_surface = Vec::with_capacity(n_prims);
+    let mut active = Vec::with_capacity(n_prims);
+    let mut sort_key = Vec::with_capacity(n_prims);
     for inst in &instances {
         for (i, p) in inst.primitives.iter().enumerate() {
             prims.push(*p);
@@ -480,9 +516,6 @@ fn build_impl(
             let nd = nd_index.iter().filter(|&&i| i != u32::MAX).count();
             let mut parts = fixed_build_bytes(&patches, prims.len(), nd, dirs.len() / 2);
             let fixed: u64 = parts.iter().map(|p| p.1).sum();
-            // Links held while tracing, at least; the merge's buffers
-            // (after tracing, in the tracers' place) fit in as much.
-            const LEAST_LINKS: u64 = 16 << 20;
             if b.budget < fixed + LEAST_LINKS {
                 parts.push(("links", LEAST_LINKS));
                 return Err(BuildError::OverBudget { budget: b.budget, parts });
@@ -575,7 +608,7 @@ fn build_impl(
     let densities: Vec<f64> =
         (0..dirs.len() as u32 / 2).map(|k| trace::layout(&dirs, settings.ray_spacing, k).density).collect();
     let coverage: Vec<f64> = prims
-        .iter()
+        .par_iter()
         .map(|p| {
             let n = p.normal().as_dvec3();
             densities

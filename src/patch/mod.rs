@@ -98,10 +98,6 @@ pub struct Patches {
     pub adjacency: Vec<u32>,
 }
 
-/// The vertices at one point of a mesh, one per side of a crease: the
-/// normal of the group that made each, and its id.
-type CreaseSides = Vec<(Vec3, u32)>;
-
 /// Cells along an edge of length `len` for a target size.
 fn cells(len: f32, size: f32) -> u32 {
     ((len / size).round() as u32).max(1)
@@ -159,36 +155,38 @@ fn boundary_edges(prim: &Primitive, pp: &PrimitivePatches) -> Vec<(u32, Vec3, Ve
 /// comparing every pair cost n²/2 (hours at 10⁶). (Many primitives that
 /// share the axis's extent, a wall of tiles seen edge-on, still meet.)
 fn coplanar_neighbours(prims: &[Primitive], group_of: &[u32], patches: &Patches) -> Vec<(u32, u32)> {
-    let n = prims.len();
-    let bounds: Vec<(Vec3, Vec3)> = prims.iter().map(Primitive::bounds).collect();
+    // Grouped triangles meet their neighbours through their mesh's edges.
+    let cand: Vec<u32> = (0..prims.len() as u32).filter(|&i| !patches.primitives[i as usize].grouped()).collect();
+    let bounds: Vec<(Vec3, Vec3)> = cand.iter().map(|&i| prims[i as usize].bounds()).collect();
+    let group = |c: usize| group_of[cand[c] as usize];
     let size = |b: &(Vec3, Vec3)| (b.1 - b.0).length();
     // The largest slack any pair's test below allows, for the sweep.
     let slack = 1e-5 * bounds.iter().map(size).fold(0.0f32, f32::max);
     // Per group, the axis its primitives spread along most.
     let mut extent: std::collections::BTreeMap<u32, (Vec3, Vec3)> = std::collections::BTreeMap::new();
-    for (g, b) in group_of.iter().zip(&bounds) {
-        let e = extent.entry(*g).or_insert(*b);
+    for (c, b) in bounds.iter().enumerate() {
+        let e = extent.entry(group(c)).or_insert(*b);
         *e = (e.0.min(b.0), e.1.max(b.1));
     }
     let axis: std::collections::BTreeMap<u32, usize> =
         extent.iter().map(|(&g, (lo, hi))| (g, (*hi - *lo).max_position())).collect();
-    // Each primitive's extent along its group's axis.
-    let span: Vec<(f32, f32)> = (0..n)
-        .map(|i| {
-            let k = axis[&group_of[i]];
-            (bounds[i].0[k], bounds[i].1[k])
+    // Each candidate's extent along its group's axis.
+    let span: Vec<(f32, f32)> = (0..cand.len())
+        .map(|c| {
+            let k = axis[&group(c)];
+            (bounds[c].0[k], bounds[c].1[k])
         })
         .collect();
-    let key = |i: usize| span[i];
-    // Grouped triangles meet their neighbours through their mesh's edges.
-    let mut order: Vec<usize> = (0..n).filter(|&i| !patches.primitives[i].grouped()).collect();
-    order.sort_by(|&a, &b| group_of[a].cmp(&group_of[b]).then(key(a).0.total_cmp(&key(b).0)));
+    let mut order: Vec<usize> = (0..cand.len()).collect();
+    order.sort_by(|&a, &b| group(a).cmp(&group(b)).then(span[a].0.total_cmp(&span[b].0)));
     let mut pairs = Vec::new();
     let mut active: Vec<usize> = Vec::new();
     for &k in &order {
-        active.retain(|&j| group_of[j] == group_of[k] && key(j).1 + slack >= key(k).0);
+        active.retain(|&j| group(j) == group(k) && span[j].1 + slack >= span[k].0);
         for &m in &active {
-            touching(prims, &bounds, patches, k.min(m), k.max(m), &mut pairs);
+            let (a, b) = (k.min(m), k.max(m));
+            let (i, j) = (cand[a] as usize, cand[b] as usize);
+            touching(prims, (bounds[a], bounds[b]), patches, i, j, &mut pairs);
         }
         active.push(k);
     }
@@ -199,7 +197,7 @@ fn coplanar_neighbours(prims: &[Primitive], group_of: &[u32], patches: &Patches)
 /// whose boundary edges overlap, when the two are coplanar and touch.
 fn touching(
     prims: &[Primitive],
-    bounds: &[(Vec3, Vec3)],
+    (bound_i, bound_j): ((Vec3, Vec3), (Vec3, Vec3)),
     patches: &Patches,
     i: usize,
     j: usize,
@@ -208,8 +206,8 @@ fn touching(
     let size = |b: &(Vec3, Vec3)| (b.1 - b.0).length();
     let (pi, pj) = (&prims[i], &prims[j]);
     let (ni, nj) = (pi.normal(), pj.normal());
-    let ((lo_i, hi_i), (lo_j, hi_j)) = (bounds[i], bounds[j]);
-    let eps = 1e-5 * size(&bounds[i]).max(size(&bounds[j]));
+    let ((lo_i, hi_i), (lo_j, hi_j)) = (bound_i, bound_j);
+    let eps = 1e-5 * size(&bound_i).max(size(&bound_j));
     if lo_i.cmpgt(hi_j + eps).any() || lo_j.cmpgt(hi_i + eps).any() {
         return; // too far apart to touch
     }
@@ -282,7 +280,7 @@ impl Patches {
         let mut out = Patches::default();
         let mut nb = Vec::new();
         // Grouped triangles' corners, welded per `group_of`, numbered after the grids' vertices.
-        let mut mesh_vertex: std::collections::HashMap<(u32, [u32; 3]), CreaseSides> = Default::default();
+        let mut point_vertex: std::collections::HashMap<[u32; 3], u32> = Default::default();
         let mut mesh_position: Vec<[f32; 3]> = Vec::new();
         for (pi, (prim, grid)) in primitives.iter().zip(&grids).enumerate() {
             if grouped(pi) {
@@ -348,21 +346,38 @@ impl Patches {
         // share a corner's vertex when their groups' normals are within
         // 45° of the group that made it, so light is interpolated across
         // the mesh but never round a fold (the two faces of an ear).
+        // Per point, its first vertex; per vertex, the normal of the group
+        // that made it and the next vertex at the same point (a chain, one
+        // link per side of a crease). Points are welded within an
+        // instance, whose grouped triangles are consecutive, so the map
+        // holds one mesh at a time.
         let grid_vertices = out.vertex_position.len() as u32;
+        let mut side_normal: Vec<Vec3> = Vec::new();
+        let mut side_next: Vec<u32> = Vec::new();
+        let mut instance = u32::MAX;
         for (pi, pp) in out.primitives.iter().enumerate().filter(|(_, pp)| pp.grouped()) {
+            if group_of[pi] != instance {
+                instance = group_of[pi];
+                point_vertex.clear();
+            }
             let n = Vec3::from(out.normal[pp.first_patch as usize]);
             out.mesh_triangles[pp.first_vertex as usize] = [0, 1, 2].map(|k| {
                 let p = primitives[pi].p[k];
-                let side = mesh_vertex.entry((group_of[pi], mesh::position_key(p))).or_default();
-                match side.iter().find(|(m, _)| m.dot(n) >= mesh::ADJACENT_COS) {
-                    Some(&(_, id)) => id,
-                    None => {
-                        let id = grid_vertices + mesh_position.len() as u32;
-                        mesh_position.push(p.to_array());
-                        side.push((n, id));
-                        id
+                let new = mesh_position.len() as u32;
+                let mut at = *point_vertex.entry(mesh::position_key(p)).or_insert(new);
+                while at != new {
+                    if side_normal[at as usize].dot(n) >= mesh::ADJACENT_COS {
+                        return grid_vertices + at;
                     }
+                    if side_next[at as usize] == NO_VERTEX {
+                        side_next[at as usize] = new;
+                    }
+                    at = side_next[at as usize];
                 }
+                mesh_position.push(p.to_array());
+                side_normal.push(n);
+                side_next.push(NO_VERTEX);
+                grid_vertices + new
             });
         }
         out.vertex_position.extend_from_slice(&mesh_position);
@@ -398,24 +413,27 @@ impl Patches {
     /// Pairs of groups whose triangles share an edge and whose normals
     /// differ by less than 45° ([`mesh::ADJACENT_COS`]).
     fn group_neighbours(&self) -> Vec<(u32, u32)> {
-        let mut edges: Vec<(u64, u32)> = Vec::new();
-        for pp in self.primitives.iter().filter(|pp| pp.grouped()) {
-            let c = self.mesh_triangles[pp.first_vertex as usize];
-            for k in 0..3 {
-                let (a, b) = (c[k].min(c[(k + 1) % 3]), c[k].max(c[(k + 1) % 3]));
-                edges.push((((a as u64) << 32) | b as u64, pp.first_patch));
-            }
-        }
-        edges.sort_unstable();
-        edges.dedup();
         let mut pairs = Vec::new();
-        for run in edges.chunk_by(|a, b| a.0 == b.0) {
-            for (x, &(_, a)) in run.iter().enumerate() {
-                for &(_, b) in &run[x + 1..] {
-                    if Vec3::from(self.normal[a as usize]).dot(Vec3::from(self.normal[b as usize]))
-                        >= mesh::ADJACENT_COS
-                    {
-                        pairs.push((a, b));
+        let mut edges: Vec<(u64, u32)> = Vec::new();
+        // A mesh's grouped triangles are consecutive: one run at a time.
+        for run in self.primitives.chunk_by(|a, b| a.grouped() == b.grouped()).filter(|r| r[0].grouped()) {
+            edges.clear();
+            for pp in run {
+                let c = self.mesh_triangles[pp.first_vertex as usize];
+                for k in 0..3 {
+                    let (a, b) = (c[k].min(c[(k + 1) % 3]), c[k].max(c[(k + 1) % 3]));
+                    edges.push((((a as u64) << 32) | b as u64, pp.first_patch));
+                }
+            }
+            edges.sort_unstable();
+            edges.dedup();
+            for shared in edges.chunk_by(|a, b| a.0 == b.0) {
+                for (x, &(_, a)) in shared.iter().enumerate() {
+                    for &(_, b) in &shared[x + 1..] {
+                        let (na, nb) = (Vec3::from(self.normal[a as usize]), Vec3::from(self.normal[b as usize]));
+                        if na.dot(nb) >= mesh::ADJACENT_COS {
+                            pairs.push((a, b));
+                        }
                     }
                 }
             }
@@ -503,7 +521,7 @@ mod tests {
         for i in 0..prims.len() {
             for j in i + 1..prims.len() {
                 if group[i] == group[j] {
-                    touching(&prims, &bounds, &patches, i, j, &mut every);
+                    touching(&prims, (bounds[i], bounds[j]), &patches, i, j, &mut every);
                 }
             }
         }
