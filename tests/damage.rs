@@ -1,4 +1,4 @@
-//! The damage matrix (issue 14): a still, a glossy and a sequence archive,
+//! The damage matrix (issue 14): a still, a glossy, a sequence and a mesh archive,
 //! every section in turn flipped, zeroed, given a wrong length, cut at
 //! every section boundary, and forged with hostile values under valid
 //! checksums; each case must be a clear error or give finite light and a
@@ -83,7 +83,39 @@ fn archives() -> Vec<(&'static str, ArchiveContents)> {
         ("still", with_escapes(contents(ROOM))),
         ("glossy", contents(&format!("{ROOM}{GLOSSY}"))),
         ("sequence", contents(&format!("{ROOM}{MOVING}"))),
+        ("mesh", mesh_contents()),
     ]
+}
+
+/// The room with a bumpy mesh of 128 small triangles on its floor,
+/// grouped into patches of several (`PRIM.kind` 2, `TVTX`).
+fn mesh_contents() -> ArchiveContents {
+    let dir = tempfile::tempdir().unwrap();
+    let n = 8;
+    let mut obj = String::new();
+    for j in 0..=n {
+        for i in 0..=n {
+            let (x, z) = (0.5 + i as f32 / n as f32, 0.5 + j as f32 / n as f32);
+            obj += &format!("v {x} {} {z}\n", 0.05 + 0.03 * (7.0 * x).sin() * (5.0 * z).cos());
+        }
+    }
+    let at = |i: u32, j: u32| j * (n + 1) + i + 1;
+    for j in 0..n {
+        for i in 0..n {
+            obj += &format!("f {} {} {}\n", at(i, j), at(i, j + 1), at(i + 1, j + 1));
+            obj += &format!("f {} {} {}\n", at(i, j), at(i + 1, j + 1), at(i + 1, j));
+        }
+    }
+    std::fs::write(dir.path().join("bumps.obj"), obj).unwrap();
+    let text = format!("{ROOM}\n[[surface]]\nname = \"bumps\"\nmaterial = \"grey\"\nmesh = \"bumps.obj\"\n");
+    let scene = Scene::from_toml(&text, &dir.path().join("damage.toml"), dir.path()).unwrap();
+    let mut settings = BuildSettings::resolve(&scene, hints());
+    settings.prototype_library = None;
+    let c = build::build_sequence(&scene, &settings, &NoProgress).unwrap().contents;
+    let mut groups: Vec<u32> = c.primitives.iter().filter(|r| r.kind == 2).map(|r| r.first_patch).collect();
+    groups.dedup();
+    assert!(c.grouped_triangles.len() == 128 && groups.len() < 64, "{} groups", groups.len());
+    c
 }
 
 /// `c` with every 97th link-end weight lowered by a half: weights that are
