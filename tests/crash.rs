@@ -152,3 +152,56 @@ fn a_large_render_says_what_it_will_cost_before_it_starts() {
         "{first}"
     );
 }
+
+#[test]
+fn a_really_full_filesystem_is_one_clear_error_that_leaves_nothing_behind() {
+    // A 16 MiB tmpfs mounted in a private mount namespace (root, or an
+    // unprivileged user namespace where the kernel allows one): the build
+    // of the default Cornell box (140 MB), the same under a budget that
+    // spills runs, and a render whose EXR does not fit all fail with one
+    // "No space left on device" each and leave no file behind. Where no
+    // filesystem can be mounted (a container without the privilege), the
+    // test says so and checks nothing: `a_full_disk_is_one_clear_error_…`
+    // covers the same code paths with a file-size limit everywhere.
+    let bin = env!("CARGO_BIN_EXE_illumnet");
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/cornell_box.toml");
+    let dir = tempfile::tempdir().unwrap();
+    let (small, mnt) = (dir.path().join("small.inet"), dir.path().join("mnt"));
+    std::fs::create_dir(&mnt).unwrap();
+    let built =
+        illumnet(&["build", "-q", scene.to_str().unwrap(), "-o", small.to_str().unwrap(), "--frequency", "4"], None);
+    assert!(built.status.success());
+    let script = format!(
+        "mount -t tmpfs -o size=16m tmpfs {m} || exit 99\n\
+         {bin} build -q {s} -o {m}/box.inet >/dev/null; echo \"build=$?\"; ls -A {m}\n\
+         {bin} build -q {s} -o {m}/box.inet --memory-budget 40M >/dev/null; echo \"bounded=$?\"; ls -A {m}\n\
+         head -c 16500000 /dev/zero > {m}/fill\n\
+         {bin} render -q {a} -o {m}/x.png --exr {m}/x.exr >/dev/null; echo \"render=$?\"; ls -A {m}\n",
+        m = mnt.display(),
+        s = scene.display(),
+        a = small.display(),
+    );
+    let root = unsafe { libc::geteuid() } == 0;
+    let mut c = Command::new("unshare");
+    c.args(if root { vec!["--mount"] } else { vec!["--mount", "--map-root-user"] }).args(["sh", "-c", &script]);
+    let Ok(o) = c.output() else {
+        eprintln!("skipped: no `unshare` here");
+        return;
+    };
+    if o.status.code() == Some(99) || (!o.status.success() && o.stdout.is_empty()) {
+        eprintln!("skipped: cannot mount a filesystem here ({})", String::from_utf8_lossy(&o.stderr).trim());
+        return;
+    }
+    let (stdout, stderr) = (String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr));
+    eprintln!("{stdout}{stderr}");
+    let lines: Vec<&str> = stdout.lines().collect();
+    // Each command's exit line is followed by what the mount holds.
+    assert_eq!(lines.first(), Some(&"build=5"), "{stdout}{stderr}");
+    assert_eq!(lines.get(1), Some(&"bounded=5"), "nothing left after the build: {stdout}");
+    assert_eq!(lines.get(2), Some(&"render=5"), "nothing left after the bounded build: {stdout}");
+    // The PNG fitted; the EXR did not and left no temporary.
+    assert_eq!(&lines[3..], ["fill", "x.png"], "{stdout}");
+    assert_eq!(stderr.matches("No space left on device").count(), 3, "{stderr}");
+    assert!(stderr.contains("cannot write") && stderr.contains("x.exr"), "{stderr}");
+    assert!(stderr.contains("cannot spill link ends"), "{stderr}");
+}

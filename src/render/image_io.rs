@@ -22,14 +22,22 @@ fn save_atomic(
         Some(p) if !p.as_os_str().is_empty() => p,
         _ => Path::new("."),
     };
-    let err = |e: &dyn std::fmt::Display| format!("{}: {e}", path.display());
+    let err = |e: &dyn std::fmt::Display| format!("cannot write {}: {e}", path.display());
     // `-o out/frame_%04d.png` into a directory that does not exist yet.
     std::fs::create_dir_all(dir).map_err(|e| format!("cannot create directory {}: {e}", dir.display()))?;
     let _ = crate::scratch::remove_stale(path);
     let mut tmp = crate::scratch::temp_file(path).map_err(|e| err(&e))?;
     {
         let mut w = BufWriter::new(tmp.as_file_mut());
-        write(&mut w).map_err(|e| err(&e))?;
+        // The encoders' own wording hides the cause ("Format error decoding
+        // OpenExr" for a full disk): report the innermost error.
+        write(&mut w).map_err(|e| {
+            let mut cause: &dyn std::error::Error = &e;
+            while let Some(inner) = cause.source() {
+                cause = inner;
+            }
+            err(&cause)
+        })?;
         use std::io::Write;
         w.flush().map_err(|e| err(&e))?;
     }
