@@ -274,6 +274,17 @@ fn grouped_triangles_round_trip_and_forgeries_are_refused() {
     let opened =
         prims.windows(2).filter(|w| w[1].kind == kind::GROUPED_TRIANGLE && w[1].first_patch != w[0].first_patch);
     assert!(opened.count() >= 8, "groups of several triangles");
+    // `inspect` counts a group's triangles as one patch.
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("floor.inet");
+    std::fs::write(&path, &good).unwrap();
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_illumnet"))
+        .args(["inspect", "--json", path.to_str().unwrap()])
+        .output()
+        .unwrap();
+    let json: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let floor_patches = patch_surface(&v).iter().filter(|&&s| s == 1).count() as u64;
+    assert_eq!(json["surface_details"][1]["patches"].as_u64(), Some(floor_patches), "{json}");
     let entry = |t: [u8; 4]| *a.sections().iter().find(|e| e.tag == t).unwrap();
     let (prim, tvtx) = (entry(tag::PRIMITIVES), entry(tag::GROUPED_TRIANGLE_VERTICES));
     let record = std::mem::size_of::<PrimitiveRecord>();

@@ -110,13 +110,32 @@ def memory_rate():
 
 
 def render(archive, budget, log, extra):
-    text, wall = run([BIN, "render", "-q", archive, "-o", archive + ".png", "--shading", "inet", "--samples", "1",
-                      "--memory-budget", budget, "--tolerance", "1e-4"] + extra, log)
+    """One render's distribution: budget None for the default budget (an
+    archive that fits it is mapped whole)."""
+    limit = ["--memory-budget", budget] if budget else []
+    tolerance = [] if "--tolerance" in extra else ["--tolerance", "1e-4"]
+    text, wall = run([BIN, "render", "-q", archive, "-o", archive + ".png", "--shading", "inet", "--samples", "1"]
+                     + tolerance + limit + extra, log)
     it = number(r"distribution [0-9.]+ s \((\d+) iterations", text, int)
     dist = number(r"distribution ([0-9.]+) s", text)
     rate = number(r"(\d+) M link ends/s", text)
+    gather = number(r"gather (\d+) M ends/s", text)
     return {"iterations": it, "distribution_s": dist, "per_iteration_s": dist / it if it else None,
-            "ends_per_s": rate * 1e6 if rate else None, "peak_mib": peak_mib(text), "wall_s": wall}
+            "ends_per_s": rate * 1e6 if rate else None, "gather_ends_per_s": gather * 1e6 if gather else None,
+            "peak_mib": peak_mib(text), "wall_s": wall,
+            "streamed": "streamed in windows" in text}
+
+
+def baseline(work, log):
+    """The default Cornell box's gather rate in this run, mapped whole and
+    streamed under 48M, with enough iterations (tolerance 1e-9, no
+    acceleration) that start-up does not dominate its 0.05 s distribution."""
+    archive = os.path.join(work, "cornell_box.inet")
+    run([BIN, "build", "-q", os.path.join(ROOT, "scenes", "cornell_box.toml"), "-o", archive], log)
+    deep = ["--tolerance", "1e-9", "--max-iterations", "200", "--anderson", "0"]
+    out = {"mapped": render(archive, None, log, deep), "streamed": render(archive, "48M", log, deep)}
+    os.remove(archive)
+    return out
 
 
 def main():
@@ -137,6 +156,11 @@ def main():
     subprocess.run(["cargo", "build", "--release", "--quiet"], cwd=ROOT, check=True)
     mem = memory_rate()
     print(f"machine: {os.cpu_count()} cores; sequential memory read {mem or float('nan'):.1f} GB/s (numpy sum, 1 thread)")
+    base = baseline(a.dir, log)
+    bm, bs = base["mapped"]["ends_per_s"], base["streamed"]["ends_per_s"]
+    gm, gs = base["mapped"]["gather_ends_per_s"], base["streamed"]["gather_ends_per_s"]
+    print(f"baseline: default Cornell box {bm / 1e6:.0f} M ends/s mapped (gather {gm / 1e6:.0f}), "
+          f"{bs / 1e6:.0f} M ends/s streamed under 48M (gather {gs / 1e6:.0f})")
     results = []
     for i in [int(x) for x in a.rungs.split(",")]:
         name, (nx, nz), furniture, f, patch, rays, ends, build_budget, render_budget = RUNGS[i - 1]
@@ -172,6 +196,9 @@ def main():
         r["cached_read_gbs"] = read_rate(archive)
         r["render_budget"] = render_budget
         r["cached"] = render(archive, render_budget, log, [])
+        # Mapped whole when it fits the default budget (the machine's RAM).
+        r["mapped"] = render(archive, None, log, [])
+        r["baseline"] = base
         r["evicted"] = render(archive, render_budget, log, ["--evict-each-pass"])
         if a.threads1 and i == max(int(x) for x in a.rungs.split(",")):
             r["one_thread"] = render(archive, render_budget, log, ["--threads", "1"])
@@ -186,7 +213,11 @@ def main():
               f"budget {build_budget}); cached {c['per_iteration_s']:.3f} s/iteration, "
               f"{c['ends_per_s'] / 1e6:.0f} M ends/s ({c['hot_gbs']:.1f} GB/s), peak {c['peak_mib']:.0f} MiB; "
               f"evicted {e['per_iteration_s']:.3f} s/iteration ({e['hot_gbs']:.2f} GB/s of the stream, "
-              f"disk {disk:.2f} GB/s)", flush=True)
+              f"disk {disk:.2f} GB/s); default budget: {r['mapped']['ends_per_s'] / 1e6:.0f} M ends/s "
+              f"({'streamed' if r['mapped']['streamed'] else 'mapped'}); against the Cornell box: "
+              f"{c['ends_per_s'] / bs:.2f}x streamed, {r['mapped']['ends_per_s'] / bm:.2f}x mapped; gathers alone "
+              f"{c['gather_ends_per_s'] / 1e6:.0f} and {r['mapped']['gather_ends_per_s'] / 1e6:.0f} M ends/s: "
+              f"{c['gather_ends_per_s'] / gs:.2f}x and {r['mapped']['gather_ends_per_s'] / gm:.2f}x", flush=True)
         with open(os.path.join(a.dir, "ladder.jsonl"), "a") as fjs:
             fjs.write(json.dumps(r) + "\n")
         if not a.keep:

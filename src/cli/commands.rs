@@ -586,7 +586,7 @@ pub fn render(
     }
     let c = view.camera;
     println!(
-        "rendered {} frame{} to {}{}: {}×{}, open {:.3} s, setup {:.3} s, delta apply {:.3} s, distribution {:.3} s ({} iterations, {:.0} M link ends/s), render {:.3} s{}",
+        "rendered {} frame{} to {}{}: {}×{}, open {:.3} s, setup {:.3} s, delta apply {:.3} s, distribution {:.3} s ({} iterations, {:.0} M link ends/s; gather {:.0} M ends/s), render {:.3} s{}",
         range.len(),
         if range.len() == 1 { "" } else { "s" },
         png.display(),
@@ -599,6 +599,10 @@ pub fn render(
         t_dist - t_delta,
         iterations,
         ends / (t_dist - t_delta).max(1e-9) / 1e6,
+        {
+            let (seconds, gathered) = distributor.gather_totals();
+            gathered as f64 / seconds.max(1e-9) / 1e6
+        },
         t_render,
         memory::peak_resident().map(|b| format!(", peak memory {}", Bytes(b))).unwrap_or_default()
     );
@@ -609,7 +613,17 @@ pub fn render(
 /// power (π·L·area per channel, W).
 fn surface_summary(v: &archive::InetView<'_>, sf: &archive::layout::SurfaceRecord) -> (u64, f64, [f64; 3]) {
     let prims = &v.primitives[sf.first_primitive as usize..][..sf.primitive_count as usize];
-    let patches: u64 = prims.iter().map(|p| (p.grid_u as u64) * (p.grid_v as u64)).sum();
+    // A group of grouped triangles (consecutive, one patch) counts once.
+    let patches: u64 = prims
+        .iter()
+        .enumerate()
+        .map(|(i, p)| match p.kind {
+            archive::layout::kind::GROUPED_TRIANGLE => {
+                u64::from(i == 0 || prims[i - 1].kind != p.kind || prims[i - 1].first_patch != p.first_patch)
+            }
+            _ => (p.grid_u as u64) * (p.grid_v as u64),
+        })
+        .sum();
     let area: f64 = prims
         .iter()
         .map(|p| {

@@ -302,6 +302,11 @@ pub struct Distributor<'a> {
     leaving: Vec<(u32, u32)>,
     /// Their frame 0 link ends.
     leaving_rows: LinkRows<'a>,
+    /// Time spent in the gathers over frame 0's links (ns), and the ends
+    /// they read: the gather's own throughput, apart from the per-patch
+    /// work of an iteration (measurement only; nothing depends on it).
+    gather_ns: std::sync::atomic::AtomicU64,
+    gather_ends: std::sync::atomic::AtomicU64,
 }
 
 impl<'a> Distributor<'a> {
@@ -408,7 +413,18 @@ impl<'a> Distributor<'a> {
             nd,
             leaving,
             leaving_rows,
+            gather_ns: Default::default(),
+            gather_ends: Default::default(),
         })
+    }
+
+    /// Seconds spent in the gathers over frame 0's link ends and the ends
+    /// they read, over every frame so far: the gather's throughput, apart
+    /// from the per-patch work of each iteration (which grows with
+    /// patches, not links).
+    pub fn gather_totals(&self) -> (f64, u64) {
+        use std::sync::atomic::Ordering::Relaxed;
+        (self.gather_ns.load(Relaxed) as f64 * 1e-9, self.gather_ends.load(Relaxed))
     }
 
     /// Distributes light for `frame` (0 for a still), warm-started from

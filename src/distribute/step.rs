@@ -268,7 +268,13 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
         let (d, s, nb) = (self.d, self.s, self.d.nb);
         let v = &d.v;
         let present = s.absent_mask();
+        let started = std::time::Instant::now();
         self.gather_base(present)?;
+        {
+            use std::sync::atomic::Ordering::Relaxed;
+            d.gather_ns.fetch_add(started.elapsed().as_nanos() as u64, Relaxed);
+            d.gather_ends.fetch_add(v.link_end_count() as u64, Relaxed);
+        }
         let nd_phi = d.nd.as_ref().zip(self.glossy.as_ref()).map(|(x, g)| (x, &g.phi[..]));
         if let Some(o) = &s.overlay {
             add_ends(&o.gather, nb, &self.shoot, 1.0, nd_phi, &mut self.recv);
