@@ -25,6 +25,7 @@ pub mod presence;
 mod read;
 mod stream;
 pub mod upgrade;
+pub mod verify;
 pub mod weights;
 mod write;
 

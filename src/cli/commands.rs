@@ -892,6 +892,62 @@ pub fn compare(image: &Path, reference: &Path, heatmap: Option<&Path>, full_scal
     Ok(())
 }
 
+pub fn verify(path: &Path, json: bool) -> Result<()> {
+    let r = archive::verify::verify(path)?;
+    let rate = r.bytes as f64 / r.seconds.max(1e-9) / 1e9;
+    if json {
+        let findings: Vec<serde_json::Value> = r
+            .findings
+            .iter()
+            .map(|f| serde_json::json!({ "section": f.section, "record": f.record, "what": f.what }))
+            .collect();
+        let out = serde_json::json!({
+            "archive": path.display().to_string(),
+            "sound": r.sound(),
+            "finding_count": r.finding_count,
+            "findings": findings,
+            "bytes": r.bytes,
+            "patches": r.patches,
+            "link_ends": r.link_ends,
+            "frames": r.frames,
+            "seconds": r.seconds,
+            "gb_per_s": rate,
+        });
+        println!("{}", serde_json::to_string_pretty(&out)?);
+    } else if r.sound() {
+        println!(
+            "{}: sound: {} patches, {} link ends, {} frame{} checked; {} in {:.2} s ({rate:.2} GB/s)",
+            path.display(),
+            r.patches,
+            r.link_ends,
+            r.frames,
+            if r.frames == 1 { "" } else { "s" },
+            Bytes(r.bytes),
+            r.seconds
+        );
+    } else {
+        println!("{}: {} finding{}", path.display(), r.finding_count, if r.finding_count == 1 { "" } else { "s" });
+        for f in &r.findings {
+            let at = f.record.map(|i| format!("[{i}]")).unwrap_or_default();
+            println!("  {}{at}: {}", f.section, f.what);
+        }
+        if r.findings.len() as u64 != r.finding_count {
+            println!("  ({} more not listed)", r.finding_count - r.findings.len() as u64);
+        }
+    }
+    if r.sound() {
+        Ok(())
+    } else {
+        Err(archive::ArchiveError::Corrupt(format!(
+            "{} finding{} in {}",
+            r.finding_count,
+            if r.finding_count == 1 { "" } else { "s" },
+            path.display()
+        ))
+        .into())
+    }
+}
+
 pub fn upgrade(input: &Path, output: &Path) -> Result<()> {
     let started = Instant::now();
     let done = archive::upgrade::upgrade(input, output)?;

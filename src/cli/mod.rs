@@ -230,6 +230,18 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// Check an archive beyond what opening it checks: every link end
+    /// between two patches that face each other along its direction, every
+    /// link stored at both its ends, every frame's changes applicable.
+    /// Reads the link ends a window at a time (bounded memory). Exit 0 when
+    /// sound, 4 with the findings listed.
+    Verify {
+        /// Archive to check.
+        archive: PathBuf,
+        /// Print JSON instead of text.
+        #[arg(long)]
+        json: bool,
+    },
     /// Compare a linear EXR image with a reference EXR: relative L2 error,
     /// relative MSE and mean absolute error over pixels whose reference is
     /// below 1.0 (emitters seen directly are left out).
@@ -344,6 +356,7 @@ pub fn main() -> ExitCode {
             )
         }
         Command::Inspect { archive, json } => commands::inspect(&archive, json),
+        Command::Verify { archive, json } => commands::verify(&archive, json),
         Command::Compare { image, reference, heatmap, full_scale } => {
             commands::compare(&image, &reference, heatmap.as_deref(), full_scale)
         }
