@@ -87,10 +87,10 @@ fn archives() -> Vec<(&'static str, ArchiveContents)> {
     ]
 }
 
-/// The room with a bumpy mesh of 128 small triangles on its floor,
-/// grouped into patches of several (`PRIM.kind` 2, `TVTX`).
-fn mesh_contents() -> ArchiveContents {
-    let dir = tempfile::tempdir().unwrap();
+/// The room with a bumpy mesh of 128 small triangles on its floor (the
+/// OBJ written to `dir`), grouped into patches of several (`PRIM.kind` 2,
+/// `TVTX`).
+fn bumps(dir: &std::path::Path) -> Scene {
     let n = 8;
     let mut obj = String::new();
     for j in 0..=n {
@@ -106,9 +106,14 @@ fn mesh_contents() -> ArchiveContents {
             obj += &format!("f {} {} {}\n", at(i, j), at(i + 1, j + 1), at(i + 1, j));
         }
     }
-    std::fs::write(dir.path().join("bumps.obj"), obj).unwrap();
+    std::fs::write(dir.join("bumps.obj"), obj).unwrap();
     let text = format!("{ROOM}\n[[surface]]\nname = \"bumps\"\nmaterial = \"grey\"\nmesh = \"bumps.obj\"\n");
-    let scene = Scene::from_toml(&text, &dir.path().join("damage.toml"), dir.path()).unwrap();
+    Scene::from_toml(&text, &dir.join("damage.toml"), dir).unwrap()
+}
+
+fn mesh_contents() -> ArchiveContents {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = bumps(dir.path());
     let mut settings = BuildSettings::resolve(&scene, hints());
     settings.prototype_library = None;
     let c = build::build_sequence(&scene, &settings, &NoProgress).unwrap().contents;
@@ -515,6 +520,17 @@ fn write_fuzz_seed_corpus() {
             }
         }
     }
+    // Grouped triangles (format version 8): PRIM kind 2 and TVTX.
+    let dir = tempfile::tempdir().unwrap();
+    let scene = bumps(dir.path());
+    let hints = BuildHints { patch_size: Some(0.4), frequency: Some(2), ray_spacing: Some(0.08), buckets: None };
+    let mut settings = BuildSettings::resolve(&scene, hints);
+    settings.prototype_library = None;
+    let (mesh, _) = build::build(&scene, &settings, &NoProgress).unwrap();
+    assert!(!mesh.grouped_triangles.is_empty());
+    let bytes = archive::write_to_vec(&mesh).unwrap();
+    assert!(bytes.len() <= 262_144, "mesh: {} bytes, above the fuzzers' -max_len", bytes.len());
+    put("archive_open", "mesh-archive", &bytes);
     for (i, script) in [&[0u8][..], &[1], &[2], &[2, 5, 0, 0, 0, 0, 3, 0xff, 0xff, 0xff, 0x7f]].iter().enumerate() {
         put("archive_forge", &format!("script{i}"), script);
     }
