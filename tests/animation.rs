@@ -594,3 +594,51 @@ fn a_long_chain_of_sparse_warm_starts_keeps_the_cold_light() {
     // Frame 1 loses frame 0's instances, frame 33 ends a chain of 32.
     assert_eq!(sparse, scene.frame_count() - 3, "sparse first steps in all but frames 1 and 33");
 }
+
+#[test]
+fn meshes_still_and_moving_keep_links_exact_at_every_frame() {
+    // A still mesh of small triangles (grouped into patches in the
+    // sequence and in every still of one frame alike) and a moving one
+    // (a patch per triangle in both: a still of frame k builds the mover
+    // as the sequence does, so the links agree).
+    let dir = tempfile::tempdir().unwrap();
+    let (n, mut obj) = (6u32, String::new());
+    for j in 0..=n {
+        for i in 0..=n {
+            let (x, z) = (i as f32 / n as f32 * 0.6, j as f32 / n as f32 * 0.6);
+            obj += &format!("v {x} {} {z}\n", 0.04 * (9.0 * x).sin() * (7.0 * z).cos());
+        }
+    }
+    let at = |i: u32, j: u32| j * (n + 1) + i + 1;
+    for j in 0..n {
+        for i in 0..n {
+            obj += &format!(
+                "f {} {} {}\nf {} {} {}\n",
+                at(i, j),
+                at(i, j + 1),
+                at(i + 1, j + 1),
+                at(i, j),
+                at(i + 1, j + 1),
+                at(i + 1, j)
+            );
+        }
+    }
+    std::fs::write(dir.path().join("bumps.obj"), obj).unwrap();
+    let text = ADVERSARIAL.to_string()
+        + "\n[[surface]]\nname = \"still_mesh\"\nmaterial = \"grey\"\nmesh = \"bumps.obj\"\n\
+           transform = { translate = [1.2, 0.05, 0.2] }\n\
+           \n[[surface]]\nname = \"moving_mesh\"\nmaterial = \"grey\"\nmesh = \"bumps.obj\"\n\
+           transform = { translate = [0.2, 1.2, 0.2] }\n\
+           keyframes = [{ frame = 0 }, { frame = 6, translate = [0.8, -0.2, 0.9] }]\n";
+    let scene = Scene::from_toml(&text, &dir.path().join("meshes.toml"), dir.path()).unwrap();
+    let hints = BuildHints { patch_size: Some(0.2), frequency: Some(5), ray_spacing: Some(0.03), buckets: Some(1) };
+    let (seq, settings) = sequence(&scene, hints);
+    let grouped = |c: &illumnet::archive::ArchiveContents| c.primitives.iter().filter(|r| r.kind == 2).count();
+    assert_eq!(grouped(&seq.contents), 72, "the still mesh's 72 triangles are grouped, the mover's are not");
+    for k in 0..scene.frame_count() {
+        let still = from_scratch(&scene, &seq, &settings, k);
+        assert_eq!(grouped(&still.contents), 72, "frame {k}");
+        let (want, got) = (still.active_links(0).unwrap(), seq.active_links(k).unwrap());
+        assert!(want == got, "frame {k}: links differ ({} vs {})", got.len(), want.len());
+    }
+}

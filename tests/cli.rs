@@ -68,6 +68,23 @@ fn build_inspect_render_with_json() {
     assert_eq!(json["material_models"][1], "diffuse");
     let light = &json["surface_details"].as_array().unwrap().iter().find(|s| s["name"] == "light").unwrap().clone();
     assert!(light["power_w"][0].as_f64().unwrap() > 0.0 && light["area_m2"].as_f64().unwrap() > 0.0);
+    // One patch explained: the floor's first, its ends carrying no more
+    // rays than cross it, every other patch it reaches on another surface.
+    let out = illumnet(&["inspect", a, "--patch", "0", "--json"]);
+    let p: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!((p["surface"].as_str(), p["kind"].as_str()), (Some("floor"), Some("quad")), "{p}");
+    let (ends, rays, hits) =
+        (p["link_ends"].as_u64().unwrap(), p["rays"].as_f64().unwrap(), p["hits"].as_f64().unwrap());
+    assert!(ends > 10 && rays >= ends as f64 && rays <= hits, "{p}");
+    let heaviest = p["heaviest"].as_array().unwrap();
+    assert!(!heaviest.is_empty() && heaviest.iter().all(|h| h["surface"] != "floor"), "{p}");
+    assert!(heaviest.windows(2).all(|w| w[0]["rays"].as_f64() >= w[1]["rays"].as_f64()), "{p}");
+    let text = String::from_utf8_lossy(&illumnet(&["inspect", a, "--patch", "0"]).stdout).to_string();
+    assert!(text.contains("surface floor (white)") && text.contains("heaviest:"), "{text}");
+    let out =
+        Command::new(env!("CARGO_BIN_EXE_illumnet")).args(["inspect", a, "--patch", "99999999"]).output().unwrap();
+    assert_eq!(out.status.code(), Some(3), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("--patch 99999999: the archive has patches 0.."));
     let png = dir.path().join("img.png");
     let render = illumnet(&["render", "-q", a, "-o", png.to_str().unwrap(), "--samples", "1"]);
     assert!(png.exists());

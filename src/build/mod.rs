@@ -459,7 +459,7 @@ fn build_impl(
     for inst in &mut instances {
         let surface = &scene.surfaces[inst.surface as usize];
         let diffuse = matches!(scene.materials[surface.material as usize].model, ReflectanceModel::Diffuse { .. });
-        if settings.group_triangles && surface.motion.is_none() && diffuse {
+        if settings.group_triangles && surface.motion.is_none() && !surface.moved && diffuse {
             let g = crate::patch::mesh::group_triangles(&inst.primitives, settings.patch_size);
             inst.primitives = g.order.iter().map(|&i| inst.primitives[i as usize]).collect();
             triangle_group.extend_from_slice(&g.group);

@@ -229,6 +229,11 @@ enum Command {
         /// Print JSON instead of text.
         #[arg(long)]
         json: bool,
+        /// Explain one patch instead: its surface, geometry, hit counts,
+        /// neighbours, and where its link ends lead (grouped by the patch
+        /// at their other end, heaviest first).
+        #[arg(long, value_name = "N")]
+        patch: Option<u32>,
     },
     /// Check an archive beyond what opening it checks: every link end
     /// between two patches that face each other along its direction, every
@@ -355,7 +360,8 @@ pub fn main() -> ExitCode {
                 &progress,
             )
         }
-        Command::Inspect { archive, json } => commands::inspect(&archive, json),
+        Command::Inspect { archive, json, patch: Some(p) } => commands::inspect_patch(&archive, p, json),
+        Command::Inspect { archive, json, patch: None } => commands::inspect(&archive, json),
         Command::Verify { archive, json } => commands::verify(&archive, json),
         Command::Compare { image, reference, heatmap, full_scale } => {
             commands::compare(&image, &reference, heatmap.as_deref(), full_scale)

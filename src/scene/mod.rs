@@ -93,6 +93,11 @@ pub struct Surface {
     /// The grain (tangent) direction in world space, for anisotropic
     /// reflectance; `None`: each primitive's first edge.
     pub grain: Option<Vec3>,
+    /// Whether the surface moves in the sequence this still was taken
+    /// from ([`Scene::at_frame`]): a still of one frame then builds it as
+    /// the sequence does (its small triangles each a patch, not grouped:
+    /// `patch::mesh`), so that its links equal the sequence's at that frame.
+    pub moved: bool,
 }
 
 impl Surface {
@@ -214,6 +219,7 @@ impl Scene {
         let mut s = self.clone();
         for surf in &mut s.surfaces {
             if let Some(m) = surf.motion.take() {
+                surf.moved = true;
                 surf.primitives = m.apply(frame, &surf.primitives);
                 surf.grain = surf.grain.map(|g| m.apply_direction(frame, g));
             }

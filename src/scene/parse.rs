@@ -756,7 +756,16 @@ pub(super) fn parse(text: &str, file: &Path, base_dir: &Path, name: String) -> R
                 Some(v.normalize())
             }
         };
-        surfaces.push(Surface { name, material, emission, primitives: prims, motion, emission_keys, grain });
+        surfaces.push(Surface {
+            name,
+            material,
+            emission,
+            primitives: prims,
+            motion,
+            emission_keys,
+            grain,
+            moved: false,
+        });
     }
     if surfaces.is_empty() {
         return Err(cx.err(0..0, "surface", "the scene has no surfaces"));
