@@ -3,6 +3,8 @@
 //! a from-scratch build of frame k's geometry with the same ray grid.
 #![allow(clippy::needless_range_loop)]
 
+mod common;
+
 use illumnet::build::{self, BuildSettings};
 use illumnet::progress::NoProgress;
 use illumnet::scene::{BuildHints, Scene};
@@ -602,27 +604,7 @@ fn meshes_still_and_moving_keep_links_exact_at_every_frame() {
     // (a patch per triangle in both: a still of frame k builds the mover
     // as the sequence does, so the links agree).
     let dir = tempfile::tempdir().unwrap();
-    let (n, mut obj) = (6u32, String::new());
-    for j in 0..=n {
-        for i in 0..=n {
-            let (x, z) = (i as f32 / n as f32 * 0.6, j as f32 / n as f32 * 0.6);
-            obj += &format!("v {x} {} {z}\n", 0.04 * (9.0 * x).sin() * (7.0 * z).cos());
-        }
-    }
-    let at = |i: u32, j: u32| j * (n + 1) + i + 1;
-    for j in 0..n {
-        for i in 0..n {
-            obj += &format!(
-                "f {} {} {}\nf {} {} {}\n",
-                at(i, j),
-                at(i, j + 1),
-                at(i + 1, j + 1),
-                at(i, j),
-                at(i + 1, j + 1),
-                at(i + 1, j)
-            );
-        }
-    }
+    let obj = common::grid_obj(6, (0.0, 0.0), 0.6, |x, z| 0.04 * (9.0 * x).sin() * (7.0 * z).cos());
     std::fs::write(dir.path().join("bumps.obj"), obj).unwrap();
     let text = ADVERSARIAL.to_string()
         + "\n[[surface]]\nname = \"still_mesh\"\nmaterial = \"grey\"\nmesh = \"bumps.obj\"\n\

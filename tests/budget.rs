@@ -3,6 +3,8 @@
 //! itself) to the image an unbudgeted render gives; a budget too small is
 //! refused before work starts.
 
+mod common;
+
 use std::path::Path;
 use std::process::Command;
 
@@ -166,27 +168,7 @@ fn a_scene_of_many_primitives_is_refused_before_its_patches_are_cut() {
     // primitives and BVH before any link: refused under 64M at once, and
     // built under 256M within it.
     let dir = tempfile::tempdir().unwrap();
-    let n = 320;
-    let mut obj = String::new();
-    for j in 0..=n {
-        for i in 0..=n {
-            obj += &format!("v {} 0 {}\n", i as f32 / n as f32, j as f32 / n as f32);
-        }
-    }
-    let at = |i: u32, j: u32| j * (n + 1) + i + 1;
-    for j in 0..n {
-        for i in 0..n {
-            obj += &format!(
-                "f {} {} {}\nf {} {} {}\n",
-                at(i, j),
-                at(i, j + 1),
-                at(i + 1, j + 1),
-                at(i, j),
-                at(i + 1, j + 1),
-                at(i + 1, j)
-            );
-        }
-    }
+    let obj = common::grid_obj(320, (0.0, 0.0), 1.0, |_, _| 0.0);
     std::fs::write(dir.path().join("floor.obj"), obj).unwrap();
     let scene = dir.path().join("floor.toml");
     std::fs::write(

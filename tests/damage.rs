@@ -5,6 +5,8 @@
 //! finite image, never a panic or a NaN. Run in CI in a debug build with
 //! overflow checks too (`tools/test.sh`).
 
+mod common;
+
 use std::panic::{AssertUnwindSafe, catch_unwind};
 
 use bytemuck::pod_read_unaligned;
@@ -91,21 +93,7 @@ fn archives() -> Vec<(&'static str, ArchiveContents)> {
 /// OBJ written to `dir`), grouped into patches of several (`PRIM.kind` 2,
 /// `TVTX`).
 fn bumps(dir: &std::path::Path) -> Scene {
-    let n = 8;
-    let mut obj = String::new();
-    for j in 0..=n {
-        for i in 0..=n {
-            let (x, z) = (0.5 + i as f32 / n as f32, 0.5 + j as f32 / n as f32);
-            obj += &format!("v {x} {} {z}\n", 0.05 + 0.03 * (7.0 * x).sin() * (5.0 * z).cos());
-        }
-    }
-    let at = |i: u32, j: u32| j * (n + 1) + i + 1;
-    for j in 0..n {
-        for i in 0..n {
-            obj += &format!("f {} {} {}\n", at(i, j), at(i, j + 1), at(i + 1, j + 1));
-            obj += &format!("f {} {} {}\n", at(i, j), at(i + 1, j + 1), at(i + 1, j));
-        }
-    }
+    let obj = common::grid_obj(8, (0.5, 0.5), 1.0, |x, z| 0.05 + 0.03 * (7.0 * x).sin() * (5.0 * z).cos());
     std::fs::write(dir.join("bumps.obj"), obj).unwrap();
     let text = format!("{ROOM}\n[[surface]]\nname = \"bumps\"\nmaterial = \"grey\"\nmesh = \"bumps.obj\"\n");
     Scene::from_toml(&text, &dir.join("damage.toml"), dir).unwrap()

@@ -36,28 +36,7 @@ fn contents(text: &str, dir: &Path) -> ArchiveContents {
 
 /// A floor mesh of 128 small triangles, for grouped patches.
 fn write_mesh(dir: &Path) -> &'static str {
-    let n = 8u32;
-    let mut obj = String::new();
-    for j in 0..=n {
-        for i in 0..=n {
-            let (x, z) = (0.5 + i as f32 / n as f32, 0.5 + j as f32 / n as f32);
-            obj += &format!("v {x} {} {z}\n", 0.05 + 0.03 * (7.0 * x).sin() * (5.0 * z).cos());
-        }
-    }
-    let at = |i: u32, j: u32| j * (n + 1) + i + 1;
-    for j in 0..n {
-        for i in 0..n {
-            obj += &format!(
-                "f {} {} {}\nf {} {} {}\n",
-                at(i, j),
-                at(i, j + 1),
-                at(i + 1, j + 1),
-                at(i, j),
-                at(i + 1, j + 1),
-                at(i + 1, j)
-            );
-        }
-    }
+    let obj = common::grid_obj(8, (0.5, 0.5), 1.0, |x, z| 0.05 + 0.03 * (7.0 * x).sin() * (5.0 * z).cos());
     std::fs::write(dir.join("bumps.obj"), obj).unwrap();
     "[[surface]]\nname = 'bumps'\nmaterial = 'grey'\nmesh = 'bumps.obj'\n"
 }

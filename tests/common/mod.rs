@@ -54,3 +54,25 @@ pub fn surface_total(v: &InetView<'_>, per_patch: &[[f32; 3]], surface: u32) -> 
         .map(|(_, x)| x.iter().map(|&c| c as f64).sum::<f64>())
         .sum()
 }
+
+/// A Wavefront OBJ of `n × n` square cells over `[x0, x0 + size] × [z0,
+/// z0 + size]`, each cut into two triangles facing +y, at heights
+/// `height(x, z)`: a mesh of small triangles (grouped into patches when
+/// smaller than them, format-spec/archive.md §5.5).
+pub fn grid_obj(n: u32, (x0, z0): (f32, f32), size: f32, height: impl Fn(f32, f32) -> f32) -> String {
+    let mut obj = String::new();
+    for j in 0..=n {
+        for i in 0..=n {
+            let (x, z) = (x0 + size * i as f32 / n as f32, z0 + size * j as f32 / n as f32);
+            obj += &format!("v {x} {} {z}\n", height(x, z));
+        }
+    }
+    let at = |i: u32, j: u32| j * (n + 1) + i + 1;
+    for j in 0..n {
+        for i in 0..n {
+            obj += &format!("f {} {} {}\n", at(i, j), at(i, j + 1), at(i + 1, j + 1));
+            obj += &format!("f {} {} {}\n", at(i, j), at(i + 1, j + 1), at(i + 1, j));
+        }
+    }
+    obj
+}
