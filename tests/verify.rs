@@ -179,3 +179,34 @@ fn each_class_of_damage_gives_its_precise_finding() {
     let f = findings(d, &cut);
     assert!(f.len() == 1 && f[0].starts_with("DELT[1]: frame 1:") && f[0].contains("whole zstd frames"), "{f:?}");
 }
+
+#[test]
+fn a_prototype_table_that_is_not_reciprocal_is_found() {
+    // One factor of the glossy plate's table halved: the row still
+    // conserves energy (opening accepts it), but T(i→o)/(cos θ_o·Ω_o) no
+    // longer equals T(o→i)/(cos θ_i·Ω_i).
+    let dir = tempfile::tempdir().unwrap();
+    let mut c = contents(&format!("{ROOM}{GLOSSY}"), dir.path());
+    let r = c.reflectance.as_mut().unwrap();
+    let t = r.prototypes.iter().position(|p| p.model == layout::table_model::GGX).unwrap();
+    let (p, bands) = (r.prototypes[t], r.prototypes[t].bands as usize);
+    let row = |i: usize| {
+        let (a, b) = (r.rows[p.first_row as usize + i] as usize, r.rows[p.first_row as usize + i + 1] as usize);
+        (a, &r.outgoing[p.first_entry as usize + a..p.first_entry as usize + b])
+    };
+    let n = c.directions.len();
+    // The first pair i < o whose entries are both kept.
+    let (factor, i, o) = (0..n)
+        .find_map(|i| {
+            let (a, outs) = row(i);
+            outs.iter().enumerate().find_map(|(k, &o)| {
+                (o as usize > i && row(o as usize).1.contains(&(i as u32))).then_some((a + k, i, o as usize))
+            })
+        })
+        .unwrap();
+    let at = p.first_factor as usize + factor * bands;
+    r.factors[at] *= 0.5;
+    let f = findings(dir.path(), &archive::write_to_vec(&c).unwrap());
+    assert_eq!(f.len(), 1, "{f:?}");
+    assert!(f[0].starts_with(&format!("PFAC[{at}]: table {t}: T({i}→{o}) and T({o}→{i}) are not reciprocal")), "{f:?}");
+}

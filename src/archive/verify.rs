@@ -13,7 +13,10 @@
 //!   same sum over their mirror images: equal when, and with overwhelming
 //!   probability only when, the ends pair up);
 //! - every frame of a sequence decodes, and its records apply to frame 0's
-//!   links without leaving a weight negative or a patch over its hit count.
+//!   links without leaving a weight negative or a patch over its hit count;
+//! - every prototype table is reciprocal where both entries of a pair are
+//!   kept: `T(i→o)/(cos θ_o·Ω_o) = T(o→i)/(cos θ_i·Ω_i)` (format-spec
+//!   §5.14; opening checks that rows conserve energy).
 //!
 //! Findings name the section and record; the first [`MAX_FINDINGS`] of
 //! each kind are listed, and all are counted.
@@ -192,6 +195,22 @@ pub fn verify(path: &Path) -> Result<Verification, ArchiveError> {
                 .into(),
         );
     }
+    if let Some(r) = v.reflectance {
+        let mut tables = 0;
+        for (t, table) in r.prototypes.iter().enumerate() {
+            let (listed, count) = unreciprocal(&r, t, &dirs, &v.directions);
+            out.finding_count += count - listed.len() as u64;
+            tables += (count as usize).saturating_sub(listed.len());
+            for (entry, i, o, what) in listed {
+                out.add(
+                    &mut tables,
+                    "PFAC",
+                    Some(table.first_factor + entry),
+                    format!("table {t}: T({i}→{o}) and T({o}→{i}) are not reciprocal ({what})"),
+                );
+            }
+        }
+    }
     let frames = v.sequence.map_or(1, |s| s.frames());
     let mut bad_frames = 0;
     for f in 1..frames {
@@ -202,4 +221,64 @@ pub fn verify(path: &Path) -> Result<Verification, ArchiveError> {
     out.frames = frames;
     out.seconds = started.elapsed().as_secs_f64();
     Ok(out)
+}
+
+/// Relative difference above which two entries of a table are not
+/// reciprocal: tables are built exactly reciprocal up to f32 rounding
+/// (measured 10⁻⁷, `reflectance::prototype`).
+const RECIPROCITY: f64 = 1e-3;
+
+/// Entries of table `t` whose reverse entry breaks reciprocity,
+/// `T(i→o)/(cos θ_o·Ω_o) = T(o→i)/(cos θ_i·Ω_i)` per band, where both
+/// are kept (a threshold may drop one of a pair): the first
+/// [`MAX_FINDINGS`] as `(factor within the table, i, o, the two values)`,
+/// and how many pairs break it in all.
+fn unreciprocal(
+    r: &super::ReflectanceView<'_>,
+    t: usize,
+    dirs: &[glam::Vec3],
+    records: &[super::layout::DirectionRecord],
+) -> (Vec<(u64, usize, usize, String)>, u64) {
+    let bands = r.prototypes[t].bands as usize;
+    let scale = |d: usize| dirs[d].y as f64 * records[d].solid_angle_sr as f64;
+    let row_start = |i: usize| r.rows[r.prototypes[t].first_row as usize + i] as u64;
+    // Rows in parallel, merged in row order.
+    let rows: Vec<(Vec<(u64, usize, usize, String)>, u64)> = (0..dirs.len())
+        .into_par_iter()
+        .map(|i| {
+            let (mut found, mut count) = (Vec::new(), 0u64);
+            let (outs, factors) = r.row(t, i);
+            for (k, &o) in outs.iter().enumerate() {
+                let o = o as usize;
+                if o <= i || scale(i) <= 0.0 || scale(o) <= 0.0 {
+                    continue;
+                }
+                let (back, back_factors) = r.row(t, o);
+                let at = match back.windows(2).all(|w| w[0] < w[1]) {
+                    true => back.binary_search(&(i as u32)).ok(),
+                    false => back.iter().position(|&x| x as usize == i),
+                };
+                let Some(j) = at else { continue };
+                for c in 0..bands {
+                    let a = factors[k * bands + c] as f64 / scale(o);
+                    let b = back_factors[j * bands + c] as f64 / scale(i);
+                    if (a - b).abs() > RECIPROCITY * a.abs().max(b.abs()) {
+                        count += 1;
+                        if found.len() < MAX_FINDINGS {
+                            let entry = row_start(i) * bands as u64 + (k * bands + c) as u64;
+                            found.push((entry, i, o, format!("{a:.4e} and {b:.4e}")));
+                        }
+                        break;
+                    }
+                }
+            }
+            (found, count)
+        })
+        .collect();
+    let (mut out, mut count) = (Vec::new(), 0u64);
+    for (found, n) in rows {
+        count += n;
+        out.extend(found.into_iter().take(MAX_FINDINGS - out.len().min(MAX_FINDINGS)));
+    }
+    (out, count)
 }
