@@ -198,7 +198,7 @@ pub fn verify(path: &Path) -> Result<Verification, ArchiveError> {
     if let Some(r) = v.reflectance {
         let mut tables = 0;
         for (t, table) in r.prototypes.iter().enumerate() {
-            let (listed, count) = unreciprocal(&r, t, &dirs, &v.directions);
+            let (listed, count) = unreciprocal(&r, t, &dirs, v.directions);
             out.finding_count += count - listed.len() as u64;
             tables += (count as usize).saturating_sub(listed.len());
             for (entry, i, o, what) in listed {
@@ -223,6 +223,10 @@ pub fn verify(path: &Path) -> Result<Verification, ArchiveError> {
     Ok(out)
 }
 
+/// A pair of table entries that breaks reciprocity: the factor's index
+/// within the table, i, o, and the two values in words.
+type Unreciprocal = (u64, usize, usize, String);
+
 /// Relative difference above which two entries of a table are not
 /// reciprocal: tables are built exactly reciprocal up to f32 rounding
 /// (measured 10⁻⁷, `reflectance::prototype`).
@@ -238,12 +242,12 @@ fn unreciprocal(
     t: usize,
     dirs: &[glam::Vec3],
     records: &[super::layout::DirectionRecord],
-) -> (Vec<(u64, usize, usize, String)>, u64) {
+) -> (Vec<Unreciprocal>, u64) {
     let bands = r.prototypes[t].bands as usize;
     let scale = |d: usize| dirs[d].y as f64 * records[d].solid_angle_sr as f64;
     let row_start = |i: usize| r.rows[r.prototypes[t].first_row as usize + i] as u64;
     // Rows in parallel, merged in row order.
-    let rows: Vec<(Vec<(u64, usize, usize, String)>, u64)> = (0..dirs.len())
+    let rows: Vec<(Vec<Unreciprocal>, u64)> = (0..dirs.len())
         .into_par_iter()
         .map(|i| {
             let (mut found, mut count) = (Vec::new(), 0u64);
