@@ -372,17 +372,17 @@ pub fn build_sequence_with_links(
     build_impl(scene, settings, true, None, progress).map(|(s, _)| s).map_err(|e| e.to_string())
 }
 
-/// Resident bytes a build holds per primitive before tracing: the scene's
-/// copy, its instances' and the build's columns, the patches' per-primitive
-/// records, a grouped mesh's shared vertices and welding map, and their
-/// peaks while being made. Measured with a building of 18 rooms holding
-/// 4.2·10⁶ triangles of meshes (tools/gen_building.py --mesh,
-/// docs/PERFORMANCE.md): 386 bytes at its peak before tracing.
-const SETUP_BYTES_PER_PRIMITIVE: u64 = 400;
+/// Resident bytes a build holds per primitive before tracing: the parsed
+/// scene, its instances' and the build's columns, the patches'
+/// per-primitive records, a grouped mesh's shared vertices and welding
+/// map, and their peaks while being made. Measured with a building of 18
+/// rooms holding 4.2·10⁶ triangles of meshes (tools/gen_building.py
+/// --mesh, docs/PERFORMANCE.md): 418 bytes at its peak before tracing.
+const SETUP_BYTES_PER_PRIMITIVE: u64 = 420;
 
 /// Resident bytes per primitive of the BVH while it is built (the same
-/// building: 185 bytes above the setup's resident bytes) and of the
-/// per-primitive normals tracing keeps.
+/// building: 186 bytes above the setup's peak) and of the per-primitive
+/// normals tracing keeps.
 const BVH_BYTES_PER_PRIMITIVE: u64 = 200;
 
 /// Links held while tracing, at least; the merge's buffers (after
