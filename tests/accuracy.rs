@@ -37,13 +37,7 @@ fn errors(name: &str, archive: &illumnet::archive::Archive, (inet_bar, direct_ba
         err
     };
     let inet = check("inet", &render::render(&view, &sol.radiance, &RenderOptions::default()), inet_bar);
-    let light = render::DirectLight::new(
-        &view,
-        0,
-        &sol.surface_emission,
-        &sol.surface_reflectance,
-        render::direct::DEFAULT_LIGHT_SAMPLES,
-    );
+    let light = render::DirectLight::new(&view, &sol, render::direct::DEFAULT_LIGHT_SAMPLES);
     let indirect = render::indirect_frame_radiance(&view, 0, &sol);
     let (image, _) = render::Renderer::new(&view, RenderOptions::default()).frame_direct(0, &indirect, &light);
     (inet, check("direct", &image, direct_bar))

@@ -378,6 +378,13 @@ fn a_new_users_mistakes_get_plain_answers() {
     let (code, err) = failing(&["compare", &path("a.png"), &path("a.exr")]);
     assert!(code == 3 && err.contains("sRGB"), "{err}");
     illumnet(&["compare", &path("a.exr"), &path("a.exr")]);
+    // Brighter pixels judged with --below (the emitters too, above their radiance).
+    let all = illumnet(&["compare", &path("a.exr"), &path("a.exr"), "--below", "1000"]);
+    let all = String::from_utf8_lossy(&all.stdout);
+    let (w, h) = image::image_dimensions(path("a.png")).unwrap();
+    assert!(all.contains("relative L2 0.0000") && all.contains(&format!("over {} pixels", w * h)), "{all}");
+    let (code, err) = failing(&["compare", &path("a.exr"), &path("a.exr"), "--below", "0"]);
+    assert!(code == 3 && err.contains("--below"), "{err}");
 
     // A scene without light, and one whose lamp faces away: rendered, with
     // a warning that says why the picture is dark.

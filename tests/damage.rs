@@ -178,7 +178,7 @@ fn outcome(bytes: &[u8]) -> Result<Outcome, String> {
             if !finite(&s.radiance) {
                 return Err(format!("frame {f}: a non-finite radiance was handed out"));
             }
-            let light = render::DirectLight::new(&v, f, &s.surface_emission, &s.surface_reflectance, 1);
+            let light = render::DirectLight::new(&v, &s, 1);
             let (image, direct) = renderer.frame_direct(f, &render::indirect_frame_radiance(&v, f, &s), &light);
             if !finite(&image.pixels) || !finite(&direct.pixels) {
                 return Err(format!("frame {f}: a non-finite pixel"));

@@ -102,13 +102,7 @@ fn floor_pixels_of(text: &str, hints: BuildHints, shading_direct: bool, extent: 
         distribute::distribute(&v, &DistributeOptions { tolerance: 1e-6, ..Default::default() }, &NoProgress).unwrap();
     let mut renderer = Renderer::new(&v, RenderOptions::default());
     let image = if shading_direct {
-        let light = DirectLight::new(
-            &v,
-            0,
-            &sol.surface_emission,
-            &sol.surface_reflectance,
-            render::direct::DEFAULT_LIGHT_SAMPLES,
-        );
+        let light = DirectLight::new(&v, &sol, render::direct::DEFAULT_LIGHT_SAMPLES);
         renderer.frame_direct(0, &render::indirect_frame_radiance(&v, 0, &sol), &light).0
     } else {
         renderer.frame(0, &render::frame_radiance(&v, 0, &sol))
@@ -279,8 +273,7 @@ fn direct_images_do_not_depend_on_the_thread_count() {
     let a = common::build_archive(&s, BuildHints { frequency: Some(6), patch_size: Some(0.2), ..Default::default() });
     let v = a.view();
     let sol = distribute::distribute(&v, &DistributeOptions::default(), &NoProgress).unwrap();
-    let light =
-        DirectLight::new(&v, 0, &sol.surface_emission, &sol.surface_reflectance, render::direct::DEFAULT_LIGHT_SAMPLES);
+    let light = DirectLight::new(&v, &sol, render::direct::DEFAULT_LIGHT_SAMPLES);
     let indirect = render::indirect_frame_radiance(&v, 0, &sol);
     let render_with = |threads: usize| {
         let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();

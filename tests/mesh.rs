@@ -208,13 +208,7 @@ fn a_floor_of_small_triangles_renders_like_the_floor_as_one_quad() {
         let archive = build_archive(scene, BuildHints::default());
         let v = archive.view();
         let sol = distribute::distribute(&v, &DistributeOptions::default(), &NoProgress).unwrap();
-        let light = render::DirectLight::new(
-            &v,
-            0,
-            &sol.surface_emission,
-            &sol.surface_reflectance,
-            render::direct::DEFAULT_LIGHT_SAMPLES,
-        );
+        let light = render::DirectLight::new(&v, &sol, render::direct::DEFAULT_LIGHT_SAMPLES);
         let indirect = render::indirect_frame_radiance(&v, 0, &sol);
         let direct = render::Renderer::new(&v, RenderOptions::default()).frame_direct(0, &indirect, &light).0;
         let inet = render::render(&v, &sol.radiance, &RenderOptions::default());

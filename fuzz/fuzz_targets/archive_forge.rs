@@ -83,7 +83,7 @@ fuzz_target!(|data: &[u8]| {
         let Ok(s) = d.frame(f, None, &NoProgress) else { return };
         assert!(s.radiance.iter().flatten().all(|c| c.is_finite()), "a non-finite radiance was handed out");
         if let Some(renderer) = &mut renderer {
-            let light = render::DirectLight::new(&v, f, &s.surface_emission, &s.surface_reflectance, 1);
+            let light = render::DirectLight::new(&v, &s, 1);
             let (image, direct) = renderer.frame_direct(f, &render::indirect_frame_radiance(&v, f, &s), &light);
             assert!(image.pixels.iter().chain(&direct.pixels).flatten().all(|c| c.is_finite()), "a non-finite pixel");
         }

@@ -519,13 +519,7 @@ pub fn render(
         }
         let t2 = Instant::now();
         let (image, direct) = if direct_shading {
-            let light = render::DirectLight::new(
-                &view,
-                f,
-                &solution.surface_emission,
-                &solution.surface_reflectance,
-                args.light_samples,
-            );
+            let light = render::DirectLight::new(&view, &solution, args.light_samples);
             let (image, direct) =
                 renderer.frame_direct(f, &render::indirect_frame_radiance(&view, f, &solution), &light);
             (image, Some(direct))
@@ -865,7 +859,10 @@ pub fn inspect(path: &Path, json: bool) -> Result<()> {
     Ok(())
 }
 
-pub fn compare(image: &Path, reference: &Path, heatmap: Option<&Path>, full_scale: f32) -> Result<()> {
+pub fn compare(image: &Path, reference: &Path, heatmap: Option<&Path>, full_scale: f32, below: f32) -> Result<()> {
+    if !(below > 0.0 && below.is_finite()) {
+        return Err(anyhow::Error::new(BadInput(format!("--below must be a positive radiance, got {below}"))));
+    }
     for (path, what) in [(image, "IMAGE"), (reference, "REFERENCE")] {
         require_extension(
             path,
@@ -880,7 +877,7 @@ pub fn compare(image: &Path, reference: &Path, heatmap: Option<&Path>, full_scal
     }
     let a = image_io::read_exr(image).map_err(IoFailure)?;
     let r = image_io::read_exr(reference).map_err(IoFailure)?;
-    let (err, map) = image_io::compare(&a, &r).map_err(BadInput)?;
+    let (err, map) = image_io::compare_below(&a, &r, below).map_err(BadInput)?;
     println!(
         "relative L2 {:.4}, relative MSE {:.3e}, mean absolute error {:.4e} over {} pixels",
         err.relative_l2, err.relative_mse, err.mean_abs, err.pixels

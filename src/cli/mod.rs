@@ -249,7 +249,7 @@ enum Command {
     },
     /// Compare a linear EXR image with a reference EXR: relative L2 error,
     /// relative MSE and mean absolute error over pixels whose reference is
-    /// below 1.0 (emitters seen directly are left out).
+    /// below 1.0 (emitters seen directly are left out; see --below).
     Compare {
         /// Image to judge.
         image: std::path::PathBuf,
@@ -261,6 +261,11 @@ enum Command {
         /// Relative error shown as white in the heat map.
         #[arg(long, default_value_t = 0.25, value_name = "X")]
         full_scale: f32,
+        /// Compare only pixels whose reference is below this in every
+        /// channel: above the brightest surface, below the emitters'
+        /// radiance (a bright highlight needs more than the default).
+        #[arg(long, default_value_t = 1.0, value_name = "RADIANCE")]
+        below: f32,
     },
     /// Rewrite an archive written in the previous format (version 6) in
     /// the current one: the same light, 3 bytes fewer per link end. Writes
@@ -363,8 +368,8 @@ pub fn main() -> ExitCode {
         Command::Inspect { archive, json, patch: Some(p) } => commands::inspect_patch(&archive, p, json),
         Command::Inspect { archive, json, patch: None } => commands::inspect(&archive, json),
         Command::Verify { archive, json } => commands::verify(&archive, json),
-        Command::Compare { image, reference, heatmap, full_scale } => {
-            commands::compare(&image, &reference, heatmap.as_deref(), full_scale)
+        Command::Compare { image, reference, heatmap, full_scale, below } => {
+            commands::compare(&image, &reference, heatmap.as_deref(), full_scale, below)
         }
         Command::Upgrade { archive, output } => commands::upgrade(&archive, output.as_deref().unwrap_or(&archive)),
         Command::Demo { output, settings, render } => commands::demo(&output, settings, render, &progress),

@@ -54,8 +54,9 @@ pub fn state_bytes(s: &StateShape) -> u64 {
     let records = s.max_delta_records;
     let overlay = if s.sequence { 2 * (records * (20 + 2 * 12 + 2 * 12) + p * (4 * nb + 4 + 8)) } else { 0 };
     // Glossy: per ray slot three [f32; 4] vectors, rays, linked, incoming
-    // scale; the directional radiance of two solutions; the copied ends.
-    let glossy = s.nondiffuse_slots * (3 * 16 + 4 + 4 + 12 + 2 * 12) + s.nondiffuse_ends * 12;
+    // scale; the directional radiance of two solutions and its direct
+    // part; the copied ends.
+    let glossy = s.nondiffuse_slots * (3 * 16 + 4 + 4 + 12 + 2 * 2 * 12) + s.nondiffuse_ends * 12;
     // A sequence keeps the previous frame's solution while it solves the
     // next (warm starts); a still has one frame, one solution.
     let solutions = if s.sequence { 2 } else { 1 };

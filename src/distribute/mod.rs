@@ -149,6 +149,10 @@ pub struct Solution {
     pub surface_emission: Vec<[f32; 3]>,
     /// Diffuse reflectance `k_d` per surface the frame was solved with.
     pub surface_reflectance: Vec<[f32; 3]>,
+    /// Specular colour `k_s` per surface the frame was solved with (zero
+    /// for diffuse surfaces): what a renderer's glossy direct light
+    /// multiplies the lobe by.
+    pub surface_specular: Vec<[f32; 3]>,
     /// The acceleration's secant history, which the next frame of a
     /// sequence starts from when warm-started from this solution.
     history: anderson::Anderson,
@@ -157,6 +161,13 @@ pub struct Solution {
     carry: Option<Arc<warm::Carry>>,
     /// The frame solved.
     frame: u32,
+}
+
+impl Solution {
+    /// The frame solved.
+    pub fn frame(&self) -> u32 {
+        self.frame
+    }
 }
 
 /// Radiance leaving non-diffuse patches along each direction of the set,
@@ -169,12 +180,22 @@ pub struct DirectionalRadiance {
     pub directions: usize,
     /// `patches × directions` radiances (W·sr⁻¹·m⁻², RGB).
     pub radiance: Vec<[f32; 3]>,
+    /// The part of [`Self::radiance`] that is emitted light reflected once
+    /// (the glossy highlights of the emitters), laid out the same; empty
+    /// unless [`DistributeOptions::split_direct`]. A renderer that computes
+    /// the highlights per image sample takes this off.
+    pub direct: Vec<[f32; 3]>,
 }
 
 impl DirectionalRadiance {
     /// Patch `k`'s (index into [`Self::patches`]) radiance per direction.
     pub fn of(&self, k: usize) -> &[[f32; 3]] {
         &self.radiance[k * self.directions..(k + 1) * self.directions]
+    }
+
+    /// Patch `k`'s direct part per direction ([`Self::direct`]), when split.
+    pub fn direct_of(&self, k: usize) -> Option<&[[f32; 3]]> {
+        self.direct.get(k * self.directions..(k + 1) * self.directions)
     }
 }
 
@@ -295,6 +316,7 @@ pub struct Distributor<'a> {
     /// The lighting's emitted radiance and `k_d` per surface.
     surface_emission: Vec<[f32; 3]>,
     surface_reflectance: Vec<[f32; 3]>,
+    surface_specular: Vec<[f32; 3]>,
     nd: Option<nondiffuse::NonDiffuse<'a>>,
     /// Patches of instances present at frame 0 but not in every frame,
     /// with the last frame they are present in: their frame 0 link ends
@@ -410,6 +432,7 @@ impl<'a> Distributor<'a> {
             emission_fixed,
             surface_emission: lighting.emission.clone(),
             surface_reflectance: lighting.reflectance.clone(),
+            surface_specular: lighting.specular.clone(),
             nd,
             leaving,
             leaving_rows,

@@ -415,6 +415,7 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
             add_ends(&o.gather, nb, &self.shoot, 1.0, None, &mut self.recv);
         }
         self.spread();
+        self.first_bounce_directional();
         let inv_pi = 1.0 / std::f32::consts::PI;
         Ok((0..v.patch_count())
             .map(|p| {
@@ -423,6 +424,32 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
                 [0, 1, 2].map(|c| d.rho[p][c] * (self.recv[p * nb][c] * kd + self.spread[p][c] * ks))
             })
             .collect())
+    }
+
+    /// The directional part of [`Self::first_bounce`]: non-diffuse
+    /// patches reflect the emitted light (in `shoot`, with nothing
+    /// directional arriving) through their tables into `phi_next`, the
+    /// per-ray power of their direct highlights. Called after the loop,
+    /// when `phi` and `phi_next` are spare.
+    fn first_bounce_directional(&mut self) {
+        let (Some(x), Some(g)) = (self.d.nd.as_ref(), self.glossy.as_mut()) else { return };
+        let all_ends = self.s.overlay.as_ref().and_then(|o| o.all.as_ref());
+        let overlay_ends = |q: usize, add: &mut dyn FnMut(u32, f32, u32)| {
+            if let Some(o) = all_ends {
+                for e in o.run(q, 1, 0) {
+                    add(o.other[e], o.weight[e], o.direction[e]);
+                }
+            }
+        };
+        g.phi.fill([0.0; 4]);
+        x.step(&self.shoot, &g.phi, &overlay_ends, &mut g.phi_next);
+        if let Some(present) = self.s.absent_mask() {
+            for (k, &q) in x.patches.iter().enumerate() {
+                if !present[q as usize] {
+                    g.phi_next[k * x.n..(k + 1) * x.n].fill([0.0; 4]);
+                }
+            }
+        }
     }
 
     /// The frame's solution: radiance from the received totals, the
@@ -465,18 +492,26 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
         // Per-ray power → radiance: one ray stands for the étendue
         // π·A_p/E[H_p] of its patch (as for the diffuse radiance above).
         let directional = d.nd.as_ref().zip(self.glossy.as_ref()).map(|(x, g)| {
-            let radiance = x
-                .patches
-                .iter()
-                .enumerate()
-                .flat_map(|(k, &q)| {
-                    let q = q as usize;
-                    let a = v.patch_area[q];
-                    let to_l = if a > 0.0 { v.patch_expected_hits[q] / (std::f32::consts::PI * a) } else { 0.0 };
-                    g.dir_total[k * x.n..(k + 1) * x.n].iter().map(move |t| [t[0] * to_l, t[1] * to_l, t[2] * to_l])
-                })
-                .collect();
-            DirectionalRadiance { patches: x.patches.clone(), directions: x.n, radiance }
+            let to_radiance = |per_ray: &[[f32; 4]]| -> Vec<[f32; 3]> {
+                x.patches
+                    .iter()
+                    .enumerate()
+                    .flat_map(|(k, &q)| {
+                        let q = q as usize;
+                        let a = v.patch_area[q];
+                        let to_l = if a > 0.0 { v.patch_expected_hits[q] / (std::f32::consts::PI * a) } else { 0.0 };
+                        per_ray[k * x.n..(k + 1) * x.n].iter().map(move |t| [t[0] * to_l, t[1] * to_l, t[2] * to_l])
+                    })
+                    .collect()
+            };
+            // `first_bounce` left the highlights' per-ray power in phi_next.
+            let direct = if direct.is_some() { to_radiance(&g.phi_next) } else { Vec::new() };
+            DirectionalRadiance {
+                patches: x.patches.clone(),
+                directions: x.n,
+                radiance: to_radiance(&g.dir_total),
+                direct,
+            }
         });
         let carry = self.carrying.then(|| {
             std::sync::Arc::new(Carry {
@@ -499,6 +534,7 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
             direct,
             surface_emission: s.surface_emission.clone(),
             surface_reflectance: d.surface_reflectance.clone(),
+            surface_specular: d.surface_specular.clone(),
             history: self.anderson,
             carry,
             frame,
@@ -527,7 +563,7 @@ fn check_finite(
     if let Some(p) = direct.and_then(first_bad) {
         return fail(format!("direct radiance of patch {p}"));
     }
-    if let Some(k) = directional.and_then(|d| first_bad(&d.radiance)) {
+    if let Some(k) = directional.and_then(|d| first_bad(&d.radiance).or_else(|| first_bad(&d.direct))) {
         return fail(format!("directional radiance entry {k}"));
     }
     let totals = [bal.emitted, bal.absorbed, bal.escaped, bal.residual];

@@ -26,11 +26,19 @@
 //! pixel and primitive, so images are deterministic and do not depend on
 //! the thread count.
 
+mod glossy;
+
 use glam::{Vec2, Vec3};
 
 use crate::archive::InetView;
+use crate::archive::layout::table_model;
+use crate::distribute::Solution;
 use crate::geometry::accel::PrimitiveBvh;
 use crate::geometry::{Primitive, PrimitiveKind};
+use crate::reflectance::model::Lobe;
+pub use glossy::{
+    LIGHT_POINTS as GLOSSY_LIGHT_POINTS, LOBE_RAYS as GLOSSY_LOBE_RAYS, SHADOW_RAYS as GLOSSY_SHADOW_RAYS,
+};
 
 /// Default light samples: `8 × 8` shadow rays per pixel and primitive in
 /// the second pass (pixels next to a blocked first ray), shared by all
@@ -67,6 +75,9 @@ pub struct DirectLight {
     emitters: Vec<Emitter>,
     /// `k_d` per primitive (archive order).
     kd: Vec<Vec3>,
+    /// Per primitive, its lobe's index in `glossy` (`u32::MAX`: diffuse).
+    glossy_of: Vec<u32>,
+    glossy: Vec<glossy::GlossyFrame>,
     /// Second-pass shadow rays per pixel and primitive: this squared.
     samples: u32,
     /// Offset of shadow-ray origins along the normal (scale of the scene).
@@ -74,11 +85,14 @@ pub struct DirectLight {
 }
 
 impl DirectLight {
-    /// The emitters present at `frame` with `emission` (per surface) and
-    /// `reflectance` (`k_d` per surface), with `samples × samples` shadow
-    /// rays per pixel and primitive in the second pass (clamped to 1..=64).
-    pub fn new(v: &InetView<'_>, frame: u32, emission: &[[f32; 3]], reflectance: &[[f32; 3]], samples: u32) -> Self {
-        let present = v.presence(frame).primitives;
+    /// The emitters present at the frame `solution` solved, with its
+    /// emission, `k_d` and `k_s` per surface, and `samples × samples`
+    /// shadow rays per pixel and primitive in the second pass (clamped to
+    /// 1..=64). Glossy primitives take their highlights per sample too
+    /// (`glossy.rs`), with the archive's lobes and orientations.
+    pub fn new(v: &InetView<'_>, solution: &Solution, samples: u32) -> Self {
+        let (emission, reflectance) = (&solution.surface_emission, &solution.surface_reflectance);
+        let present = v.presence(solution.frame()).primitives;
         let mut emitters = Vec::new();
         let mut kd = Vec::with_capacity(v.primitives.len());
         let (mut lo, mut hi) = (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN));
@@ -98,8 +112,9 @@ impl DirectLight {
                 emitters.push(Emitter { prim, normal: prim.normal(), radiance, centre, radius });
             }
         }
+        let (glossy_of, glossy) = glossy_frames(v, &solution.surface_specular);
         let epsilon = if lo.x <= hi.x { (hi - lo).max_element() * 1e-5 } else { 1e-6 };
-        Self { emitters, kd, samples: samples.clamp(1, 64), epsilon }
+        Self { emitters, kd, glossy_of, glossy, samples: samples.clamp(1, 64), epsilon }
     }
 
     /// Shadow rays of a pixel's second estimate, in and near penumbrae
@@ -180,6 +195,7 @@ impl DirectLight {
         let unshadowed: Vec3 = lit.iter().map(|&(e, u)| self.emitters[e as usize].radiance * u).sum();
         let count = points.len() as u32;
         let key = mix(key ^ 0x4f1b_bcdc_bfa5_3e0b);
+        let order = Permutation::new(count, key);
         let shift = Vec2::new(unit(key), unit(key >> 32));
         // Running position along the emitters laid end to end, and the
         // index of the current ray within its emitter.
@@ -197,7 +213,7 @@ impl DirectLight {
             let em = &self.emitters[lit[next].0 as usize];
             let uv = r2_point(within, shift + Vec2::splat(lit[next].0 as f32 * 0.618_034));
             within += 1;
-            let x = points[permute(q % count, count, key) as usize];
+            let x = points[order.apply(q % count) as usize];
             if let Some((f, true)) = self.shadow_ray(x, n, em, uv, bvh) {
                 // f over the chance of this emitter (its share of the weight).
                 shadowed += em.radiance * (f * weight / weight_of(&lit[next]));
@@ -229,6 +245,42 @@ impl DirectLight {
         let f = cos_x * cos_y / r2 * jacobian;
         Some((f, bvh.occluded(origin, d, 0.0, r2.sqrt() * (1.0 - 1e-4))))
     }
+}
+
+/// Per primitive, the index of its lobe in the returned list (`u32::MAX`
+/// for diffuse primitives): the archive's prototype (GGX roughness and
+/// Fresnel) and orientation (normal and grain) of its non-diffuse patches,
+/// and `k_s` per surface. A primitive's patches share one material and one
+/// orientation; Lambertian test prototypes are left to the I-net.
+fn glossy_frames(v: &InetView<'_>, specular: &[[f32; 3]]) -> (Vec<u32>, Vec<glossy::GlossyFrame>) {
+    let mut of = vec![u32::MAX; v.primitives.len()];
+    let mut frames = Vec::new();
+    let Some(r) = &v.reflectance else { return (of, frames) };
+    for rec in r.patches {
+        let Some(&prim) = v.patch_primitive.get(rec.patch as usize) else { continue };
+        let (Some(proto), Some(o)) =
+            (r.prototypes.get(rec.prototype as usize), r.orientations.get(rec.orientation as usize))
+        else {
+            continue;
+        };
+        if of[prim as usize] != u32::MAX || proto.model != table_model::GGX {
+            continue;
+        }
+        let surface = v.primitives[prim as usize].surface as usize;
+        let ks = specular.get(surface).map_or(Vec3::ZERO, |&k| Vec3::from(k));
+        let ior = (proto.ior != [0.0; 3]).then_some(proto.ior);
+        // Validation checks the roughness finite and not negative, not the
+        // scene's range, nor the frame unit: keep a forged archive finite.
+        let n = Vec3::from(o.normal).normalize_or_zero();
+        let t = (Vec3::from(o.grain) - n * n.dot(Vec3::from(o.grain))).normalize_or_zero();
+        if n == Vec3::ZERO || t == Vec3::ZERO || !ks.is_finite() {
+            continue;
+        }
+        let lobe = Lobe { alpha_u: proto.alpha_u.clamp(1e-3, 1e3), alpha_v: proto.alpha_v.clamp(1e-3, 1e3), ior };
+        of[prim as usize] = frames.len() as u32;
+        frames.push(glossy::GlossyFrame { ks, lobe, t, b: n.cross(t), n });
+    }
+    (of, frames)
 }
 
 /// Point `i` of the R2 sequence (Roberts' generalised golden ratio, the
@@ -319,16 +371,30 @@ pub fn pixel_key(frame: u32, x: u32, y: u32) -> u64 {
     mix(mix(((frame as u64) << 32) | y as u64) ^ ((x as u64) << 32))
 }
 
-/// `i ↦ (a·i + b) mod n`, a permutation of `0..n` chosen by `key`
-/// (`a` odd and coprime with `n`).
-fn permute(i: u32, n: u32, key: u64) -> u32 {
-    let h = mix(key);
-    let (n64, b) = (n as u64, (h >> 32) % n as u64);
-    let mut a = ((h as u32) % n.max(1)) as u64 | 1;
-    while gcd(a, n64) != 1 {
-        a += 2;
+/// `i ↦ (a·i + b) mod n`, a permutation of `0..n` chosen by a key (`a`
+/// odd and coprime with `n`): made once, applied to every ray.
+#[derive(Clone, Copy)]
+struct Permutation {
+    a: u64,
+    b: u64,
+    n: u64,
+}
+
+impl Permutation {
+    fn new(n: u32, key: u64) -> Self {
+        let h = mix(key);
+        let (n64, b) = (n as u64, (h >> 32) % n.max(1) as u64);
+        let mut a = ((h as u32) % n.max(1)) as u64 | 1;
+        while gcd(a, n64) != 1 {
+            a += 2;
+        }
+        Self { a, b, n: n64.max(1) }
     }
-    ((a * i as u64 + b) % n64) as u32
+
+    #[inline]
+    fn apply(&self, i: u32) -> u32 {
+        ((self.a * i as u64 + self.b) % self.n) as u32
+    }
 }
 
 fn gcd(mut a: u64, mut b: u64) -> u64 {

@@ -72,6 +72,13 @@ pub fn read_exr(path: &Path) -> Result<Image, String> {
 /// reference is below `1.0` in every channel (emitters seen directly are
 /// left out), the measure used against path-traced references.
 pub fn relative_l2(image: &Image, reference: &Image) -> Result<f64, String> {
+    relative_l2_below(image, reference, 1.0)
+}
+
+/// [`relative_l2`] over the pixels whose reference is below `limit` in
+/// every channel (a bright highlight is judged with a limit above it, the
+/// emitter's radiance below it).
+pub fn relative_l2_below(image: &Image, reference: &Image, limit: f32) -> Result<f64, String> {
     if (image.width, image.height) != (reference.width, reference.height) {
         return Err(format!(
             "image is {}×{}, reference {}×{}",
@@ -80,7 +87,7 @@ pub fn relative_l2(image: &Image, reference: &Image) -> Result<f64, String> {
     }
     let (mut num, mut den) = (0.0f64, 0.0f64);
     for (a, r) in image.pixels.iter().zip(&reference.pixels) {
-        if r.iter().all(|&x| x < 1.0) {
+        if r.iter().all(|&x| x < limit) {
             for c in 0..3 {
                 let d = (a[c] - r[c]) as f64;
                 num += d * d;
@@ -108,12 +115,18 @@ pub struct ImageError {
 /// Computes [`ImageError`] and, per pixel, the relative error
 /// `|a − ref| / (ref + 0.01)` of the luminance (0 where the pixel is excluded).
 pub fn compare(image: &Image, reference: &Image) -> Result<(ImageError, Vec<f32>), String> {
-    let rel = relative_l2(image, reference)?;
+    compare_below(image, reference, 1.0)
+}
+
+/// [`compare`] over the pixels whose reference is below `limit` in every
+/// channel.
+pub fn compare_below(image: &Image, reference: &Image, limit: f32) -> Result<(ImageError, Vec<f32>), String> {
+    let rel = relative_l2_below(image, reference, limit)?;
     let lum = |c: &[f32; 3]| 0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2];
     let (mut sq, mut ref_sq, mut abs, mut n) = (0.0f64, 0.0f64, 0.0f64, 0u64);
     let mut map = Vec::with_capacity(image.pixels.len());
     for (a, r) in image.pixels.iter().zip(&reference.pixels) {
-        if r.iter().all(|&x| x < 1.0) {
+        if r.iter().all(|&x| x < limit) {
             for c in 0..3 {
                 let d = (a[c] - r[c]) as f64;
                 sq += d * d;

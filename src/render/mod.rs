@@ -218,6 +218,8 @@ struct PixelLight<'f> {
     bvh: &'f PrimitiveBvh,
     normals: &'f [Vec3],
     point: &'f SamplePoint<'f>,
+    /// Where the camera is (glossy highlights depend on it).
+    eye: Vec3,
     frame: u32,
 }
 
@@ -256,9 +258,14 @@ fn shade_image(
     let back_faces = std::sync::atomic::AtomicUsize::new(0);
     let mut pixels = vec![[0.0f32; 3]; (w * h) as usize];
     let mut direct_pixels = vec![[0.0f32; 3]; (w * h) as usize];
+    // Glossy highlights: taken once, in the first pass.
+    let mut glossy_pixels = vec![[0.0f32; 3]; (w * h) as usize];
     let mut blocked = vec![false; (w * h) as usize];
-    let rows = direct_pixels.par_chunks_mut(w as usize).zip(blocked.par_chunks_mut(w as usize));
-    pixels.par_chunks_mut(w as usize).zip(rows).enumerate().for_each(|(y, (row, (drow, brow)))| {
+    let rows = direct_pixels
+        .par_chunks_mut(w as usize)
+        .zip(blocked.par_chunks_mut(w as usize))
+        .zip(glossy_pixels.par_chunks_mut(w as usize));
+    pixels.par_chunks_mut(w as usize).zip(rows).enumerate().for_each(|(y, (row, ((drow, brow), grow)))| {
         let (mut scratch, mut hits) = (PixelScratch::default(), Vec::new());
         for (x, px) in row.iter_mut().enumerate() {
             hits_of(x as u32, y as u32, &mut hits);
@@ -274,8 +281,10 @@ fn shade_image(
             let inv = 1.0 / hits.len().max(1) as f32;
             *px = (acc * inv).to_array();
             if let Some(pl) = direct {
-                let (light, any_blocked) = pixel_direct(&hits, pl, (x as u32, y as u32), &mut scratch, false);
+                let (light, highlights, any_blocked) =
+                    pixel_direct(&hits, pl, (x as u32, y as u32), &mut scratch, false);
                 drow[x] = (light * inv).to_array();
+                grow[x] = (highlights * inv).to_array();
                 brow[x] = any_blocked;
             }
         }
@@ -296,20 +305,24 @@ fn shade_image(
         for (x, d) in drow.iter_mut().enumerate() {
             if near_blocked(x as u32, y as u32) {
                 hits_of(x as u32, y as u32, &mut hits);
-                let (light, _) = pixel_direct(&hits, pl, (x as u32, y as u32), &mut scratch, true);
+                let (light, _, _) = pixel_direct(&hits, pl, (x as u32, y as u32), &mut scratch, true);
                 *d = (light / hits.len().max(1) as f32).to_array();
             }
         }
     });
+    for (d, g) in direct_pixels.iter_mut().zip(&glossy_pixels) {
+        *d = [0, 1, 2].map(|c| d[c] + g[c]);
+    }
     for (p, d) in pixels.iter_mut().zip(&direct_pixels) {
         *p = [0, 1, 2].map(|c| p[c] + d[c]);
     }
     (Image { width: w, height: h, pixels }, Some(Image { width: w, height: h, pixels: direct_pixels }), back_faces)
 }
 
-/// The summed direct light of a pixel's samples `hits` (its first
+/// The summed diffuse direct light of a pixel's samples `hits` (its first
 /// estimate, or the refined one), computed once per primitive the samples
-/// see and weighted by how many see it; and whether a first-estimate
+/// see and weighted by how many see it; the summed glossy highlights (first
+/// estimate only: they are not refined); and whether a first-estimate
 /// shadow ray was blocked.
 fn pixel_direct(
     hits: &[SampleHit],
@@ -317,7 +330,7 @@ fn pixel_direct(
     (x, y): (u32, u32),
     scratch: &mut PixelScratch,
     refined: bool,
-) -> (Vec3, bool) {
+) -> (Vec3, Vec3, bool) {
     scratch.lit.clear();
     for (k, hit) in hits.iter().enumerate() {
         if hit.primitive != u32::MAX
@@ -329,7 +342,7 @@ fn pixel_direct(
     // Stable: each primitive's samples stay in sample order.
     scratch.lit.sort_by_key(|&(prim, _)| prim);
     let pixel = direct::pixel_key(pl.frame, x, y);
-    let (mut light, mut blocked) = (Vec3::ZERO, false);
+    let (mut light, mut highlights, mut blocked) = (Vec3::ZERO, Vec3::ZERO, false);
     for run in scratch.lit.chunk_by(|a, b| a.0 == b.0) {
         let prim = run[0].0;
         scratch.points.clear();
@@ -342,8 +355,11 @@ fn pixel_direct(
         let (l, b) = pl.light.estimate(points, n, prim, pl.bvh, key, rays, &mut scratch.emitters);
         blocked |= b;
         light += l * run.len() as f32;
+        if !refined && pl.light.is_glossy(prim) {
+            highlights += pl.light.glossy_estimate(points, n, pl.eye, prim, pl.bvh, key, &mut scratch.emitters);
+        }
     }
-    (light, blocked)
+    (light, highlights, blocked)
 }
 
 const NO_HIT: SampleHit =
@@ -475,6 +491,7 @@ impl<'a> Renderer<'a> {
             bvh: &bvh,
             normals: &self.normals,
             point: &sample_point as &SamplePoint<'_>,
+            eye: Vec3::from(record.position),
             frame,
         });
         // Images whose samples would not fit the cache budget are shaded

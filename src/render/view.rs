@@ -18,6 +18,12 @@ use crate::distribute::Solution;
 /// Patch radiance as seen from `eye`: each patch's diffuse radiance plus,
 /// for non-diffuse patches, their directional radiance towards `eye`.
 pub fn radiance_seen_from(v: &InetView<'_>, solution: &Solution, eye: Vec3) -> Vec<[f32; 3]> {
+    seen_from(v, solution, eye, false)
+}
+
+/// [`radiance_seen_from`], with the directional radiance's direct part
+/// (the emitters' highlights) taken off when `indirect` and split.
+fn seen_from(v: &InetView<'_>, solution: &Solution, eye: Vec3, indirect: bool) -> Vec<[f32; 3]> {
     let mut out = solution.radiance.clone();
     let Some(d) = &solution.directional else {
         return out;
@@ -28,7 +34,16 @@ pub fn radiance_seen_from(v: &InetView<'_>, solution: &Solution, eye: Vec3) -> V
         .enumerate()
         .map(|(k, &q)| {
             let to_eye = (eye - Vec3::from(v.patch_centre[q as usize])).normalize_or_zero();
-            interpolate(v.directions, d.of(k), to_eye)
+            let all = interpolate(v.directions, d.of(k), to_eye);
+            match d.direct_of(k).filter(|_| indirect) {
+                // Interpolated with the same weights: the difference is the
+                // interpolated indirect part, non-negative up to rounding.
+                Some(direct) => {
+                    let once = interpolate(v.directions, direct, to_eye);
+                    [0, 1, 2].map(|c| (all[c] - once[c]).max(0.0))
+                }
+                None => all,
+            }
         })
         .collect();
     for (&q, e) in d.patches.iter().zip(extra) {
@@ -41,16 +56,24 @@ pub fn radiance_seen_from(v: &InetView<'_>, solution: &Solution, eye: Vec3) -> V
 
 /// Patch radiance for `frame`, seen from that frame's camera.
 pub fn frame_radiance(v: &InetView<'_>, frame: u32, solution: &Solution) -> Vec<[f32; 3]> {
+    radiance_seen_from(v, solution, frame_eye(v, frame))
+}
+
+/// Where `frame`'s camera is.
+fn frame_eye(v: &InetView<'_>, frame: u32) -> Vec3 {
     let cam = v.sequence.and_then(|s| s.cameras).and_then(|c| c.get(frame as usize)).unwrap_or(v.camera);
-    radiance_seen_from(v, solution, Vec3::from(cam.position))
+    Vec3::from(cam.position)
 }
 
 /// [`frame_radiance`] less the solution's direct light
-/// ([`Solution::direct`]): what a renderer that computes direct light per
-/// image sample interpolates between patch vertices. Without a direct
-/// part in the solution, all of [`frame_radiance`].
+/// ([`Solution::direct`], and the direct part of non-diffuse patches'
+/// directional radiance, [`crate::distribute::DirectionalRadiance::direct`]):
+/// what a renderer that computes direct light per image sample
+/// ([`super::DirectLight`], highlights included) interpolates between patch
+/// vertices. Without a direct part in the solution, all of
+/// [`frame_radiance`].
 pub fn indirect_frame_radiance(v: &InetView<'_>, frame: u32, solution: &Solution) -> Vec<[f32; 3]> {
-    let mut out = frame_radiance(v, frame, solution);
+    let mut out = seen_from(v, solution, frame_eye(v, frame), true);
     if let Some(direct) = &solution.direct {
         for (o, d) in out.iter_mut().zip(direct) {
             // Exactly non-negative in exact arithmetic (emission plus light

@@ -75,9 +75,26 @@ def _load_obj(path, what):
     return np.asarray(verts, dtype=np.float64), np.asarray(faces, dtype=np.int64)
 
 
-def _transform(verts, faces, t, what):
+def _face_tangents(verts, faces, first_edge, grain):
+    """Per face, the unit grain direction in its plane (format-spec/scene.md:
+    the surface's `grain`, else the primitive's first edge, projected onto
+    the face's plane)."""
+    a, b, c = verts[faces[:, 0]], verts[faces[:, 1]], verts[faces[:, 2]]
+    n = np.cross(b - a, c - a)
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    g = first_edge if grain is None else np.broadcast_to(grain, n.shape)
+    t = g - n * np.sum(g * n, axis=1, keepdims=True)
+    norm = np.linalg.norm(t, axis=1, keepdims=True)
+    if np.any(norm < 1e-9):
+        raise SceneError("a grain is perpendicular to a face it lies on")
+    return t / norm
+
+
+def _transform(verts, faces, t, what, first_edge=None, grain=None):
     """`p' = translate + Rz·Ry·Rx·(scale ⊙ p)` (format-spec/scene.md); a
-    mirroring scale reverses the winding so fronts stay on the same side."""
+    mirroring scale reverses the winding so fronts stay on the same side.
+    Directions (`first_edge` per face, `grain`) are scaled and rotated too
+    when given, and then returned as well."""
     scale = np.asarray(_vec3(t.get("scale", [1, 1, 1]), f"{what}.scale"))
     rx, ry, rz = np.radians(_vec3(t.get("rotate_deg", [0, 0, 0]), f"{what}.rotate_deg"))
     translate = np.asarray(_vec3(t.get("translate", [0, 0, 0]), f"{what}.translate"))
@@ -85,10 +102,16 @@ def _transform(verts, faces, t, what):
     r_x = np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]])
     r_y = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
     r_z = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
-    verts = (verts * scale) @ (r_z @ r_y @ r_x).T + translate
+    rot = r_z @ r_y @ r_x
+    verts = (verts * scale) @ rot.T + translate
     if np.prod(scale) < 0:
         faces = faces[:, ::-1]
-    return verts, faces
+    if first_edge is None and grain is None:
+        return verts, faces
+    first_edge = (first_edge * scale) @ rot.T
+    if grain is not None:
+        grain = (np.asarray(grain) * scale) @ rot.T
+    return verts, faces, first_edge, grain
 
 
 def load_scene(path):
@@ -136,11 +159,10 @@ def load_scene(path):
                 au = av = float(m["alpha"])
             else:
                 au, av = float(m.get("alpha_u", 0)), float(m.get("alpha_v", 0))
-            if au != av:
-                raise SceneError(
-                    f"material '{name}': anisotropic roughness needs the surface tangent frame, "
-                    "which the reference tool does not reproduce; isotropic only")
-            mat["alpha"] = au
+            # Anisotropic roughness runs along each surface's grain: the
+            # meshes then get texture coordinates whose u axis is the grain
+            # (Mitsuba's shading tangent is dp/du).
+            mat["alpha_u"], mat["alpha_v"] = au, av
         materials[name] = mat
 
     surfaces = []
@@ -173,11 +195,24 @@ def load_scene(path):
             verts = np.asarray(quads, dtype=np.float64).reshape(-1, 3)
             # Each quad as the triangles (v0, v1, v2), (v0, v2, v3).
             faces = np.asarray([[4 * q + i for i in t] for q in range(len(quads)) for t in ((0, 1, 2), (0, 2, 3))])
-        verts, faces = _transform(verts, faces, s.get("transform", {}), f"surface '{name}'.transform")
+        # Per face, its primitive's first edge (the default grain): a
+        # quad's corner 0 -> 1 for both its triangles.
+        first_edge = verts[faces[:, 1]] - verts[faces[:, 0]]
+        if geo[0] != "mesh":
+            first_edge[1::2] = first_edge[0::2]
+        grain = s.get("grain")
+        verts, faces, first_edge, grain = _transform(
+            verts, faces, s.get("transform", {}), f"surface '{name}'.transform",
+            first_edge, None if grain is None else _vec3(grain, f"surface '{name}'.grain"))
         emission = None
         if "emission" in s:
             emission = _vec3(s["emission"], f"surface '{name}'.emission")
-        surfaces.append({"name": name, "material": mat, "verts": verts, "faces": faces, "emission": emission})
+        tangents = None
+        m = materials[mat]
+        if m["type"] != "diffuse" and m["alpha_u"] != m["alpha_v"]:
+            tangents = _face_tangents(verts, faces, first_edge, grain)
+        surfaces.append({"name": name, "material": mat, "verts": verts, "faces": faces, "emission": emission,
+                         "tangents": tangents})
 
     if not surfaces:
         raise SceneError("scene has no [[surface]]")
@@ -189,8 +224,24 @@ def load_scene(path):
 # --------------------------------------------------------------------------
 
 def _make_mesh(mi, dr, surf, bsdf):
-    verts = np.asarray(surf["verts"], dtype=np.float32)
-    faces = np.asarray(surf["faces"], dtype=np.uint32)
+    verts = np.asarray(surf["verts"], dtype=np.float64)
+    faces = np.asarray(surf["faces"], dtype=np.int64)
+    uv = None
+    if surf.get("tangents") is not None:
+        # Anisotropic: every face its own corners, with u along its grain
+        # and v across it (u = p·t, v = p·(n × t)), so that Mitsuba's
+        # shading tangent dp/du is the grain.
+        t = surf["tangents"]
+        corners = verts[faces]                                  # (F, 3, 3)
+        n = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+        n /= np.linalg.norm(n, axis=1, keepdims=True)
+        b = np.cross(n, t)
+        uv = np.stack([np.einsum("fkc,fc->fk", corners, t), np.einsum("fkc,fc->fk", corners, b)], axis=-1)
+        verts = corners.reshape(-1, 3)
+        faces = np.arange(len(verts)).reshape(-1, 3)
+        uv = uv.reshape(-1, 2)
+    verts = verts.astype(np.float32)
+    faces = faces.astype(np.uint32)
 
     props = mi.Properties()
     props["bsdf"] = bsdf
@@ -200,11 +251,13 @@ def _make_mesh(mi, dr, surf, bsdf):
             "radiance": {"type": "rgb", "value": surf["emission"]},
         })
     mesh = mi.Mesh(surf["name"], len(verts), len(faces), props=props,
-                   has_vertex_normals=False, has_vertex_texcoords=False)
+                   has_vertex_normals=False, has_vertex_texcoords=uv is not None)
     params = mi.traverse(mesh)
     # Buffer types differ between variants (e.g. mi.Float vs dr.scalar.ArrayXf).
     params["vertex_positions"] = type(params["vertex_positions"])(verts.ravel())
     params["faces"] = type(params["faces"])(faces.ravel())
+    if uv is not None:
+        params["vertex_texcoords"] = type(params["vertex_texcoords"])(uv.astype(np.float32).ravel())
     params.update()
     return mesh
 
@@ -218,7 +271,8 @@ def _bsdf(m, scale=1.0):
         "type": "roughconductor",
         "material": "none",          # Fresnel = 1
         "distribution": "ggx",
-        "alpha": m["alpha"],
+        "alpha_u": m["alpha_u"],
+        "alpha_v": m["alpha_v"],
         "sample_visible": True,
         "specular_reflectance": {"type": "rgb", "value": [scale * x for x in m["specular"]]},
     }
