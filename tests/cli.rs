@@ -426,3 +426,101 @@ fn a_new_users_mistakes_get_plain_answers() {
     let out = illumnet(&["render", "-q", &path("box.inet"), "-o", &path("b.png"), "--samples", "1"]);
     assert!(!String::from_utf8_lossy(&out.stderr).contains("warning"));
 }
+
+/// Any view from one archive: the same camera given at build time and at
+/// render time gives the same image (a diffuse box and a glossy plate, whose
+/// highlights follow the eye), from a file or field by field; a walkthrough
+/// over a still archive solves the light once.
+#[test]
+fn any_view_from_one_archive() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = |name: &str| dir.path().join(name).to_str().unwrap().to_string();
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let moved = |scene: &str, from: &str, to: &str| {
+        let text = std::fs::read_to_string(root.join("scenes").join(scene)).unwrap();
+        assert!(text.contains(from), "{scene} has no `{from}`");
+        let text = text.replace(from, to).replace("width = 256", "width = 64").replace("height = 256", "height = 48");
+        let text = text.replace("width = 192", "width = 64").replace("height = 192", "height = 48");
+        std::fs::write(path(&format!("moved_{scene}")), text).unwrap();
+    };
+    moved("cornell_box.toml", "position = [0.278, 0.273, -0.800]", "position = [0.45, 0.40, -0.55]");
+    moved("glossy_floor.toml", "position = [0.278, 0.273, -0.800]", "position = [0.45, 0.40, -0.55]");
+    for (scene, fields) in [
+        ("cornell_box.toml", ["--camera-position", "0.45,0.40,-0.55", "--size", "64x48"]),
+        ("glossy_floor.toml", ["--camera-position", "0.45,0.40,-0.55", "--size", "64x48"]),
+    ] {
+        let quality = ["--frequency", "8", "--patch-size", "0.05"];
+        let original = root.join("scenes").join(scene);
+        let a = path(&format!("a_{scene}.inet"));
+        illumnet(&[&["build", "-q", original.to_str().unwrap(), "-o", &a][..], &quality[..]].concat());
+        let m = path(&format!("moved_{scene}"));
+        illumnet(&[&["build", "-q", &m, "-o", &path("m.inet")][..], &quality[..]].concat());
+        illumnet(&["render", "-q", &path("m.inet"), "-o", &path("built.png"), "--exr", &path("built.exr")]);
+        let built = read_exr(Path::new(&path("built.exr"))).unwrap();
+        assert_eq!((built.width, built.height), (64, 48));
+        for how in [vec!["--camera-from", m.as_str()], fields.to_vec()] {
+            let mut args = vec!["render", "-q", a.as_str()];
+            let (png, exr) = (path("given.png"), path("given.exr"));
+            args.extend(["-o", &png, "--exr", &exr]);
+            args.extend(how.iter().copied());
+            illumnet(&args);
+            let given = read_exr(Path::new(&exr)).unwrap();
+            assert!(given == built, "{scene}: the camera given at render time ({how:?}) changed the image");
+        }
+    }
+    // A walkthrough of three frames over the still box: the light is solved
+    // once; frame 0 is the view from the path's first key.
+    std::fs::write(
+        path("walk.toml"),
+        "[animation]\nframes = 3\n[camera]\nposition = [0.278, 0.273, -0.8]\nlook_at = [0.278, 0.273, 0.0]\n\
+         fov_y_deg = 39.3\nwidth = 32\nheight = 32\nkeyframes = [\n\
+         { frame = 0, position = [0.278, 0.273, -0.8], look_at = [0.278, 0.273, 0.0] },\n\
+         { frame = 2, position = [0.2, 0.3, -0.3], look_at = [0.4, 0.2, 0.4] },\n]\n",
+    )
+    .unwrap();
+    let boxed = path("a_cornell_box.toml.inet");
+    let out = illumnet(&[
+        "render",
+        &boxed,
+        "-o",
+        &path("w_%d.png"),
+        "--exr",
+        &path("w_%d.exr"),
+        "--camera-path",
+        &path("walk.toml"),
+    ]);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert_eq!(stdout.matches("the light is frame 0's: 0 iterations").count(), 2, "{stdout}");
+    assert!(stdout.contains("rendered 3 frames"), "{stdout}");
+    let frames: Vec<_> = (0..3).map(|f| read_exr(Path::new(&path(&format!("w_{f}.exr")))).unwrap()).collect();
+    assert!(frames[0] != frames[1] && frames[1] != frames[2], "the camera moves");
+    illumnet(&[
+        "render",
+        "-q",
+        &boxed,
+        "-o",
+        &path("k.png"),
+        "--exr",
+        &path("k.exr"),
+        "--size",
+        "32x32",
+        "--fov",
+        "39.3",
+    ]);
+    assert!(read_exr(Path::new(&path("k.exr"))).unwrap() == frames[0], "frame 0 is the first key's view");
+    // Cameras that cannot be, refused before any work (exit 3).
+    for bad in [
+        vec!["--fov", "180"],
+        vec!["--look-at", "0.278,0.9,-0.8"],
+        vec!["--size", "0x10"],
+        vec!["--camera-position", "1,2"],
+        vec!["--camera-from", "nothing.toml"],
+    ] {
+        let x = path("x.png");
+        let mut args = vec!["render", boxed.as_str(), "-o", x.as_str()];
+        args.extend(bad.iter().copied());
+        let (code, err) = failing(&args);
+        assert!(code == 2 || code == 3, "{bad:?}: exit {code}: {err}");
+        assert!(!Path::new(&x).exists(), "{bad:?}: an image was written");
+    }
+}

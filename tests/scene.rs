@@ -214,3 +214,40 @@ fn parser_errors_name_the_field_in_plain_words() {
         assert!(!e.message.contains("u32") && !e.message.contains("invalid length"), "{e}");
     }
 }
+
+/// `render --camera-from/--camera-path` read a file's camera alone: a
+/// scene file's `[camera]` (the rest ignored), or a path of keyframes over
+/// `[animation] frames`; errors name the file, line and field.
+#[test]
+fn camera_files_read_the_camera_alone() {
+    use illumnet::scene::CameraPath;
+    let dir = tempfile::tempdir().unwrap();
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let scene = Scene::from_file(&root.join("scenes/fan_room.toml")).unwrap();
+    let cam = CameraPath::from_file(&root.join("scenes/fan_room.toml")).unwrap();
+    assert_eq!(cam.frames, scene.frame_count());
+    for f in [0, 7, 59] {
+        assert_eq!(cam.at(f), scene.camera_at(f), "frame {f}");
+    }
+    let walk = dir.path().join("walk.toml");
+    std::fs::write(
+        &walk,
+        "[animation]\nframes = 5\n[camera]\nposition = [0, 0, -2]\nlook_at = [0, 0, 0]\nfov_y_deg = 40\n\
+         width = 8\nheight = 8\nkeyframes = [{ frame = 0, position = [0, 0, -2], look_at = [0, 0, 0] },\n\
+         { frame = 4, position = [2, 0, 0], look_at = [0, 0, 0] }]\n",
+    )
+    .unwrap();
+    let path = CameraPath::from_file(&walk).unwrap();
+    assert_eq!(path.frames, 5);
+    assert!((path.at(2).position - glam::Vec3::new(1.0, 0.0, -1.0)).length() < 1e-6);
+    assert_eq!(path.at(9).position, glam::Vec3::new(2.0, 0.0, 0.0), "held after the last key");
+    // A key that looks along `up`, on line 8: named.
+    std::fs::write(
+        &walk,
+        "[animation]\nframes = 5\n[camera]\nposition = [0, 0, -2]\nlook_at = [0, 0, 0]\nfov_y_deg = 40\n\
+         width = 8\nkeyframes = [{ frame = 0, position = [0, -1, 0], look_at = [0, 0, 0] }]\nheight = 8\n",
+    )
+    .unwrap();
+    let e = CameraPath::from_file(&walk).unwrap_err();
+    assert_eq!((e.line, e.field.as_str()), (8, "camera.keyframes"), "{e}");
+}

@@ -14,6 +14,7 @@ use illumnet::progress::Progress;
 use illumnet::render::{self, RenderOptions, image_io, plan};
 use illumnet::scene::{BuildHints, Scene};
 
+use super::camera::RenderCameras;
 use super::exit::{BadInput, InputContext, IoFailure, ResultRefused, bail_input};
 use super::{BuildArgs, RenderArgs, Shading};
 
@@ -336,6 +337,7 @@ pub fn render(
     exr: Option<&Path>,
     frames: Option<&str>,
     args: RenderArgs,
+    cameras: &RenderCameras,
     sets: &[String],
     extras: Extras<'_>,
     progress: &dyn Progress,
@@ -380,8 +382,20 @@ pub fn render(
     };
     let t = Instant::now();
     let summary = opened(path, Archive::summary(path))?;
-    let total_frames = summary.section_count(archive::layout::tag::DELTA_INDEX).max(1) as u32;
-    // All frames of a sequence unless told otherwise.
+    let archive_frames = summary.section_count(archive::layout::tag::DELTA_INDEX).max(1) as u32;
+    // A walkthrough renders its path's frames; over a still archive they
+    // all show frame 0's light, solved once.
+    let still_walk = cameras.walkthrough_frames().is_some() && archive_frames == 1;
+    let total_frames = match cameras.walkthrough_frames() {
+        Some(n) if archive_frames > 1 && n > archive_frames => bail_input!(
+            "the camera path has {n} frames but the archive's sequence only {archive_frames}: a path over a \
+             sequence shows frame k at path frame k"
+        ),
+        Some(n) => n,
+        None => archive_frames,
+    };
+    let archive_frame = |f: u32| if still_walk { 0 } else { f };
+    // All frames of a sequence (or a walkthrough) unless told otherwise.
     let range = match frames {
         Some(f) => parse_frames(f, total_frames)?,
         None => 0..total_frames,
@@ -389,9 +403,21 @@ pub fn render(
     if range.end > total_frames {
         bail_input!("frames {}..{} are outside the archive's sequence 0..{total_frames}", range.start, range.end);
     }
+    // Every frame's camera, checked before any work.
+    let mut frame_cameras = Vec::new();
+    if cameras.given() {
+        for f in range.clone() {
+            frame_cameras.push(cameras.at(summary.camera, f)?);
+        }
+    }
+    // The largest image any frame makes, for the memory plan.
+    let (width, height) = match frame_cameras.is_empty() {
+        true => (summary.camera.width, summary.camera.height),
+        false => frame_cameras.iter().fold((1, 1), |(w, h), c| (w.max(c.width), h.max(c.height))),
+    };
     let job = plan::RenderJob {
-        width: summary.camera.width,
-        height: summary.camera.height,
+        width,
+        height,
         samples_per_axis: args.samples,
         frames: range.len() as u32,
         keep_images: extras.gif.is_some() || extras.contact_sheet.is_some(),
@@ -471,26 +497,50 @@ pub fn render(
     let mut images = Vec::new();
     let mut iterations = 0;
     let mut warned_dark = false;
+    let mut size = (summary.camera.width, summary.camera.height);
     for f in range.clone() {
         let t1 = Instant::now();
-        let start = if args.cold { None } else { previous.as_ref() };
-        let solution = distributor.frame(f, start, progress)?;
-        iterations += solution.balance.iterations;
-        t_delta += solution.delta_s;
-        t_dist += t1.elapsed().as_secs_f64();
+        let af = archive_frame(f);
+        // A walkthrough of a still archive solves the light once.
+        let reuse = still_walk && previous.is_some();
+        let solution = match previous.take() {
+            Some(p) if reuse => p,
+            p => {
+                let start = if args.cold { None } else { p.as_ref() };
+                distributor.frame(af, start, progress)?
+            }
+        };
+        if cameras.given() {
+            renderer.set_camera(None);
+            let base = renderer.camera(af);
+            renderer.set_camera(Some(cameras.at(base, f)?));
+        }
+        let camera = renderer.camera(af);
+        size = (camera.width, camera.height);
+        let eye = glam::Vec3::from(camera.position);
+        if reuse {
+            println!("frame {f}: the camera moved, the light is frame 0's: 0 iterations");
+        }
         let b = &solution.balance;
-        ends += b.ends_gathered as f64;
-        println!(
-            "{}energy balance: emitted {:.4} W, absorbed {:.4} W, escaped {:.4} W, residual {:.2e} W (imbalance {:.1e}), {} iterations{}",
-            if sequence_output { format!("frame {f}: ") } else { String::new() },
-            sum(&b.emitted),
-            sum(&b.absorbed),
-            sum(&b.escaped),
-            sum(&b.residual),
-            b.imbalance(),
-            b.iterations,
-            if b.converged { "" } else { " (NOT converged)" }
-        );
+        if !reuse {
+            iterations += b.iterations;
+            t_delta += solution.delta_s;
+            t_dist += t1.elapsed().as_secs_f64();
+            ends += b.ends_gathered as f64;
+        }
+        if !reuse {
+            println!(
+                "{}energy balance: emitted {:.4} W, absorbed {:.4} W, escaped {:.4} W, residual {:.2e} W (imbalance {:.1e}), {} iterations{}",
+                if sequence_output { format!("frame {f}: ") } else { String::new() },
+                sum(&b.emitted),
+                sum(&b.absorbed),
+                sum(&b.escaped),
+                sum(&b.residual),
+                b.imbalance(),
+                b.iterations,
+                if b.converged { "" } else { " (NOT converged)" }
+            );
+        }
         if !b.converged && !args.allow_unconverged {
             return Err(anyhow::Error::new(ResultRefused(format!(
                 "frame {f}: the distribution did not converge in {} iterations (unshot power {:.2e} of the {:.4} W \
@@ -521,10 +571,10 @@ pub fn render(
         let (image, direct) = if direct_shading {
             let light = render::DirectLight::new(&view, &solution, args.light_samples);
             let (image, direct) =
-                renderer.frame_direct(f, &render::indirect_frame_radiance(&view, f, &solution), &light);
+                renderer.frame_direct(af, &render::indirect_radiance_seen_from(&view, &solution, eye), &light);
             (image, Some(direct))
         } else {
-            (renderer.frame(f, &render::frame_radiance(&view, f, &solution)), None)
+            (renderer.frame(af, &render::radiance_seen_from(&view, &solution, eye)), None)
         };
         t_render += t2.elapsed().as_secs_f64();
         let samples = image.pixels.len() as f64 * (args.samples * args.samples) as f64;
@@ -578,15 +628,14 @@ pub fn render(
         image_io::write_contact_sheet(&images, 10, args.exposure, sheet).map_err(IoFailure)?;
         println!("wrote contact sheet {}", sheet.display());
     }
-    let c = view.camera;
     println!(
         "rendered {} frame{} to {}{}: {}×{}, open {:.3} s, setup {:.3} s, delta apply {:.3} s, distribution {:.3} s ({} iterations, {:.0} M link ends/s; gather {:.0} M ends/s), render {:.3} s{}",
         range.len(),
         if range.len() == 1 { "" } else { "s" },
         png.display(),
         exr.map(|e| format!(" and {}", e.display())).unwrap_or_default(),
-        c.width,
-        c.height,
+        size.0,
+        size.1,
         t_open,
         t_setup,
         t_delta,
@@ -1086,6 +1135,7 @@ pub fn demo(dir: &Path, build_args: BuildArgs, render_args: RenderArgs, progress
         Some(&dir.join("cornell_box.exr")),
         None,
         render_args,
+        &RenderCameras::default(),
         &[],
         Extras::default(),
         progress,

@@ -2,6 +2,7 @@
 //! Only this module prints; the library reports through return values and
 //! the [`illumnet::progress::Progress`] trait.
 
+mod camera;
 mod commands;
 mod exit;
 mod progress_bar;
@@ -220,6 +221,8 @@ enum Command {
         #[command(flatten)]
         render: RenderArgs,
         #[command(flatten)]
+        camera: camera::CameraArgs,
+        #[command(flatten)]
         relight: RelightArgs,
     },
     /// Validate an archive and print its header, sections and counts.
@@ -352,18 +355,21 @@ pub fn main() -> ExitCode {
         Command::Build { scene, output, frame, settings } => {
             commands::build(&scene, &output, frame, settings, &progress)
         }
-        Command::Render { archive, output, exr, frames, gif, contact_sheet, render, relight } => {
+        Command::Render { archive, output, exr, frames, gif, contact_sheet, render, camera, relight } => {
             let extras = commands::Extras { gif: gif.as_deref(), contact_sheet: contact_sheet.as_deref() };
-            commands::render(
-                &archive,
-                &output,
-                exr.as_deref(),
-                frames.as_deref(),
-                render,
-                &relight.set,
-                extras,
-                &progress,
-            )
+            camera::RenderCameras::new(&camera).and_then(|cameras| {
+                commands::render(
+                    &archive,
+                    &output,
+                    exr.as_deref(),
+                    frames.as_deref(),
+                    render,
+                    &cameras,
+                    &relight.set,
+                    extras,
+                    &progress,
+                )
+            })
         }
         Command::Inspect { archive, json, patch: Some(p) } => commands::inspect_patch(&archive, p, json),
         Command::Inspect { archive, json, patch: None } => commands::inspect(&archive, json),

@@ -19,7 +19,7 @@ use rayon::prelude::*;
 
 pub use camera::PinholeCamera;
 pub use direct::DirectLight;
-pub use view::{frame_radiance, indirect_frame_radiance, radiance_seen_from};
+pub use view::{frame_radiance, indirect_frame_radiance, indirect_radiance_seen_from, radiance_seen_from};
 
 use crate::archive::InetView;
 use crate::archive::layout::{self, PrimitiveRecord, cell_order};
@@ -382,6 +382,8 @@ pub struct Renderer<'a> {
     temporal: Vec<bool>,
     cache: Option<(crate::archive::layout::CameraRecord, Vec<SampleHit>)>,
     cache_budget: u64,
+    /// The camera given at render time, replacing the archive's.
+    camera: Option<crate::archive::layout::CameraRecord>,
     /// Samples traced against the whole scene in the last frame.
     pub retraced: usize,
     /// Samples of the last frame that saw a back face (shown black:
@@ -404,6 +406,7 @@ impl<'a> Renderer<'a> {
             temporal,
             cache: None,
             cache_budget: CACHE_BUDGET,
+            camera: None,
             retraced: 0,
             back_faces: 0,
         }
@@ -414,6 +417,25 @@ impl<'a> Renderer<'a> {
     pub fn with_cache_budget(mut self, bytes: u64) -> Self {
         self.cache_budget = bytes;
         self
+    }
+
+    /// Renders the next frames from `camera` instead of the archive's
+    /// (`None`: the archive's again). The I-net does not depend on the
+    /// view: only the pixels change. Samples are kept and reused while the
+    /// camera holds still. Callers check the camera can make rays
+    /// ([`crate::limits::camera_is_usable`], a field of view in (0, 180)
+    /// degrees, a size of at least one pixel).
+    pub fn set_camera(&mut self, camera: Option<crate::archive::layout::CameraRecord>) {
+        self.camera = camera;
+    }
+
+    /// The camera `frame` is rendered from: the one set with
+    /// [`Self::set_camera`], else the archive's for that frame.
+    pub fn camera(&self, frame: u32) -> crate::archive::layout::CameraRecord {
+        let v = &self.v;
+        self.camera.unwrap_or_else(|| {
+            *v.sequence.and_then(|s| s.cameras).and_then(|c| c.get(frame as usize)).unwrap_or(v.camera)
+        })
     }
 
     /// Renders `frame` from per-patch radiance.
@@ -438,8 +460,8 @@ impl<'a> Renderer<'a> {
         patch_radiance: &[[f32; 3]],
         direct: Option<&DirectLight>,
     ) -> (Image, Option<Image>) {
+        let record = self.camera(frame);
         let v = &self.v;
-        let record = *v.sequence.and_then(|s| s.cameras).and_then(|c| c.get(frame as usize)).unwrap_or(v.camera);
         let camera = PinholeCamera::from_record(&record);
         let present = v.presence(frame).primitives;
         let kept: Vec<u32> = (0..self.all_prims.len() as u32).filter(|&i| present[i as usize]).collect();

@@ -73,7 +73,13 @@ fn frame_eye(v: &InetView<'_>, frame: u32) -> Vec3 {
 /// vertices. Without a direct part in the solution, all of
 /// [`frame_radiance`].
 pub fn indirect_frame_radiance(v: &InetView<'_>, frame: u32, solution: &Solution) -> Vec<[f32; 3]> {
-    let mut out = seen_from(v, solution, frame_eye(v, frame), true);
+    indirect_radiance_seen_from(v, solution, frame_eye(v, frame))
+}
+
+/// [`indirect_frame_radiance`] seen from `eye` (a camera given at render
+/// time).
+pub fn indirect_radiance_seen_from(v: &InetView<'_>, solution: &Solution, eye: Vec3) -> Vec<[f32; 3]> {
+    let mut out = seen_from(v, solution, eye, true);
     if let Some(direct) = &solution.direct {
         for (o, d) in out.iter_mut().zip(direct) {
             // Exactly non-negative in exact arithmetic (emission plus light

@@ -130,6 +130,53 @@ pub struct Camera {
     pub height: u32,
 }
 
+/// `camera` moved along `keys` (linear between keys, held outside them) at
+/// `frame`.
+fn camera_at(camera: &Camera, keys: &[motion::CameraKey], frame: u32) -> Camera {
+    let key = motion::interpolate(
+        keys,
+        frame,
+        |k| k.frame,
+        |a, b, t| motion::CameraKey {
+            frame,
+            position: a.position.lerp(b.position, t),
+            look_at: a.look_at.lerp(b.look_at, t),
+        },
+    );
+    match key {
+        Some(k) => Camera { position: k.position, look_at: k.look_at, ..*camera },
+        None => *camera,
+    }
+}
+
+/// A camera read from a file on its own (`render --camera-from`,
+/// `--camera-path`): a scene file's `[camera]`, or a file holding just
+/// `[camera]` and, for a path, `[animation] frames` and the camera's
+/// `keyframes` (`format-spec/scene.md`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct CameraPath {
+    /// The camera (position and look_at as keyed at each frame).
+    pub camera: Camera,
+    /// Keyframes of position and look_at, by increasing frame.
+    pub keys: Vec<motion::CameraKey>,
+    /// Frames of the path (the file's `[animation] frames`; 1 without).
+    pub frames: u32,
+}
+
+impl CameraPath {
+    /// Reads the camera of the TOML file at `path`: errors name the file,
+    /// line and field, as for scenes.
+    pub fn from_file(path: &Path) -> Result<Self, SceneError> {
+        let text = std::fs::read_to_string(path).map_err(|e| SceneError::io(path, e))?;
+        parse::parse_camera(&text, path)
+    }
+
+    /// The camera at `frame`.
+    pub fn at(&self, frame: u32) -> Camera {
+        camera_at(&self.camera, &self.keys, frame)
+    }
+}
+
 /// Build settings given in the scene file; `None` means "use the default".
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct BuildHints {
@@ -190,20 +237,7 @@ impl Scene {
 
     /// The camera at `frame`.
     pub fn camera_at(&self, frame: u32) -> Camera {
-        let key = motion::interpolate(
-            &self.camera_keys,
-            frame,
-            |k| k.frame,
-            |a, b, t| motion::CameraKey {
-                frame,
-                position: a.position.lerp(b.position, t),
-                look_at: a.look_at.lerp(b.look_at, t),
-            },
-        );
-        match key {
-            Some(k) => Camera { position: k.position, look_at: k.look_at, ..self.camera },
-            None => self.camera,
-        }
+        camera_at(&self.camera, &self.camera_keys, frame)
     }
 
     /// Whether anything changes over the sequence (geometry, light or camera).

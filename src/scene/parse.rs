@@ -478,32 +478,7 @@ pub(super) fn parse(text: &str, file: &Path, base_dir: &Path, name: String) -> R
         cx.err(span, field, plain_message(e.message().trim(), &key))
     })?;
 
-    // Camera.
-    let c = raw.camera.get_ref();
-    let cspan = raw.camera.span();
-    if !finite3(&c.position) || !finite3(&c.look_at) || !finite3(&c.up) {
-        return Err(cx.err(cspan, "camera", "position, look_at and up must be finite and within ±1e9 m"));
-    }
-    let (position, look_at, up) = (Vec3::from(c.position), Vec3::from(c.look_at), Vec3::from(c.up));
-    let forward = look_at - position;
-    if forward.length() <= 0.0 || forward.normalize().cross(up).length() < 1e-6 {
-        return Err(cx.err(
-            cspan,
-            "camera.up",
-            "look_at must differ from position, and up must not be parallel to the view direction",
-        ));
-    }
-    let fov = *c.fov_y_deg.get_ref();
-    if !(fov > 0.0 && fov < 180.0) {
-        return Err(cx.err(c.fov_y_deg.span(), "camera.fov_y_deg", format!("must be in (0, 180) degrees, got {fov}")));
-    }
-    for (v, f) in [(&c.width, "camera.width"), (&c.height, "camera.height")] {
-        if !(1..=16384).contains(v.get_ref()) {
-            return Err(cx.err(v.span(), f, format!("must be in 1..=16384 pixels, got {}", v.get_ref())));
-        }
-    }
-    let camera =
-        Camera { position, look_at, up, fov_y_deg: fov, width: *c.width.get_ref(), height: *c.height.get_ref() };
+    let (camera, camera_keys) = camera_of(&cx, &raw.camera, &raw.animation)?;
 
     // Build hints.
     let mut build = BuildHints::default();
@@ -783,9 +758,48 @@ pub(super) fn parse(text: &str, file: &Path, base_dir: &Path, name: String) -> R
         }
         None => None,
     };
+    let scene = Scene { name, materials, surfaces, camera, build, animation, camera_keys };
+    Ok(scene)
+}
+
+/// The `[camera]` table (and its keyframes, which need `[animation]`),
+/// checked: every frame's camera, between keys too, can make rays (the
+/// archive reader's rule).
+fn camera_of(
+    cx: &Ctx<'_>,
+    raw: &Spanned<RawCamera>,
+    animation: &Option<Spanned<RawAnimation>>,
+) -> Result<(Camera, Vec<CameraKey>), SceneError> {
+    // Camera.
+    let c = raw.get_ref();
+    let cspan = raw.span();
+    if !finite3(&c.position) || !finite3(&c.look_at) || !finite3(&c.up) {
+        return Err(cx.err(cspan, "camera", "position, look_at and up must be finite and within ±1e9 m"));
+    }
+    let (position, look_at, up) = (Vec3::from(c.position), Vec3::from(c.look_at), Vec3::from(c.up));
+    let forward = look_at - position;
+    if forward.length() <= 0.0 || forward.normalize().cross(up).length() < 1e-6 {
+        return Err(cx.err(
+            cspan,
+            "camera.up",
+            "look_at must differ from position, and up must not be parallel to the view direction",
+        ));
+    }
+    let fov = *c.fov_y_deg.get_ref();
+    if !(fov > 0.0 && fov < 180.0) {
+        return Err(cx.err(c.fov_y_deg.span(), "camera.fov_y_deg", format!("must be in (0, 180) degrees, got {fov}")));
+    }
+    for (v, f) in [(&c.width, "camera.width"), (&c.height, "camera.height")] {
+        if !(1..=16384).contains(v.get_ref()) {
+            return Err(cx.err(v.span(), f, format!("must be in 1..=16384 pixels, got {}", v.get_ref())));
+        }
+    }
+    let camera =
+        Camera { position, look_at, up, fov_y_deg: fov, width: *c.width.get_ref(), height: *c.height.get_ref() };
+
     let mut camera_keys = Vec::new();
-    if let Some(keys) = &raw.camera.get_ref().keyframes {
-        check_key_frames(&cx, keys.get_ref().iter().map(|k| k.frame), keys.span(), "camera.keyframes", &raw.animation)?;
+    if let Some(keys) = &raw.get_ref().keyframes {
+        check_key_frames(cx, keys.get_ref().iter().map(|k| k.frame), keys.span(), "camera.keyframes", animation)?;
         for k in keys.get_ref() {
             let (p, l) = (Vec3::from(k.position), Vec3::from(k.look_at));
             if !(finite3(&p.to_array()) && finite3(&l.to_array()))
@@ -800,16 +814,14 @@ pub(super) fn parse(text: &str, file: &Path, base_dir: &Path, name: String) -> R
             camera_keys.push(CameraKey { frame: k.frame, position: p, look_at: l });
         }
     }
-    let scene = Scene { name, materials, surfaces, camera, build, animation, camera_keys };
-    // Every frame's camera, between keys too (the archive reader's rule).
-    let frames = scene.animation.as_ref().map_or(1, |a| a.frames);
+    let frames = animation.as_ref().map_or(1, |a| *a.get_ref().frames.get_ref());
     if let Some(f) = (0..frames).find(|&f| {
-        let c = scene.camera_at(f);
+        let c = super::camera_at(&camera, &camera_keys, f);
         !crate::limits::camera_is_usable(c.position.to_array(), c.look_at.to_array(), c.up.to_array())
     }) {
-        let (span, field) = match &raw.camera.get_ref().keyframes {
+        let (span, field) = match &raw.get_ref().keyframes {
             Some(k) => (k.span(), "camera.keyframes"),
-            None => (cspan, "camera"),
+            None => (raw.span(), "camera"),
         };
         return Err(cx.err(
             span,
@@ -820,7 +832,29 @@ pub(super) fn parse(text: &str, file: &Path, base_dir: &Path, name: String) -> R
             ),
         ));
     }
-    Ok(scene)
+    Ok((camera, camera_keys))
+}
+
+/// A file's `[camera]` (with its keyframes and `[animation]` frame count),
+/// the rest of the file ignored: a scene file, or a camera file of those
+/// two tables alone.
+#[derive(Deserialize)]
+struct RawCameraFile {
+    camera: Spanned<RawCamera>,
+    animation: Option<Spanned<RawAnimation>>,
+}
+
+pub(super) fn parse_camera(text: &str, file: &Path) -> Result<super::CameraPath, SceneError> {
+    let cx = Ctx { text, file };
+    let raw: RawCameraFile = toml::from_str(text).map_err(|e| {
+        let span = e.span().unwrap_or(0..0);
+        let field = field_at(text, span.start);
+        let key = field.rsplit(['.', ']']).next().unwrap_or("").to_string();
+        cx.err(span, field, plain_message(e.message().trim(), &key))
+    })?;
+    let (camera, keys) = camera_of(&cx, &raw.camera, &raw.animation)?;
+    let frames = raw.animation.as_ref().map_or(1, |a| *a.get_ref().frames.get_ref());
+    Ok(super::CameraPath { camera, keys, frames })
 }
 
 /// Rejects non-finite, degenerate, non-planar and non-convex primitives.
