@@ -16,7 +16,7 @@ use illumnet::scene::{BuildHints, Scene};
 
 use super::camera::RenderCameras;
 use super::exit::{BadInput, InputContext, IoFailure, ResultRefused, bail_input};
-use super::{BuildArgs, RenderArgs, Shading};
+use super::{BuildArgs, FalseColour, RenderArgs, Shading};
 
 fn hints(a: &BuildArgs) -> BuildHints {
     BuildHints { patch_size: a.patch_size, frequency: a.frequency, ray_spacing: a.ray_spacing, buckets: a.buckets }
@@ -323,11 +323,15 @@ fn relight(lighting: &mut distribute::Lighting, archive: &Archive, sets: &[Strin
     Ok(())
 }
 
-/// Optional whole-sequence outputs of `render`.
+/// Optional outputs of `render`: whole-sequence previews, and a
+/// false-colour picture instead of the shaded PNG.
 #[derive(Clone, Copy, Default)]
 pub struct Extras<'a> {
     pub gif: Option<&'a Path>,
     pub contact_sheet: Option<&'a Path>,
+    pub false_colour: Option<FalseColour>,
+    pub reference: Option<&'a Path>,
+    pub error_scale: f32,
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -376,6 +380,18 @@ pub fn render(
     if let Some(sheet) = extras.contact_sheet {
         require_extension(sheet, "png", "--contact-sheet", "--contact-sheet writes a PNG: name it .png")?;
     }
+    let reference = match (extras.false_colour, extras.reference) {
+        (Some(FalseColour::Error), Some(r)) => {
+            require_extension(r, "exr", "--reference", "--reference takes a linear OpenEXR image")?;
+            if !(extras.error_scale > 0.0 && extras.error_scale.is_finite()) {
+                bail_input!("--error-scale must be a positive number, got {}", extras.error_scale);
+            }
+            Some(image_io::read_exr(r).map_err(IoFailure)?)
+        }
+        (Some(FalseColour::Error), None) => bail_input!("--false-color error needs --reference REF.exr"),
+        (_, Some(_)) => bail_input!("--reference is for --false-color error"),
+        _ => None,
+    };
     let budget = match args.memory_budget {
         Some(bytes) => MemoryBudget { bytes, source: BudgetSource::Given },
         None => MemoryBudget::default_for_machine(),
@@ -596,7 +612,13 @@ pub fn render(
                 ))));
             }
         }
-        image_io::write_png(&image, &out_path(png, f)?, args.exposure).map_err(IoFailure)?;
+        match extras.false_colour {
+            None => image_io::write_png(&image, &out_path(png, f)?, args.exposure).map_err(IoFailure)?,
+            Some(what) => {
+                let picture = explain(&view, &renderer, af, what, &solution, &image, reference.as_ref(), extras)?;
+                image_io::write_png(&picture, &out_path(png, f)?, 1.0).map_err(IoFailure)?;
+            }
+        }
         if let Some(exr) = exr {
             let path = out_path(exr, f)?;
             image_io::write_exr(&image, &path).map_err(IoFailure)?;
@@ -650,6 +672,60 @@ pub fn render(
         memory::peak_resident().map(|b| format!(", peak memory {}", Bytes(b))).unwrap_or_default()
     );
     Ok(())
+}
+
+/// The false-colour picture `what` of frame `af` (`image`: its shaded
+/// image, for `error`), its scale printed.
+#[allow(clippy::too_many_arguments)]
+fn explain(
+    view: &archive::InetView<'_>,
+    renderer: &render::Renderer<'_>,
+    af: u32,
+    what: FalseColour,
+    solution: &distribute::Solution,
+    image: &render::Image,
+    reference: Option<&render::Image>,
+    extras: Extras<'_>,
+) -> Result<render::Image> {
+    use render::false_colour::{self, Quantity};
+    let q = match what {
+        FalseColour::Error => {
+            let reference = reference.expect("checked before the render");
+            let picture = false_colour::error_picture(image, reference, extras.error_scale, 1.0).map_err(BadInput)?;
+            println!(
+                "false colour error: relative luminance error |a − r| / (r + 0.01) against the reference, 0 (dark) \
+                 to {} (bright); emitters black",
+                extras.error_scale
+            );
+            return Ok(picture);
+        }
+        FalseColour::Links => Quantity::Links,
+        FalseColour::Hits => Quantity::Hits,
+        FalseColour::Buckets => Quantity::Buckets,
+        FalseColour::Patches => Quantity::Patches,
+        FalseColour::Residual => Quantity::Residual,
+    };
+    let values = false_colour::patch_values(view, q, Some(&solution.residual)).map_err(anyhow::Error::new)?;
+    let scale = false_colour::scale_of(q, &values);
+    let what = match q {
+        Quantity::Links => "link ends per patch",
+        Quantity::Hits => "rays that reached a patch over those its area should catch (H_p / E[H_p])",
+        Quantity::Buckets => "share of a patch's rays in wide buckets",
+        Quantity::Patches => "every patch its own colour",
+        Quantity::Residual => "power left unshot over power received, per patch",
+    };
+    if q == Quantity::Patches {
+        println!("false colour patches: {what} ({} patches)", values.len());
+    } else {
+        println!(
+            "false colour {}: {what}, {} scale from {} (dark) to {} (bright)",
+            format!("{q:?}").to_lowercase(),
+            if scale.log { "log" } else { "linear" },
+            scale.min,
+            scale.max
+        );
+    }
+    Ok(false_colour::picture(&renderer.sample_patches(af), &values, q, &scale))
 }
 
 /// What `inspect` says of one surface: its patches, area and emitted

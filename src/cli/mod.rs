@@ -150,6 +150,42 @@ struct RenderArgs {
     evict_each_pass: bool,
 }
 
+/// `render`'s pictures that explain an archive (`--false-color`).
+#[derive(Args, Clone)]
+struct ExplainArgs {
+    /// Write a false-colour picture to -o instead of the shaded image (the
+    /// EXR, if asked, stays the shaded image): `links` (link ends per
+    /// patch), `hits` (rays that reached a patch over those its area should
+    /// catch), `buckets` (share of its rays in wide buckets), `patches` (the
+    /// patch grid), `residual` (unshot over received power), `error` (per
+    /// pixel against --reference); a colour bar beneath, its range printed.
+    #[arg(long, value_enum, value_name = "WHAT")]
+    false_color: Option<FalseColour>,
+    /// Reference image (linear EXR, same size) for `--false-color error`.
+    #[arg(long, value_name = "REF.exr")]
+    reference: Option<PathBuf>,
+    /// Relative error drawn brightest by `--false-color error`.
+    #[arg(long, default_value_t = 0.25, value_name = "X")]
+    error_scale: f32,
+}
+
+/// What `--false-color` draws.
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum FalseColour {
+    /// Link ends per patch (log scale).
+    Links,
+    /// H_p / E[H_p] per patch (0..2).
+    Hits,
+    /// Share of a patch's rays in wide buckets (0..1).
+    Buckets,
+    /// Every patch its own colour.
+    Patches,
+    /// Unshot over received power per patch (log scale).
+    Residual,
+    /// Relative luminance error per pixel against --reference.
+    Error,
+}
+
 /// Build resolution presets (see `--quality`).
 #[derive(Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
 enum Quality {
@@ -222,6 +258,8 @@ enum Command {
         render: RenderArgs,
         #[command(flatten)]
         camera: camera::CameraArgs,
+        #[command(flatten)]
+        explain: ExplainArgs,
         #[command(flatten)]
         relight: RelightArgs,
     },
@@ -355,8 +393,14 @@ pub fn main() -> ExitCode {
         Command::Build { scene, output, frame, settings } => {
             commands::build(&scene, &output, frame, settings, &progress)
         }
-        Command::Render { archive, output, exr, frames, gif, contact_sheet, render, camera, relight } => {
-            let extras = commands::Extras { gif: gif.as_deref(), contact_sheet: contact_sheet.as_deref() };
+        Command::Render { archive, output, exr, frames, gif, contact_sheet, render, camera, explain, relight } => {
+            let extras = commands::Extras {
+                gif: gif.as_deref(),
+                contact_sheet: contact_sheet.as_deref(),
+                false_colour: explain.false_color,
+                reference: explain.reference.as_deref(),
+                error_scale: explain.error_scale,
+            };
             camera::RenderCameras::new(&camera).and_then(|cameras| {
                 commands::render(
                     &archive,

@@ -46,9 +46,9 @@ pub fn state_bytes(s: &StateShape) -> u64 {
     // secant pairs, the warm guess, and a sequence's running totals.
     let carry = if s.sequence { 24 + 24 * nb } else { 0 };
     let iteration = p * (7 * 16 + 16 * nb + 32 * depth + 16 + carry);
-    // A solution: radiance, received, first bounce (12 each), its copy of
+    // A solution: radiance, received, first bounce (12 each), residual (4), its copy of
     // the secant pairs, and the carried totals plus emitted power.
-    let solution = p * (36 + 32 * depth + if s.sequence { carry + 16 } else { 0 });
+    let solution = p * (40 + 32 * depth + if s.sequence { carry + 16 } else { 0 });
     // A frame's overlay (records, and the ends sorted per patch and
     // bucket), twice: the frame's and the one the warm start carries.
     let records = s.max_delta_records;

@@ -130,6 +130,10 @@ pub struct Solution {
     pub radiance: Vec<[f32; 3]>,
     /// Total power received per patch over all iterations (W, RGB).
     pub received: Vec<[f32; 3]>,
+    /// Per patch, the power left unshot when the iteration stopped over the
+    /// power it received (summed over bands; 0 where it received none):
+    /// where the distribution has not converged.
+    pub residual: Vec<f32>,
     /// Energy bookkeeping.
     pub balance: EnergyBalance,
     /// Seconds spent decoding and applying the frame's delta (0 for stills).

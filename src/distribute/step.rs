@@ -485,6 +485,15 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
             .collect();
         let received: Vec<[f32; 3]> =
             (0..n).map(|p| [0, 1, 2].map(|c| total_direct[p][c] + total_spread[p][c])).collect();
+        let residual = self
+            .unshot
+            .iter()
+            .zip(&received)
+            .map(|(u, r)| {
+                let got = r[0] + r[1] + r[2];
+                if got > 0.0 { (u[0].abs() + u[1].abs() + u[2].abs()) / got } else { 0.0 }
+            })
+            .collect();
         let direct = match d.opts.split_direct {
             true => Some(self.first_bounce()?),
             false => None,
@@ -528,6 +537,7 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
         Ok(Solution {
             radiance,
             received,
+            residual,
             balance: bal,
             delta_s: s.delta_s,
             directional,

@@ -10,6 +10,7 @@
 
 mod camera;
 pub mod direct;
+pub mod false_colour;
 pub mod image_io;
 pub mod plan;
 pub mod view;
@@ -58,6 +59,19 @@ impl Image {
         let n = ((x1 - x0) * (y1 - y0)).max(1) as f64;
         s.map(|v| (v / n) as f32)
     }
+}
+
+/// The patch each image sample sees ([`Renderer::sample_patches`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct SamplePatches {
+    /// Image width in pixels.
+    pub width: u32,
+    /// Image height in pixels.
+    pub height: u32,
+    /// Samples per pixel.
+    pub per_pixel: u32,
+    /// `width × height × per_pixel` patch ids, `u32::MAX` for none.
+    pub patches: Vec<u32>,
 }
 
 /// Options for [`render`].
@@ -436,6 +450,42 @@ impl<'a> Renderer<'a> {
         self.camera.unwrap_or_else(|| {
             *v.sequence.and_then(|s| s.cameras).and_then(|c| c.get(frame as usize)).unwrap_or(v.camera)
         })
+    }
+
+    /// The patch every image sample of `frame` sees (`u32::MAX`: nothing,
+    /// or a back face), `n × n` samples per pixel in row order of pixels:
+    /// what a false-colour picture of per-patch values colours
+    /// ([`false_colour`]). Traced afresh; the sample cache is left alone.
+    pub fn sample_patches(&self, frame: u32) -> SamplePatches {
+        let record = self.camera(frame);
+        let v = &self.v;
+        let camera = PinholeCamera::from_record(&record);
+        let present = v.presence(frame).primitives;
+        let kept: Vec<u32> = (0..self.all_prims.len() as u32).filter(|&i| present[i as usize]).collect();
+        let prims: Vec<Primitive> = kept.iter().map(|&i| self.all_prims[i as usize]).collect();
+        let bvh = PrimitiveBvh::new(&prims);
+        let n = self.opts.samples_per_axis.clamp(1, 256);
+        let (w, h) = (camera.width, camera.height);
+        let per_pixel = (n * n) as usize;
+        let mut patches = vec![u32::MAX; (w * h) as usize * per_pixel];
+        patches.par_chunks_mut(w as usize * per_pixel).enumerate().for_each(|(y, row)| {
+            for (i, out) in row.iter_mut().enumerate() {
+                let (x, k) = ((i / per_pixel) as u32, (i % per_pixel) as u32);
+                let s = Vec2::new(((k % n) as f32 + 0.5) / n as f32, ((k / n) as f32 + 0.5) / n as f32);
+                let (o, d) = camera.ray(x as f32 + s.x, y as f32 + s.y);
+                let Some(hit) = bvh.closest_hit(o, d, 0.0) else { continue };
+                let pi = kept[hit.primitive as usize] as usize;
+                if self.normals[pi].dot(d) >= 0.0 {
+                    continue;
+                }
+                let record = &v.primitives[pi];
+                *out = match record.kind == layout::kind::GROUPED_TRIANGLE {
+                    true => record.first_patch,
+                    false => record.first_patch + self.grids[pi].locate(hit.hit.uv).cell,
+                };
+            }
+        });
+        SamplePatches { width: w, height: h, per_pixel: per_pixel as u32, patches }
     }
 
     /// Renders `frame` from per-patch radiance.
