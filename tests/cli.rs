@@ -524,3 +524,44 @@ fn any_view_from_one_archive() {
         assert!(!Path::new(&x).exists(), "{bad:?}: an image was written");
     }
 }
+
+/// PNGs through a tone curve, and every image saying what made it.
+#[test]
+fn tone_maps_and_metadata() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = |name: &str| dir.path().join(name).to_str().unwrap().to_string();
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/cornell_box.toml");
+    illumnet(&[
+        "build",
+        "-q",
+        scene.to_str().unwrap(),
+        "-o",
+        &path("a.inet"),
+        "--frequency",
+        "6",
+        "--patch-size",
+        "0.05",
+    ]);
+    let mut light = Vec::new();
+    for curve in ["clamp", "reinhard", "aces"] {
+        let png = path(&format!("{curve}.png"));
+        let exr = path(&format!("{curve}.exr"));
+        illumnet(&["render", "-q", &path("a.inet"), "-o", &png, "--exr", &exr, "--tone-map", curve, "--samples", "1"]);
+        let decoder = png::Decoder::new(std::io::BufReader::new(std::fs::File::open(&png).unwrap()));
+        let mut reader = decoder.read_info().unwrap();
+        let mut buf = vec![0; reader.output_buffer_size().unwrap()];
+        reader.next_frame(&mut buf).unwrap();
+        let text = &reader.info().uncompressed_latin1_text;
+        let settings = text.iter().find(|t| t.keyword == "illumnet.settings").expect("settings recorded");
+        assert!(settings.text.contains(&format!("tone map {curve}")), "{}", settings.text);
+        assert!(text.iter().any(|t| t.keyword == "illumnet.archive" && t.text.ends_with("a.inet")));
+        // The light (radiance 17–18 in red) seen directly, at (128, 36),
+        // and the back wall (radiance ~0.2), at (128, 80).
+        light.push((buf[(36 * 256 + 128) * 3], buf[(80 * 256 + 128) * 3]));
+    }
+    let [clamp, reinhard, aces] = light[..] else { unreachable!() };
+    assert_eq!(clamp.0, 255, "clamped");
+    assert!(reinhard.0 < 255 && reinhard.0 > 200, "Reinhard never reaches white: {light:?}");
+    // Mid-tones: Reinhard darkens them, the ACES curve lifts them.
+    assert!(reinhard.1 < clamp.1 && clamp.1 < aces.1, "{light:?}");
+}

@@ -612,16 +612,55 @@ pub fn render(
                 ))));
             }
         }
+        // What made the image, recorded in it.
+        let mut metadata = vec![
+            ("Software".to_string(), format!("illumnet {}", env!("CARGO_PKG_VERSION"))),
+            ("illumnet.archive".to_string(), path.display().to_string()),
+            (
+                "illumnet.frame".to_string(),
+                format!("{f}{}", if af != f { format!(" (archive frame {af})") } else { String::new() }),
+            ),
+            (
+                "illumnet.camera".to_string(),
+                format!(
+                    "position {:?}, look_at {:?}, up {:?}, fov_y {} deg, {}x{}",
+                    camera.position, camera.look_at, camera.up, camera.fov_y_deg, camera.width, camera.height
+                ),
+            ),
+            (
+                "illumnet.settings".to_string(),
+                format!(
+                    "shading {:?}, samples {}x{}, light samples {}, tolerance {:e}, exposure {}, tone map {:?}",
+                    args.shading,
+                    args.samples,
+                    args.samples,
+                    args.light_samples,
+                    args.tolerance,
+                    args.exposure,
+                    args.tone_map
+                )
+                .to_lowercase(),
+            ),
+        ];
+        if !sets.is_empty() {
+            metadata.push(("illumnet.set".to_string(), sets.join(" ")));
+        }
         match extras.false_colour {
-            None => image_io::write_png(&image, &out_path(png, f)?, args.exposure).map_err(IoFailure)?,
+            None => {
+                image_io::write_png_with(&image, &out_path(png, f)?, args.exposure, args.tone_map.into(), &metadata)
+                    .map_err(IoFailure)?
+            }
             Some(what) => {
                 let picture = explain(&view, &renderer, af, what, &solution, &image, reference.as_ref(), extras)?;
-                image_io::write_png(&picture, &out_path(png, f)?, 1.0).map_err(IoFailure)?;
+                let mut m = metadata.clone();
+                m.push(("illumnet.false-color".to_string(), format!("{what:?}").to_lowercase()));
+                image_io::write_png_with(&picture, &out_path(png, f)?, 1.0, image_io::ToneMap::Clamp, &m)
+                    .map_err(IoFailure)?;
             }
         }
         if let Some(exr) = exr {
             let path = out_path(exr, f)?;
-            image_io::write_exr(&image, &path).map_err(IoFailure)?;
+            image_io::write_exr_with(&image, &path, &metadata).map_err(IoFailure)?;
             if let (true, Some(direct)) = (args.layers, &direct) {
                 let indirect = render::Image {
                     pixels: image

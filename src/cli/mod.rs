@@ -95,9 +95,15 @@ struct RenderArgs {
     /// Samples per pixel along each axis (N×N per pixel, box filter).
     #[arg(long, default_value_t = 4, value_name = "N")]
     samples: u32,
-    /// Multiply radiance by this before sRGB encoding the PNG.
+    /// Multiply radiance by this before tone mapping and sRGB encoding the
+    /// PNG (the EXR keeps radiance as it is).
     #[arg(long, default_value_t = 1.0, value_name = "X")]
     exposure: f32,
+    /// How the PNG maps radiance to display values: `clamp` (exact below
+    /// 1, highlights clipped), `reinhard` (x/(1+x): nothing clipped),
+    /// `aces` (a filmic curve with a soft shoulder).
+    #[arg(long, value_enum, default_value_t = ToneMapArg::Clamp, value_name = "CURVE")]
+    tone_map: ToneMapArg,
     /// For measurement: ignore the archive's buckets (no spreading).
     #[arg(long)]
     no_buckets: bool,
@@ -169,6 +175,27 @@ struct ExplainArgs {
     error_scale: f32,
 }
 
+/// `--tone-map` curves.
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+enum ToneMapArg {
+    /// Clamped at 1.
+    Clamp,
+    /// x / (1 + x).
+    Reinhard,
+    /// The ACES filmic fit.
+    Aces,
+}
+
+impl From<ToneMapArg> for illumnet::render::image_io::ToneMap {
+    fn from(t: ToneMapArg) -> Self {
+        match t {
+            ToneMapArg::Clamp => Self::Clamp,
+            ToneMapArg::Reinhard => Self::Reinhard,
+            ToneMapArg::Aces => Self::Aces,
+        }
+    }
+}
+
 /// What `--false-color` draws.
 #[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
 pub enum FalseColour {
@@ -199,7 +226,7 @@ enum Quality {
 }
 
 /// How images are shaded (see `--shading`).
-#[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
 enum Shading {
     /// Direct light per pixel, indirect light from the I-net.
     Direct,

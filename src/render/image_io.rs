@@ -4,7 +4,7 @@
 use std::io::BufWriter;
 use std::path::Path;
 
-use image::{ImageFormat, Rgb32FImage, RgbImage};
+use image::{ImageFormat, RgbImage};
 
 use super::Image;
 
@@ -14,9 +14,42 @@ pub fn srgb_encode(linear: f32) -> f32 {
     if x <= 0.003_130_8 { 12.92 * x } else { 1.055 * x.powf(1.0 / 2.4) - 0.055 }
 }
 
+/// How linear radiance becomes display values for an 8-bit PNG (after the
+/// exposure; sRGB encoding follows).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum ToneMap {
+    /// Clamped at 1: exact below it, highlights burn out.
+    #[default]
+    Clamp,
+    /// Reinhard's `x / (1 + x)`: everything compressed, nothing clipped.
+    Reinhard,
+    /// The ACES filmic curve (Narkowicz's fit to the reference rendering
+    /// transform): a toe and a soft shoulder, film-like contrast.
+    Aces,
+}
+
+impl ToneMap {
+    /// The display value in `[0, 1]` of linear value `x` (≥ 0).
+    pub fn apply(self, x: f32) -> f32 {
+        let x = x.max(0.0);
+        match self {
+            ToneMap::Clamp => x.min(1.0),
+            ToneMap::Reinhard => x / (1.0 + x),
+            ToneMap::Aces => ((x * (2.51 * x + 0.03)) / (x * (2.43 * x + 0.59) + 0.14)).clamp(0.0, 1.0),
+        }
+    }
+}
+
+/// Text recorded in an image file: (key, value) pairs, e.g. the archive
+/// and the settings that made it (PNG `tEXt` chunks, EXR string
+/// attributes). Keys are Latin-1 words of 1 to 79 characters.
+pub type Metadata<'m> = &'m [(String, String)];
+
+type WriteResult = Result<(), Box<dyn std::error::Error + Send + Sync>>;
+
 fn save_atomic(
     path: &Path,
-    write: impl FnOnce(&mut BufWriter<&mut std::fs::File>) -> image::ImageResult<()>,
+    write: impl FnOnce(&mut BufWriter<&mut std::fs::File>) -> WriteResult,
 ) -> Result<(), String> {
     let dir = match path.parent() {
         Some(p) if !p.as_os_str().is_empty() => p,
@@ -32,7 +65,7 @@ fn save_atomic(
         // The encoders' own wording hides the cause ("Format error decoding
         // OpenExr" for a full disk): report the innermost error.
         write(&mut w).map_err(|e| {
-            let mut cause: &dyn std::error::Error = &e;
+            let mut cause: &dyn std::error::Error = e.as_ref();
             while let Some(inner) = cause.source() {
                 cause = inner;
             }
@@ -47,17 +80,62 @@ fn save_atomic(
 
 /// Writes linear radiance as a 32-bit float RGB OpenEXR file.
 pub fn write_exr(image: &Image, path: &Path) -> Result<(), String> {
-    let data: Vec<f32> = image.pixels.iter().flatten().copied().collect();
-    let img = Rgb32FImage::from_raw(image.width, image.height, data).ok_or("image size mismatch")?;
-    save_atomic(path, |w| img.write_to(w, ImageFormat::OpenExr))
+    write_exr_with(image, path, &[])
+}
+
+/// [`write_exr`], recording `metadata` as string attributes of the file.
+pub fn write_exr_with(image: &Image, path: &Path, metadata: Metadata<'_>) -> Result<(), String> {
+    use exr::prelude::{AttributeValue, Image as ExrImage, SpecificChannels, Text, Vec2, WritableImage};
+    let (w, h) = (image.width as usize, image.height as usize);
+    if image.pixels.len() != w * h {
+        return Err("image size mismatch".into());
+    }
+    let channels = SpecificChannels::rgb(|Vec2(x, y): Vec2<usize>| {
+        let p = image.pixels[y * w + x];
+        (p[0], p[1], p[2])
+    });
+    let mut exr = ExrImage::from_channels((w, h), channels);
+    for (key, value) in metadata {
+        let (Some(k), Some(v)) = (Text::new_or_none(key), Text::new_or_none(value)) else {
+            return Err(format!("metadata `{key}` cannot be stored in OpenEXR (Latin-1 text only)"));
+        };
+        exr.layer_data.attributes.other.insert(k, AttributeValue::Text(v));
+    }
+    save_atomic(path, |wr| Ok(exr.write().to_buffered(wr)?))
 }
 
 /// Writes an 8-bit sRGB PNG: radiance times `exposure`, clamped to `[0, 1]`,
 /// sRGB-encoded.
 pub fn write_png(image: &Image, path: &Path, exposure: f32) -> Result<(), String> {
-    let data = srgb8(image, exposure);
-    let img = RgbImage::from_raw(image.width, image.height, data).ok_or("image size mismatch")?;
-    save_atomic(path, |w| img.write_to(w, ImageFormat::Png))
+    write_png_with(image, path, exposure, ToneMap::Clamp, &[])
+}
+
+/// Writes an 8-bit sRGB PNG: radiance times `exposure`, through `tone`,
+/// sRGB-encoded; `metadata` as `tEXt` chunks.
+pub fn write_png_with(
+    image: &Image,
+    path: &Path,
+    exposure: f32,
+    tone: ToneMap,
+    metadata: Metadata<'_>,
+) -> Result<(), String> {
+    let data = srgb8_tone(image, exposure, tone);
+    if data.len() != image.width as usize * image.height as usize * 3 {
+        return Err("image size mismatch".into());
+    }
+    save_atomic(path, |w| {
+        let mut enc = png::Encoder::new(w, image.width, image.height);
+        enc.set_color(png::ColorType::Rgb);
+        enc.set_depth(png::BitDepth::Eight);
+        enc.set_source_srgb(png::SrgbRenderingIntent::Perceptual);
+        for (key, value) in metadata {
+            enc.add_text_chunk(key.clone(), value.clone())?;
+        }
+        let mut writer = enc.write_header()?;
+        writer.write_image_data(&data)?;
+        writer.finish()?;
+        Ok(())
+    })
 }
 
 /// Reads an OpenEXR file as linear RGB (for comparisons with references).
@@ -160,13 +238,22 @@ pub fn write_heatmap(width: u32, height: u32, values: &[f32], full_scale: f32, p
         })
         .collect();
     let img = RgbImage::from_raw(width, height, data).ok_or("image size mismatch")?;
-    save_atomic(path, |w| img.write_to(w, ImageFormat::Png))
+    save_atomic(path, |w| Ok(img.write_to(w, ImageFormat::Png)?))
 }
 
 /// 8-bit sRGB pixels of `image` (radiance × `exposure`, clamped).
 fn srgb8(image: &Image, exposure: f32) -> Vec<u8> {
     let thresholds = srgb8_thresholds();
     image.pixels.iter().flatten().map(|&v| srgb8_of(thresholds, v * exposure)).collect()
+}
+
+/// [`srgb8`] through a tone map (the clamp is the plain encoding).
+fn srgb8_tone(image: &Image, exposure: f32, tone: ToneMap) -> Vec<u8> {
+    if tone == ToneMap::Clamp {
+        return srgb8(image, exposure);
+    }
+    let thresholds = srgb8_thresholds();
+    image.pixels.iter().flatten().map(|&v| srgb8_of(thresholds, tone.apply(v * exposure))).collect()
 }
 
 /// The 8-bit sRGB code of a linear value: `(srgb_encode(x)·255 + 0.5)` truncated.
@@ -241,12 +328,55 @@ pub fn write_contact_sheet(frames: &[Image], columns: u32, exposure: f32, path: 
             }
         }
     }
-    save_atomic(path, |wr| sheet.write_to(wr, ImageFormat::Png))
+    save_atomic(path, |wr| Ok(sheet.write_to(wr, ImageFormat::Png)?))
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn tone_maps_are_monotone_bounded_and_named_right() {
+        for t in [ToneMap::Clamp, ToneMap::Reinhard, ToneMap::Aces] {
+            let mut last = -1.0;
+            for i in 0..=2000 {
+                let y = t.apply(i as f32 * 0.01);
+                assert!((0.0..=1.0).contains(&y) && y >= last, "{t:?} at {}", i as f32 * 0.01);
+                last = y;
+            }
+            assert_eq!(t.apply(f32::NAN), 0.0);
+        }
+        assert_eq!(ToneMap::Reinhard.apply(1.0), 0.5);
+        assert_eq!(ToneMap::Clamp.apply(0.25), 0.25);
+        // Narkowicz's fit: 0.8 at 1, nearly linear near 0 (slope 0.03/0.14).
+        assert!((ToneMap::Aces.apply(1.0) - 0.8038).abs() < 1e-3);
+        assert!(ToneMap::Aces.apply(20.0) > 0.99);
+    }
+
+    #[test]
+    fn metadata_is_stored_in_png_and_exr() {
+        let dir = tempfile::tempdir().unwrap();
+        let image = Image { width: 3, height: 2, pixels: vec![[0.25, 0.5, 2.0]; 6] };
+        let meta = vec![("illumnet.archive".to_string(), "box.inet".to_string())];
+        let png_path = dir.path().join("a.png");
+        write_png_with(&image, &png_path, 1.0, ToneMap::Reinhard, &meta).unwrap();
+        let decoder = png::Decoder::new(std::io::BufReader::new(std::fs::File::open(&png_path).unwrap()));
+        let mut reader = decoder.read_info().unwrap();
+        let mut buf = vec![0; reader.output_buffer_size().unwrap()];
+        reader.next_frame(&mut buf).unwrap();
+        let text = &reader.info().uncompressed_latin1_text;
+        assert!(text.iter().any(|t| t.keyword == "illumnet.archive" && t.text == "box.inet"), "{text:?}");
+        // Reinhard: 2 → 2/3 → sRGB code 213, not clipped at 255.
+        assert_eq!(&buf[..3], &[srgb8_exact(0.2), srgb8_exact(1.0 / 3.0), srgb8_exact(2.0 / 3.0)]);
+        let exr_path = dir.path().join("a.exr");
+        write_exr_with(&image, &exr_path, &meta).unwrap();
+        let back = read_exr(&exr_path).unwrap();
+        assert_eq!(back, image);
+        let meta_read = exr::meta::MetaData::read_from_file(&exr_path, false).unwrap();
+        let attr = &meta_read.headers[0].own_attributes.other;
+        let key = exr::prelude::Text::new_or_panic("illumnet.archive");
+        assert!(matches!(attr.get(&key), Some(exr::prelude::AttributeValue::Text(t)) if t.to_string() == "box.inet"));
+    }
 
     #[test]
     fn srgb8_by_thresholds_equals_the_formula() {
