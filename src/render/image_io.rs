@@ -375,7 +375,7 @@ mod tests {
         let meta_read = exr::meta::MetaData::read_from_file(&exr_path, false).unwrap();
         let attr = &meta_read.headers[0].own_attributes.other;
         let key = exr::prelude::Text::new_or_panic("illumnet.archive");
-        assert!(matches!(attr.get(&key), Some(exr::prelude::AttributeValue::Text(t)) if t.to_string() == "box.inet"));
+        assert!(matches!(attr.get(&key), Some(exr::prelude::AttributeValue::Text(t)) if t == "box.inet"));
     }
 
     #[test]
