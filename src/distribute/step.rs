@@ -318,14 +318,7 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
     /// through their tables (Figure 9) into the next step's per-ray power.
     fn reflect_directional(&mut self) {
         let (Some(x), Some(g)) = (self.d.nd.as_ref(), self.glossy.as_mut()) else { return };
-        let all_ends = self.s.overlay.as_ref().and_then(|o| o.all.as_ref());
-        let overlay_ends = |q: usize, add: &mut dyn FnMut(u32, f32, u32)| {
-            if let Some(o) = all_ends {
-                for e in o.run(q, 1, 0) {
-                    add(o.other[e], o.weight[e], o.direction[e]);
-                }
-            }
-        };
+        let overlay_ends = overlay_ends(self.s);
         let totals = x.step(&self.shoot, &g.phi, &overlay_ends, &mut g.phi_next);
         std::mem::swap(&mut g.phi, &mut g.phi_next);
         // Absent non-diffuse patches keep nothing to send: `step` walks
@@ -433,14 +426,7 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
     /// when `phi` and `phi_next` are spare.
     fn first_bounce_directional(&mut self) {
         let (Some(x), Some(g)) = (self.d.nd.as_ref(), self.glossy.as_mut()) else { return };
-        let all_ends = self.s.overlay.as_ref().and_then(|o| o.all.as_ref());
-        let overlay_ends = |q: usize, add: &mut dyn FnMut(u32, f32, u32)| {
-            if let Some(o) = all_ends {
-                for e in o.run(q, 1, 0) {
-                    add(o.other[e], o.weight[e], o.direction[e]);
-                }
-            }
-        };
+        let overlay_ends = overlay_ends(self.s);
         g.phi.fill([0.0; 4]);
         x.step(&self.shoot, &g.phi, &overlay_ends, &mut g.phi_next);
         if let Some(present) = self.s.absent_mask() {
@@ -549,6 +535,19 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
             carry,
             frame,
         })
+    }
+}
+
+/// The frame's overlay ends of patch `q` as `(other, weight, direction)`,
+/// for the non-diffuse step's in-buffers.
+fn overlay_ends<'f>(s: &'f FrameSetup<'_>) -> impl Fn(usize, &mut dyn FnMut(u32, f32, u32)) + Sync + 'f {
+    let all_ends = s.overlay.as_ref().and_then(|o| o.all.as_ref());
+    move |q, add| {
+        if let Some(o) = all_ends {
+            for e in o.run(q, 1, 0) {
+                add(o.other[e], o.weight[e], o.direction[e]);
+            }
+        }
     }
 }
 

@@ -376,6 +376,16 @@ fn pixel_direct(
     (light, highlights, blocked)
 }
 
+/// A frame's camera and the BVH of the primitives present in it (`kept`:
+/// the archive's primitive of each of the BVH's), `n × n` samples per pixel.
+struct FrameRays {
+    record: crate::archive::layout::CameraRecord,
+    camera: PinholeCamera,
+    kept: Vec<u32>,
+    bvh: PrimitiveBvh,
+    n: u32,
+}
+
 const NO_HIT: SampleHit =
     SampleHit { t: f32::INFINITY, primitive: u32::MAX, vertices: [NO_VERTEX; 4], weights: [0.0; 4] };
 
@@ -452,19 +462,29 @@ impl<'a> Renderer<'a> {
         })
     }
 
+    /// What tracing `frame`'s image samples needs.
+    fn frame_rays(&self, frame: u32) -> FrameRays {
+        let record = self.camera(frame);
+        let present = self.v.presence(frame).primitives;
+        let kept: Vec<u32> = (0..self.all_prims.len() as u32).filter(|&i| present[i as usize]).collect();
+        let prims: Vec<Primitive> = kept.iter().map(|&i| self.all_prims[i as usize]).collect();
+        FrameRays {
+            record,
+            camera: PinholeCamera::from_record(&record),
+            bvh: PrimitiveBvh::new(&prims),
+            kept,
+            // At most 256 samples per axis (the CLI allows 64): n² fits u32.
+            n: self.opts.samples_per_axis.clamp(1, 256),
+        }
+    }
+
     /// The patch every image sample of `frame` sees (`u32::MAX`: nothing,
     /// or a back face), `n × n` samples per pixel in row order of pixels:
     /// what a false-colour picture of per-patch values colours
     /// ([`false_colour`]). Traced afresh; the sample cache is left alone.
     pub fn sample_patches(&self, frame: u32) -> SamplePatches {
-        let record = self.camera(frame);
+        let FrameRays { camera, kept, bvh, n, .. } = self.frame_rays(frame);
         let v = &self.v;
-        let camera = PinholeCamera::from_record(&record);
-        let present = v.presence(frame).primitives;
-        let kept: Vec<u32> = (0..self.all_prims.len() as u32).filter(|&i| present[i as usize]).collect();
-        let prims: Vec<Primitive> = kept.iter().map(|&i| self.all_prims[i as usize]).collect();
-        let bvh = PrimitiveBvh::new(&prims);
-        let n = self.opts.samples_per_axis.clamp(1, 256);
         let (w, h) = (camera.width, camera.height);
         let per_pixel = (n * n) as usize;
         let mut patches = vec![u32::MAX; (w * h) as usize * per_pixel];
@@ -510,15 +530,8 @@ impl<'a> Renderer<'a> {
         patch_radiance: &[[f32; 3]],
         direct: Option<&DirectLight>,
     ) -> (Image, Option<Image>) {
-        let record = self.camera(frame);
+        let FrameRays { record, camera, kept, bvh, n } = self.frame_rays(frame);
         let v = &self.v;
-        let camera = PinholeCamera::from_record(&record);
-        let present = v.presence(frame).primitives;
-        let kept: Vec<u32> = (0..self.all_prims.len() as u32).filter(|&i| present[i as usize]).collect();
-        let prims: Vec<Primitive> = kept.iter().map(|&i| self.all_prims[i as usize]).collect();
-        let bvh = PrimitiveBvh::new(&prims);
-        // At most 256 samples per axis (the CLI allows 64): n² fits u32.
-        let n = self.opts.samples_per_axis.clamp(1, 256);
         let (w, h) = (camera.width, camera.height);
         let per_pixel = (n * n) as usize;
         // Sample (sx, sy) of the n×n grid in pixel (x, y).

@@ -250,6 +250,17 @@ struct Ctx<'a> {
 }
 
 impl Ctx<'_> {
+    /// The text as `T`, a TOML error naming its line, column and field
+    /// in plain words.
+    fn deserialize<T: serde::de::DeserializeOwned>(&self) -> Result<T, SceneError> {
+        toml::from_str(self.text).map_err(|e| {
+            let span = e.span().unwrap_or(0..0);
+            let field = field_at(self.text, span.start);
+            let key = field.rsplit(['.', ']']).next().unwrap_or("").to_string();
+            self.err(span, field, plain_message(e.message().trim(), &key))
+        })
+    }
+
     fn err(&self, span: Range<usize>, field: impl Into<String>, message: impl Into<String>) -> SceneError {
         let (line, column) = line_col(self.text, span.start);
         SceneError { file: self.file.into(), line, column, field: field.into(), message: message.into() }
@@ -471,12 +482,7 @@ fn finite3(v: &[f32; 3]) -> bool {
 
 pub(super) fn parse(text: &str, file: &Path, base_dir: &Path, name: String) -> Result<Scene, SceneError> {
     let cx = Ctx { text, file };
-    let raw: RawScene = toml::from_str(text).map_err(|e| {
-        let span = e.span().unwrap_or(0..0);
-        let field = field_at(text, span.start);
-        let key = field.rsplit(['.', ']']).next().unwrap_or("").to_string();
-        cx.err(span, field, plain_message(e.message().trim(), &key))
-    })?;
+    let raw: RawScene = cx.deserialize()?;
 
     let (camera, camera_keys) = camera_of(&cx, &raw.camera, &raw.animation)?;
 
@@ -846,12 +852,7 @@ struct RawCameraFile {
 
 pub(super) fn parse_camera(text: &str, file: &Path) -> Result<super::CameraPath, SceneError> {
     let cx = Ctx { text, file };
-    let raw: RawCameraFile = toml::from_str(text).map_err(|e| {
-        let span = e.span().unwrap_or(0..0);
-        let field = field_at(text, span.start);
-        let key = field.rsplit(['.', ']']).next().unwrap_or("").to_string();
-        cx.err(span, field, plain_message(e.message().trim(), &key))
-    })?;
+    let raw: RawCameraFile = cx.deserialize()?;
     let (camera, keys) = camera_of(&cx, &raw.camera, &raw.animation)?;
     let frames = raw.animation.as_ref().map_or(1, |a| *a.get_ref().frames.get_ref());
     Ok(super::CameraPath { camera, keys, frames })

@@ -127,6 +127,20 @@ impl GlossyFrame {
     }
 }
 
+/// One pixel's glossy points on one primitive and what their highlight
+/// needs: the view, the lobe, the shadow BVH and the emitters in front of
+/// them with their total weight.
+#[derive(Clone, Copy)]
+struct Highlight<'h> {
+    points: &'h [Vec3],
+    n: Vec3,
+    eye: Vec3,
+    frame: &'h GlossyFrame,
+    bvh: &'h PrimitiveBvh,
+    lit: &'h [(u32, f32)],
+    weight: f32,
+}
+
 impl DirectLight {
     /// Whether primitive `prim` has a glossy lobe whose highlights are
     /// computed per sample.
@@ -172,12 +186,10 @@ impl DirectLight {
             return Vec3::ZERO;
         }
         let key = mix(key ^ 0x2545_f491_4f6c_dd1d);
-        let pass = |count: u32, salt: u64, shadowed: bool| {
-            self.light_points(points, n, eye, frame, bvh, (lit, weight), (count, mix(key ^ salt)), shadowed)
-        };
-        let unshadowed = pass(LIGHT_POINTS, 1, false);
-        let shadowed = pass(SHADOW_RAYS, 2, true);
-        let (u, s) = self.lobe_directions(points, n, eye, frame, bvh, (lit, weight), mix(key ^ 3));
+        let h = Highlight { points, n, eye, frame, bvh, lit: lit.as_slice(), weight };
+        let unshadowed = self.light_points(&h, LIGHT_POINTS, mix(key ^ 1), false);
+        let shadowed = self.light_points(&h, SHADOW_RAYS, mix(key ^ 2), true);
+        let (u, s) = self.lobe_directions(&h, mix(key ^ 3));
         (unshadowed + u - shadowed - s).max(Vec3::ZERO)
     }
 
@@ -198,18 +210,8 @@ impl DirectLight {
     /// directions by the balance heuristic: the summed estimate of the
     /// highlight, or, when `shadowed`, of the part of it whose shadow rays
     /// are blocked.
-    #[allow(clippy::too_many_arguments)]
-    fn light_points(
-        &self,
-        points: &[Vec3],
-        n: Vec3,
-        eye: Vec3,
-        frame: &GlossyFrame,
-        bvh: &PrimitiveBvh,
-        (lit, weight): (&[(u32, f32)], f32),
-        (per_point, key): (u32, u64),
-        shadowed: bool,
-    ) -> Vec3 {
+    fn light_points(&self, h: &Highlight<'_>, per_point: u32, key: u64, shadowed: bool) -> Vec3 {
+        let Highlight { points, n, eye, frame, bvh, lit, weight } = *h;
         let count = points.len() as u32;
         let shift = Vec2::new(unit(key), unit(key >> 32));
         let (nl, nb) = (per_point as f32, LOBE_RAYS as f32);
@@ -265,17 +267,8 @@ impl DirectLight {
     /// to that distance: their summed estimates of the highlight (weighted
     /// against [`LIGHT_POINTS`] light points) and of its blocked part
     /// (weighted against [`SHADOW_RAYS`]).
-    #[allow(clippy::too_many_arguments)]
-    fn lobe_directions(
-        &self,
-        points: &[Vec3],
-        n: Vec3,
-        eye: Vec3,
-        frame: &GlossyFrame,
-        bvh: &PrimitiveBvh,
-        (lit, weight): (&[(u32, f32)], f32),
-        key: u64,
-    ) -> (Vec3, Vec3) {
+    fn lobe_directions(&self, h: &Highlight<'_>, key: u64) -> (Vec3, Vec3) {
+        let Highlight { points, n, eye, frame, bvh, lit, weight } = *h;
         let count = points.len() as u32;
         let shift = Vec2::new(unit(key), unit(key >> 32));
         let (nu, ns, nb) = (LIGHT_POINTS as f32, SHADOW_RAYS as f32, LOBE_RAYS as f32);
