@@ -543,8 +543,6 @@ pub fn render(
             t_delta += solution.delta_s;
             t_dist += t1.elapsed().as_secs_f64();
             ends += b.ends_gathered as f64;
-        }
-        if !reuse {
             println!(
                 "{}energy balance: emitted {:.4} W, absorbed {:.4} W, escaped {:.4} W, residual {:.2e} W (imbalance {:.1e}), {} iterations{}",
                 if sequence_output { format!("frame {f}: ") } else { String::new() },

@@ -41,8 +41,9 @@ impl ToneMap {
 }
 
 /// Text recorded in an image file: (key, value) pairs, e.g. the archive
-/// and the settings that made it (PNG `tEXt` chunks, EXR string
-/// attributes). Keys are Latin-1 words of 1 to 79 characters.
+/// and the settings that made it (PNG `iTXt` chunks, UTF-8; EXR string
+/// attributes, where a character beyond Latin-1 becomes `?`). Keys are
+/// ASCII words of 1 to 79 characters.
 pub type Metadata<'m> = &'m [(String, String)];
 
 type WriteResult = Result<(), Box<dyn std::error::Error + Send + Sync>>;
@@ -96,8 +97,10 @@ pub fn write_exr_with(image: &Image, path: &Path, metadata: Metadata<'_>) -> Res
     });
     let mut exr = ExrImage::from_channels((w, h), channels);
     for (key, value) in metadata {
-        let (Some(k), Some(v)) = (Text::new_or_none(key), Text::new_or_none(value)) else {
-            return Err(format!("metadata `{key}` cannot be stored in OpenEXR (Latin-1 text only)"));
+        // OpenEXR text is Latin-1: a path in another script keeps its shape.
+        let latin1 = |t: &str| -> String { t.chars().map(|c| if (c as u32) < 256 { c } else { '?' }).collect() };
+        let (Some(k), Some(v)) = (Text::new_or_none(latin1(key)), Text::new_or_none(latin1(value))) else {
+            return Err(format!("metadata `{key}` cannot be stored in OpenEXR"));
         };
         exr.layer_data.attributes.other.insert(k, AttributeValue::Text(v));
     }
@@ -129,7 +132,7 @@ pub fn write_png_with(
         enc.set_depth(png::BitDepth::Eight);
         enc.set_source_srgb(png::SrgbRenderingIntent::Perceptual);
         for (key, value) in metadata {
-            enc.add_text_chunk(key.clone(), value.clone())?;
+            enc.add_itxt_chunk(key.clone(), value.clone())?;
         }
         let mut writer = enc.write_header()?;
         writer.write_image_data(&data)?;
@@ -357,15 +360,20 @@ mod tests {
     fn metadata_is_stored_in_png_and_exr() {
         let dir = tempfile::tempdir().unwrap();
         let image = Image { width: 3, height: 2, pixels: vec![[0.25, 0.5, 2.0]; 6] };
-        let meta = vec![("illumnet.archive".to_string(), "box.inet".to_string())];
+        let meta = vec![
+            ("illumnet.archive".to_string(), "box.inet".to_string()),
+            ("illumnet.set".to_string(), "Würfel.emission=1,1,1 立方体".to_string()),
+        ];
         let png_path = dir.path().join("a.png");
         write_png_with(&image, &png_path, 1.0, ToneMap::Reinhard, &meta).unwrap();
         let decoder = png::Decoder::new(std::io::BufReader::new(std::fs::File::open(&png_path).unwrap()));
         let mut reader = decoder.read_info().unwrap();
         let mut buf = vec![0; reader.output_buffer_size().unwrap()];
         reader.next_frame(&mut buf).unwrap();
-        let text = &reader.info().uncompressed_latin1_text;
-        assert!(text.iter().any(|t| t.keyword == "illumnet.archive" && t.text == "box.inet"), "{text:?}");
+        let text = &reader.info().utf8_text;
+        let get = |k: &str| text.iter().find(|t| t.keyword == k).map(|t| t.get_text().unwrap());
+        assert_eq!(get("illumnet.archive").as_deref(), Some("box.inet"));
+        assert_eq!(get("illumnet.set").as_deref(), Some("Würfel.emission=1,1,1 立方体"));
         // Reinhard: 2 → 2/3 → sRGB code 213, not clipped at 255.
         assert_eq!(&buf[..3], &[srgb8_exact(0.2), srgb8_exact(1.0 / 3.0), srgb8_exact(2.0 / 3.0)]);
         let exr_path = dir.path().join("a.exr");
@@ -376,6 +384,12 @@ mod tests {
         let attr = &meta_read.headers[0].own_attributes.other;
         let key = exr::prelude::Text::new_or_panic("illumnet.archive");
         assert!(matches!(attr.get(&key), Some(exr::prelude::AttributeValue::Text(t)) if t == "box.inet"));
+        let key = exr::prelude::Text::new_or_panic("illumnet.set");
+        assert!(
+            matches!(attr.get(&key), Some(exr::prelude::AttributeValue::Text(t)) if t == "Würfel.emission=1,1,1 ???"),
+            "{:?}",
+            attr.get(&key)
+        );
     }
 
     #[test]
