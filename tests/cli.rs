@@ -565,3 +565,48 @@ fn tone_maps_and_metadata() {
     // Mid-tones: Reinhard darkens them, the ACES curve lifts them.
     assert!(reinhard.1 < clamp.1 && clamp.1 < aces.1, "{light:?}");
 }
+
+/// `inspect --histograms`: every patch, link end and direction counted
+/// once, in text and JSON; a sequence's frames too.
+#[test]
+fn inspect_histograms_count_everything_once() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = |name: &str| dir.path().join(name).to_str().unwrap().to_string();
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/cornell_box.toml");
+    illumnet(&[
+        "build",
+        "-q",
+        scene.to_str().unwrap(),
+        "-o",
+        &path("a.inet"),
+        "--frequency",
+        "6",
+        "--patch-size",
+        "0.05",
+    ]);
+    let summary: serde_json::Value =
+        serde_json::from_slice(&illumnet(&["inspect", &path("a.inet"), "--json"]).stdout).unwrap();
+    let out = illumnet(&["inspect", &path("a.inet"), "--histograms", "--json"]);
+    let h: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let total = |key: &str| -> u64 {
+        h["histograms"][key]["bins"]
+            .as_array()
+            .unwrap_or_else(|| panic!("{key}"))
+            .iter()
+            .map(|b| b["count"].as_u64().unwrap())
+            .sum()
+    };
+    assert_eq!(total("link_ends_per_patch"), summary["patches"].as_u64().unwrap());
+    assert_eq!(total("hits_over_expected"), summary["patches"].as_u64().unwrap());
+    assert_eq!(total("link_length_m"), summary["link_ends"].as_u64().unwrap());
+    assert_eq!(total("link_ends_per_bucket"), summary["link_ends"].as_u64().unwrap());
+    assert_eq!(total("link_ends_per_direction"), summary["directions"].as_u64().unwrap());
+    assert!(h["histograms"].get("delta_records_per_frame").is_none(), "a still has no frames");
+    // Link lengths lie within the box (0.56 m wide, diagonal under 1 m).
+    let longest = h["histograms"]["link_length_m"]["bins"].as_array().unwrap().last().unwrap()["to"].as_f64().unwrap();
+    assert!(longest <= 1.0, "{longest}");
+    let text = String::from_utf8_lossy(&illumnet(&["inspect", &path("a.inet"), "--histograms"]).stdout).into_owned();
+    assert!(text.contains("link ends per patch") && text.contains('#'), "{text}");
+    let (code, _) = failing(&["inspect", &path("a.inet"), "--histograms", "--patch", "0"]);
+    assert_eq!(code, 2, "one view at a time");
+}

@@ -202,7 +202,7 @@ fn open_archive(path: &Path) -> Result<Archive> {
 
 /// `result` of opening `path`, a scene file given in its place told apart
 /// from a corrupt archive.
-fn opened<T>(path: &Path, result: Result<T, illumnet::archive::ArchiveError>) -> Result<T> {
+pub(super) fn opened<T>(path: &Path, result: Result<T, illumnet::archive::ArchiveError>) -> Result<T> {
     match result {
         Ok(a) => Ok(a),
         Err(illumnet::archive::ArchiveError::Corrupt(_)) if looks_like_scene(path) => {

@@ -5,6 +5,7 @@
 mod camera;
 mod commands;
 mod exit;
+mod histograms;
 mod progress_bar;
 
 use std::path::PathBuf;
@@ -300,8 +301,13 @@ enum Command {
         /// Explain one patch instead: its surface, geometry, hit counts,
         /// neighbours, and where its link ends lead (grouped by the patch
         /// at their other end, heaviest first).
-        #[arg(long, value_name = "N")]
+        #[arg(long, value_name = "N", conflicts_with = "histograms")]
         patch: Option<u32>,
+        /// Print histograms instead: link ends per patch and per direction,
+        /// link lengths, H_p over its expectation, bucket use, and a
+        /// sequence's changes per frame.
+        #[arg(long)]
+        histograms: bool,
     },
     /// Check an archive beyond what opening it checks: every link end
     /// between two patches that face each other along its direction, every
@@ -442,8 +448,9 @@ pub fn main() -> ExitCode {
                 )
             })
         }
-        Command::Inspect { archive, json, patch: Some(p) } => commands::inspect_patch(&archive, p, json),
-        Command::Inspect { archive, json, patch: None } => commands::inspect(&archive, json),
+        Command::Inspect { archive, json, patch: Some(p), .. } => commands::inspect_patch(&archive, p, json),
+        Command::Inspect { archive, json, histograms: true, .. } => histograms::inspect_histograms(&archive, json),
+        Command::Inspect { archive, json, .. } => commands::inspect(&archive, json),
         Command::Verify { archive, json } => commands::verify(&archive, json),
         Command::Compare { image, reference, heatmap, full_scale, below } => {
             commands::compare(&image, &reference, heatmap.as_deref(), full_scale, below)
