@@ -1,5 +1,7 @@
 //! The `illumnet` binary end to end on the Cornell box.
 
+mod common;
+
 use std::path::Path;
 use std::process::Command;
 
@@ -530,18 +532,7 @@ fn any_view_from_one_archive() {
 fn tone_maps_and_metadata() {
     let dir = tempfile::tempdir().unwrap();
     let path = |name: &str| dir.path().join(name).to_str().unwrap().to_string();
-    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/cornell_box.toml");
-    illumnet(&[
-        "build",
-        "-q",
-        scene.to_str().unwrap(),
-        "-o",
-        &path("a.inet"),
-        "--frequency",
-        "6",
-        "--patch-size",
-        "0.05",
-    ]);
+    common::coarse_box_archive(Path::new(&path("a.inet")));
     let mut light = Vec::new();
     for curve in ["clamp", "reinhard", "aces"] {
         let png = path(&format!("{curve}.png"));
@@ -572,18 +563,7 @@ fn tone_maps_and_metadata() {
 fn inspect_histograms_count_everything_once() {
     let dir = tempfile::tempdir().unwrap();
     let path = |name: &str| dir.path().join(name).to_str().unwrap().to_string();
-    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/cornell_box.toml");
-    illumnet(&[
-        "build",
-        "-q",
-        scene.to_str().unwrap(),
-        "-o",
-        &path("a.inet"),
-        "--frequency",
-        "6",
-        "--patch-size",
-        "0.05",
-    ]);
+    common::coarse_box_archive(Path::new(&path("a.inet")));
     let summary: serde_json::Value =
         serde_json::from_slice(&illumnet(&["inspect", &path("a.inet"), "--json"]).stdout).unwrap();
     let out = illumnet(&["inspect", &path("a.inet"), "--histograms", "--json"]);

@@ -65,19 +65,7 @@ fn illumnet(args: &[&str]) -> (i32, String, String) {
 fn render_draws_false_colour_pictures_with_their_scale() {
     let dir = tempfile::tempdir().unwrap();
     let path = |name: &str| dir.path().join(name).to_str().unwrap().to_string();
-    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/cornell_box.toml");
-    let (code, _, err) = illumnet(&[
-        "build",
-        "-q",
-        scene.to_str().unwrap(),
-        "-o",
-        &path("a.inet"),
-        "--frequency",
-        "6",
-        "--patch-size",
-        "0.05",
-    ]);
-    assert_eq!(code, 0, "{err}");
+    common::coarse_box_archive(Path::new(&path("a.inet")));
     let size = "--size";
     for (what, bar) in [("links", true), ("hits", true), ("buckets", true), ("residual", true), ("patches", false)] {
         let png = path(&format!("{what}.png"));

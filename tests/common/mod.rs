@@ -76,3 +76,14 @@ pub fn grid_obj(n: u32, (x0, z0): (f32, f32), size: f32, height: impl Fn(f32, f3
     }
     obj
 }
+
+/// Writes the Cornell box at a coarse setting (frequency 6, patches of
+/// 5 cm: about 1 000 patches) to `out`, for tests of the command line.
+pub fn coarse_box_archive(out: &Path) {
+    let scene = Scene::cornell_box();
+    let hints = BuildHints { frequency: Some(6), patch_size: Some(0.05), ..Default::default() };
+    let mut settings = BuildSettings::resolve(&scene, hints);
+    settings.prototype_library = None;
+    let (contents, _) = build::build(&scene, &settings, &NoProgress).unwrap();
+    std::fs::write(out, archive::write_to_vec(&contents).unwrap()).unwrap();
+}
