@@ -365,6 +365,12 @@ impl<'a> InetView<'a> {
         }
     }
 
+    /// The camera of `frame`: a sequence's own per frame, else the
+    /// archive's one camera.
+    pub fn camera_at(&self, frame: u32) -> CameraRecord {
+        *self.sequence.and_then(|s| s.cameras).and_then(|c| c.get(frame as usize)).unwrap_or(self.camera)
+    }
+
     /// Which primitives and patches are present at `frame` (all of them in
     /// a still archive), and so which links are links of the frame.
     pub fn presence(&self, frame: u32) -> FramePresence {

@@ -456,10 +456,7 @@ impl<'a> Renderer<'a> {
     /// The camera `frame` is rendered from: the one set with
     /// [`Self::set_camera`], else the archive's for that frame.
     pub fn camera(&self, frame: u32) -> crate::archive::layout::CameraRecord {
-        let v = &self.v;
-        self.camera.unwrap_or_else(|| {
-            *v.sequence.and_then(|s| s.cameras).and_then(|c| c.get(frame as usize)).unwrap_or(v.camera)
-        })
+        self.camera.unwrap_or_else(|| self.v.camera_at(frame))
     }
 
     /// What tracing `frame`'s image samples needs.

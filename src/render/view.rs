@@ -61,8 +61,7 @@ pub fn frame_radiance(v: &InetView<'_>, frame: u32, solution: &Solution) -> Vec<
 
 /// Where `frame`'s camera is.
 fn frame_eye(v: &InetView<'_>, frame: u32) -> Vec3 {
-    let cam = v.sequence.and_then(|s| s.cameras).and_then(|c| c.get(frame as usize)).unwrap_or(v.camera);
-    Vec3::from(cam.position)
+    Vec3::from(v.camera_at(frame).position)
 }
 
 /// [`frame_radiance`] less the solution's direct light
