@@ -84,6 +84,7 @@
 //!     build: BuildHints { frequency: Some(4), patch_size: Some(0.25), ..Default::default() },
 //!     animation: None,
 //!     camera_keys: Vec::new(),
+//!     notes: Vec::new(),
 //! };
 //! let settings = build::BuildSettings::resolve(&scene, scene.build);
 //! let (contents, _) = build::build(&scene, &settings, &NoProgress)?;

@@ -12,7 +12,7 @@ use illumnet::geometry;
 use illumnet::memory::{self, BudgetSource, Bytes, MemoryBudget};
 use illumnet::progress::Progress;
 use illumnet::render::{self, RenderOptions, image_io, plan};
-use illumnet::scene::{BuildHints, Scene};
+use illumnet::scene::{BuildHints, GltfOptions, Scene};
 
 use super::camera::RenderCameras;
 use super::exit::{BadInput, InputContext, IoFailure, ResultRefused, bail_input};
@@ -120,8 +120,22 @@ fn build_scene(scene: &Scene, output: &Path, args: &BuildArgs, progress: &dyn Pr
     Ok(())
 }
 
-pub fn build(scene: &Path, output: &Path, frame: Option<u32>, args: BuildArgs, progress: &dyn Progress) -> Result<()> {
-    let mut scene = Scene::from_file(scene)?;
+pub fn build(
+    scene_path: &Path,
+    gltf: &GltfOptions,
+    output: &Path,
+    frame: Option<u32>,
+    args: BuildArgs,
+    progress: &dyn Progress,
+) -> Result<()> {
+    let is_gltf = illumnet::scene::gltf::is_gltf_path(scene_path);
+    if !is_gltf && *gltf != GltfOptions::default() {
+        bail_input!("--camera, --light-radius and --fps are for glTF scenes; a TOML scene states them itself");
+    }
+    let mut scene = Scene::from_file_with(scene_path, gltf)?;
+    for note in &scene.notes {
+        eprintln!("illumnet: warning: {}: {note}", scene_path.display());
+    }
     for t in &args.turn {
         let (name, deg) = t.split_once('=').input(|| format!("--turn `{t}`: expected SURFACE=DEGREES"))?;
         let deg: f32 = deg

@@ -237,6 +237,30 @@ enum Shading {
 
 /// Relighting without a rebuild (repeatable): `SURFACE.emission=R,G,B`,
 /// `SURFACE.reflectance=R,G,B` or `MATERIAL.reflectance=R,G,B`.
+/// Choices a glTF file does not make (format-spec/scene.md, "glTF 2.0
+/// scenes").
+#[derive(Args, Clone, Default)]
+#[command(next_help_heading = "glTF scenes")]
+struct GltfArgs {
+    /// The camera to use, by its node's or camera's name (default: the
+    /// first camera node of the scene).
+    #[arg(long = "camera", value_name = "NAME")]
+    camera: Option<String>,
+    /// Radius in metres of the small emitters that stand in for point and
+    /// spot lights (default: the meshes' bounding diagonal / 64).
+    #[arg(long, value_name = "M")]
+    light_radius: Option<f32>,
+    /// Frames per second at which animations are sampled (default 24).
+    #[arg(long, value_name = "N")]
+    fps: Option<f32>,
+}
+
+impl GltfArgs {
+    fn options(&self) -> illumnet::scene::GltfOptions {
+        illumnet::scene::GltfOptions { camera: self.camera.clone(), light_radius: self.light_radius, fps: self.fps }
+    }
+}
+
 #[derive(Args, Clone, Default)]
 struct RelightArgs {
     /// Change a surface's emitted radiance or a surface's or material's
@@ -249,7 +273,7 @@ struct RelightArgs {
 enum Command {
     /// Build an I-net archive from a scene file.
     Build {
-        /// Scene file (TOML, see format-spec/scene.md).
+        /// Scene file: TOML (format-spec/scene.md) or glTF 2.0 (.gltf, .glb).
         scene: PathBuf,
         /// Archive to write.
         #[arg(short, long, value_name = "ARCHIVE")]
@@ -260,6 +284,8 @@ enum Command {
         frame: Option<u32>,
         #[command(flatten)]
         settings: BuildArgs,
+        #[command(flatten)]
+        gltf: GltfArgs,
     },
     /// Distribute light over an archive's links and render its camera view.
     Render {
@@ -423,8 +449,8 @@ pub fn main() -> ExitCode {
     }
     let progress = progress_bar::BarProgress::new(cli.quiet);
     let result = match cli.command {
-        Command::Build { scene, output, frame, settings } => {
-            commands::build(&scene, &output, frame, settings, &progress)
+        Command::Build { scene, output, frame, settings, gltf } => {
+            commands::build(&scene, &gltf.options(), &output, frame, settings, &progress)
         }
         Command::Render { archive, output, exr, frames, gif, contact_sheet, render, camera, explain, relight } => {
             let extras = commands::Extras {

@@ -6,6 +6,7 @@
 //! `format-spec/scene.md`; `parse` turns text into a [`Scene`] or a
 //! [`SceneError`] naming the file, line, column and field.
 
+pub mod gltf;
 pub mod motion;
 mod parse;
 
@@ -13,6 +14,7 @@ use std::path::Path;
 
 use glam::Vec3;
 
+pub use gltf::GltfOptions;
 pub use parse::SceneError;
 
 use crate::geometry::Primitive;
@@ -166,7 +168,12 @@ pub struct CameraPath {
 impl CameraPath {
     /// Reads the camera of the TOML file at `path`: errors name the file,
     /// line and field, as for scenes.
+    /// A glTF file (`.gltf`, `.glb`) gives its first camera and the
+    /// frames of its animation.
     pub fn from_file(path: &Path) -> Result<Self, SceneError> {
+        if gltf::is_gltf_path(path) {
+            return gltf::import_camera(path, &GltfOptions::default());
+        }
         let text = std::fs::read_to_string(path).map_err(|e| SceneError::io(path, e))?;
         parse::parse_camera(&text, path)
     }
@@ -207,11 +214,24 @@ pub struct Scene {
     pub animation: Option<motion::Animation>,
     /// Camera keyframes (position and look-at, linear); empty: a still camera.
     pub camera_keys: Vec<motion::CameraKey>,
+    /// What an importer could not map (a glTF file's skins, directional
+    /// lights, ignored textures, …), each said once, by name: printed as
+    /// warnings, never dropped silently. Empty for TOML scenes.
+    pub notes: Vec<String>,
 }
 
 impl Scene {
-    /// Reads and parses a scene file; OBJ paths resolve relative to it.
+    /// Reads and parses a scene file: TOML (OBJ paths resolve relative to
+    /// it), or glTF 2.0 (`.gltf`, `.glb`) with default [`GltfOptions`].
     pub fn from_file(path: &Path) -> Result<Self, SceneError> {
+        Self::from_file_with(path, &GltfOptions::default())
+    }
+
+    /// [`Scene::from_file`] with the choices a glTF file does not make.
+    pub fn from_file_with(path: &Path, gltf_options: &GltfOptions) -> Result<Self, SceneError> {
+        if gltf::is_gltf_path(path) {
+            return gltf::import(path, gltf_options);
+        }
         let text = std::fs::read_to_string(path).map_err(|e| SceneError::io(path, e))?;
         let name = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
         parse::parse(&text, path, path.parent().unwrap_or(Path::new(".")), name)

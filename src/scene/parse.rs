@@ -764,7 +764,7 @@ pub(super) fn parse(text: &str, file: &Path, base_dir: &Path, name: String) -> R
         }
         None => None,
     };
-    let scene = Scene { name, materials, surfaces, camera, build, animation, camera_keys };
+    let scene = Scene { name, materials, surfaces, camera, build, animation, camera_keys, notes: Vec::new() };
     Ok(scene)
 }
 
@@ -859,7 +859,7 @@ pub(super) fn parse_camera(text: &str, file: &Path) -> Result<super::CameraPath,
 }
 
 /// Rejects non-finite, degenerate, non-planar and non-convex primitives.
-fn check_primitive(p: &Primitive) -> Result<(), String> {
+pub(super) fn check_primitive(p: &Primitive) -> Result<(), String> {
     let n = p.corner_count();
     if !p.p[..n].iter().all(|v| v.abs().max_element() <= crate::limits::MAX_COORDINATE) {
         return Err(format!("coordinates must be finite and within ±{:e} m", crate::limits::MAX_COORDINATE));

@@ -1,0 +1,185 @@
+//! Node animation channels (translation, rotation, scale) sampled at the
+//! frame rate: frame `f` is time `f / fps` seconds; the sequence runs from 0
+//! to the last key of any channel. Between keys: `STEP` holds, `LINEAR`
+//! interpolates (rotations spherically), `CUBICSPLINE` evaluates the Hermite
+//! spline of the glTF specification (rotations renormalised).
+
+use std::path::Path;
+
+use glam::{Mat4, Quat, Vec3, Vec4};
+use gltf::animation::{Interpolation, Property, util::ReadOutputs};
+
+use super::{GltfOptions, Notes, error};
+use crate::scene::SceneError;
+
+/// One channel's keys: times and values (4 numbers; translation and scale
+/// use 3), with the in- and out-tangents of a cubic spline.
+struct Track {
+    property: Property,
+    interpolation: Interpolation,
+    times: Vec<f32>,
+    /// `values[k]`; for cubic splines `[in, value, out]` triples flattened.
+    values: Vec<Vec4>,
+}
+
+impl Track {
+    fn at(&self, t: f32) -> Vec4 {
+        let cubic = self.interpolation == Interpolation::CubicSpline;
+        let value = |k: usize| if cubic { self.values[3 * k + 1] } else { self.values[k] };
+        let n = self.times.len();
+        let i = self.times.partition_point(|&x| x <= t);
+        if i == 0 {
+            return value(0);
+        }
+        if i == n {
+            return value(n - 1);
+        }
+        let (a, b) = (i - 1, i);
+        let dt = self.times[b] - self.times[a];
+        let s = if dt > 0.0 { (t - self.times[a]) / dt } else { 0.0 };
+        let rotation = self.property == Property::Rotation;
+        match self.interpolation {
+            Interpolation::Step => value(a),
+            Interpolation::Linear if rotation => {
+                let qa = Quat::from_vec4(value(a)).normalize();
+                let qb = Quat::from_vec4(value(b)).normalize();
+                Vec4::from(qa.slerp(qb, s))
+            }
+            Interpolation::Linear => value(a).lerp(value(b), s),
+            Interpolation::CubicSpline => {
+                let (s2, s3) = (s * s, s * s * s);
+                let out_a = self.values[3 * a + 2] * dt;
+                let in_b = self.values[3 * b] * dt;
+                let v = (2.0 * s3 - 3.0 * s2 + 1.0) * value(a)
+                    + (s3 - 2.0 * s2 + s) * out_a
+                    + (-2.0 * s3 + 3.0 * s2) * value(b)
+                    + (s3 - s2) * in_b;
+                if rotation { Vec4::from(Quat::from_vec4(v).normalize()) } else { v }
+            }
+        }
+    }
+}
+
+/// Every node's local transform at every frame.
+pub(super) struct Sampled {
+    /// Frames in the sequence (1 without animation).
+    pub(super) frames: u32,
+    /// Frames per second.
+    pub(super) fps: f32,
+    /// Tracks by node index.
+    tracks: std::collections::HashMap<usize, Vec<Track>>,
+}
+
+impl Sampled {
+    /// Reads every node channel of every animation of the file.
+    pub(super) fn new(
+        path: &Path,
+        doc: &gltf::Document,
+        buffers: &[gltf::buffer::Data],
+        _nodes: &[gltf::Node<'_>],
+        options: &GltfOptions,
+        notes: &mut Notes,
+    ) -> Result<Self, SceneError> {
+        let fps = options.fps.unwrap_or(super::DEFAULT_FPS);
+        if !(fps.is_finite() && fps > 0.0 && fps <= 1000.0) {
+            return Err(error(path, "", format!("frame rate {fps} is not in (0, 1000]")));
+        }
+        let mut tracks: std::collections::HashMap<usize, Vec<Track>> = Default::default();
+        let mut end = 0.0f32;
+        for anim in doc.animations() {
+            for (c, channel) in anim.channels().enumerate() {
+                let at = format!("/animations/{}/channels/{c}", anim.index());
+                let property = channel.target().property();
+                if property == Property::MorphTargetWeights {
+                    notes.add(format!("animation {}: morph target weights are not supported", anim.index()));
+                    continue;
+                }
+                let reader = channel.reader(|b| buffers.get(b.index()).map(|d| &d.0[..]));
+                let times: Vec<f32> = reader
+                    .read_inputs()
+                    .ok_or_else(|| error(path, format!("{at}/sampler"), "the sampler's input cannot be read"))?
+                    .collect();
+                let values: Vec<Vec4> = match reader.read_outputs() {
+                    Some(ReadOutputs::Translations(v)) | Some(ReadOutputs::Scales(v)) => {
+                        v.map(|x| Vec3::from(x).extend(0.0)).collect()
+                    }
+                    Some(ReadOutputs::Rotations(r)) => r.into_f32().map(Vec4::from).collect(),
+                    _ => return Err(error(path, format!("{at}/sampler"), "the sampler's output cannot be read")),
+                };
+                let interpolation = channel.sampler().interpolation();
+                let per_key = if interpolation == Interpolation::CubicSpline { 3 } else { 1 };
+                if times.is_empty() || values.len() != per_key * times.len() {
+                    return Err(error(
+                        path,
+                        format!("{at}/sampler"),
+                        format!("{} keys but {} output values", times.len(), values.len()),
+                    ));
+                }
+                if times.windows(2).any(|w| w[0] >= w[1]) || !times.iter().all(|t| t.is_finite() && *t >= 0.0) {
+                    return Err(error(path, format!("{at}/sampler"), "key times must be finite, ≥ 0 and increasing"));
+                }
+                if !values.iter().all(|v| v.is_finite()) {
+                    return Err(error(path, format!("{at}/sampler"), "key values must be finite"));
+                }
+                end = end.max(*times.last().expect("non-empty"));
+                tracks.entry(channel.target().node().index()).or_default().push(Track {
+                    property,
+                    interpolation,
+                    times,
+                    values,
+                });
+            }
+        }
+        let frames = (end * fps).round() as f64 + 1.0;
+        if frames > 100_000.0 {
+            return Err(error(path, "/animations", format!("{frames} frames at {fps} fps: more than 100000")));
+        }
+        if doc.animations().len() > 1 {
+            notes.add(format!("{} animations: all are played together from time 0", doc.animations().len()));
+        }
+        Ok(Self { frames: frames as u32, fps, tracks })
+    }
+
+    /// The local transform of `node` at `frame`.
+    fn local(&self, node: &gltf::Node<'_>, frame: u32) -> Mat4 {
+        let Some(tracks) = self.tracks.get(&node.index()) else {
+            return Mat4::from_cols_array_2d(&node.transform().matrix());
+        };
+        let (t, r, s) = node.transform().decomposed();
+        let (mut t, mut r, mut s) = (Vec3::from(t), Quat::from_array(r).normalize(), Vec3::from(s));
+        let time = frame as f32 / self.fps;
+        for track in tracks {
+            let v = track.at(time);
+            match track.property {
+                Property::Translation => t = v.truncate(),
+                Property::Rotation => r = Quat::from_vec4(v).normalize(),
+                Property::Scale => s = v.truncate(),
+                Property::MorphTargetWeights => {}
+            }
+        }
+        Mat4::from_scale_rotation_translation(s, r, t)
+    }
+
+    /// World matrices of the placed nodes (parents listed before children):
+    /// one per frame for a node that an animation moves (itself or an
+    /// ancestor), else just one.
+    pub(super) fn world_matrices(&self, parents: &[Option<usize>], nodes: &[gltf::Node<'_>]) -> Vec<Vec<Mat4>> {
+        let mut out: Vec<Vec<Mat4>> = Vec::with_capacity(nodes.len());
+        for (i, node) in nodes.iter().enumerate() {
+            let parent: Option<&Vec<Mat4>> = parents[i].map(|p| &out[p]);
+            let animated = self.tracks.contains_key(&node.index()) || parent.is_some_and(|p| p.len() > 1);
+            let frames = if animated { self.frames } else { 1 };
+            let row = (0..frames)
+                .map(|f| {
+                    let local = self.local(node, f);
+                    match parent {
+                        Some(p) => p[(f as usize).min(p.len() - 1)] * local,
+                        None => local,
+                    }
+                })
+                .collect();
+            out.push(row);
+        }
+        out
+    }
+}

@@ -1,0 +1,397 @@
+//! glTF materials onto our reflectance models (`format-spec/scene.md`,
+//! "glTF 2.0 scenes", states the mapping and its limits):
+//!
+//! * roughness `r` → GGX `α = r²`, clamped to `[0.01, 1]`;
+//! * metallic `m = 1` → rough conductor with `k_s` = base colour;
+//! * `m = 0` and `r ≥ 0.8` (matte) → diffuse with `ρ` = base colour;
+//! * otherwise broad specular, `k_d = 0.96·(1−m)·c`, `k_s = 0.04·(1−m) + m·c`
+//!   (the specification's blend of a 4% dielectric layer and a metal);
+//! * `KHR_materials_anisotropy`: `α` along the anisotropy direction becomes
+//!   `α + (1−α)·s²` (the extension's rule), that direction the grain;
+//! * emissive factor × `KHR_materials_emissive_strength` → emitted radiance;
+//! * a base-colour texture multiplies the factor by its mean (linear) albedo
+//!   over the surface's triangles.
+
+use std::collections::HashMap;
+use std::path::Path;
+
+use glam::{Vec2, Vec3};
+
+use super::triangles::Triangles;
+use super::{Notes, error};
+use crate::reflectance::Lobe;
+use crate::scene::{Material, ReflectanceModel, SceneError};
+
+/// Roughness at or above which a non-metal without anisotropy is taken as
+/// diffuse (its 4% specular layer is then nearly Lambertian).
+const MATTE_ROUGHNESS: f32 = 0.8;
+
+/// The reflectance model of a glTF material's factors (base colour already
+/// multiplied by any texture's mean); `anisotropy` is the strength `s`.
+/// Returns the model and whether the roughness had to be clamped.
+pub fn model_of(base: [f32; 3], metallic: f32, roughness: f32, anisotropy: f32) -> (ReflectanceModel, bool) {
+    let c = base.map(|x| x.clamp(0.0, 1.0));
+    let m = metallic.clamp(0.0, 1.0);
+    let r = roughness.clamp(0.0, 1.0);
+    let alpha = r * r;
+    let clamped = alpha < 0.01;
+    let alpha = alpha.clamp(0.01, 1.0);
+    let s = anisotropy.clamp(0.0, 1.0);
+    let lobe = Lobe { alpha_u: alpha + (1.0 - alpha) * s * s, alpha_v: alpha, ior: None };
+    let model = if m >= 0.999 {
+        ReflectanceModel::RoughConductor { specular: c, lobe }
+    } else if m <= 0.001 && r >= MATTE_ROUGHNESS && s == 0.0 {
+        ReflectanceModel::Diffuse { reflectance: c }
+    } else {
+        ReflectanceModel::BroadSpecular {
+            reflectance: c.map(|x| 0.96 * (1.0 - m) * x),
+            specular: c.map(|x| 0.04 * (1.0 - m) + m * x),
+            lobe,
+        }
+    };
+    (model, clamped)
+}
+
+/// The materials made so far, and the glTF materials they came from.
+pub(super) struct Materials<'a> {
+    path: &'a Path,
+    images: &'a [gltf::image::Data],
+    out: Vec<Material>,
+    /// Our index of each untextured glTF material (`None`: the default).
+    by_source: HashMap<Option<usize>, u32>,
+    lamp: Option<u32>,
+    textured: u32,
+}
+
+impl<'a> Materials<'a> {
+    pub(super) fn new(path: &'a Path, _doc: &gltf::Document, images: &'a [gltf::image::Data]) -> Self {
+        Self { path, images, out: Vec::new(), by_source: HashMap::new(), lamp: None, textured: 0 }
+    }
+
+    /// The materials, in index order.
+    pub(super) fn into_materials(self) -> Vec<Material> {
+        self.out
+    }
+
+    fn push(&mut self, name: String, model: ReflectanceModel) -> u32 {
+        let mut name = name;
+        if self.out.iter().any(|m| m.name == name) {
+            name = format!("{name}~{}", self.out.len());
+        }
+        self.out.push(Material { name, model });
+        (self.out.len() - 1) as u32
+    }
+
+    /// The black material of lamps' stand-in emitters.
+    pub(super) fn lamp_material(&mut self) -> u32 {
+        if let Some(i) = self.lamp {
+            return i;
+        }
+        let i = self.push("lamp".into(), ReflectanceModel::Diffuse { reflectance: [0.0; 3] });
+        self.lamp = Some(i);
+        i
+    }
+
+    /// Emitted radiance of a primitive's material: factor × strength.
+    pub(super) fn emission(&self, prim: &gltf::Primitive<'_>) -> [f32; 3] {
+        let m = prim.material();
+        let strength = m.emissive_strength().unwrap_or(1.0);
+        m.emissive_factor().map(|e| (e * strength).clamp(0.0, crate::limits::MAX_RADIANCE))
+    }
+
+    /// Our material for a surface made of `tri` (a textured material gets
+    /// one per surface: its mean albedo is the surface's) and the surface's
+    /// grain for an anisotropic one.
+    pub(super) fn surface_material(
+        &mut self,
+        prim: &gltf::Primitive<'_>,
+        tri: &Triangles,
+        notes: &mut Notes,
+    ) -> Result<(u32, Option<Vec3>), SceneError> {
+        let m = prim.material();
+        let Some(index) = m.index() else {
+            notes.add("a primitive has no material: a diffuse grey of 0.8 is used");
+            if let Some(&i) = self.by_source.get(&None) {
+                return Ok((i, None));
+            }
+            let i = self.push("default".into(), ReflectanceModel::Diffuse { reflectance: [0.8; 3] });
+            self.by_source.insert(None, i);
+            return Ok((i, None));
+        };
+        let at = format!("/materials/{index}");
+        let name = m.name().map_or_else(|| format!("material{index}"), str::to_string);
+        let pbr = m.pbr_metallic_roughness();
+        let [r, g, b, a] = pbr.base_color_factor();
+        if a < 1.0 || m.alpha_mode() != gltf::material::AlphaMode::Opaque {
+            notes.add(format!("material `{name}`: transparency is not supported; it is opaque"));
+        }
+        for (present, what) in [
+            (pbr.metallic_roughness_texture().is_some(), "metallicRoughnessTexture (its factors are used)"),
+            (m.normal_texture().is_some(), "normalTexture"),
+            (m.occlusion_texture().is_some(), "occlusionTexture"),
+            (m.emissive_texture().is_some(), "emissiveTexture (its factor is used)"),
+        ] {
+            if present {
+                notes.add(format!("material `{name}`: {what} is ignored"));
+            }
+        }
+        let (strength, rotation) = anisotropy(self.path, &at, &m, &name, notes)?;
+        let texture = pbr.base_color_texture();
+        let mut base = [r, g, b];
+        if texture.is_none()
+            && strength == 0.0
+            && let Some(&i) = self.by_source.get(&Some(index))
+        {
+            return Ok((i, None));
+        }
+        if let Some(info) = &texture {
+            let set = info.tex_coord() as usize;
+            let Some(Some(uvs)) = tri.uvs.get(set) else {
+                return Err(error(
+                    self.path,
+                    format!("{at}/pbrMetallicRoughness/baseColorTexture/texCoord"),
+                    format!("the mesh has no TEXCOORD_{set} for the base-colour texture"),
+                ));
+            };
+            let tex = info.texture();
+            let image = self.images.get(tex.source().index()).ok_or_else(|| {
+                error(self.path, format!("/textures/{}/source", tex.index()), "the image cannot be read")
+            })?;
+            let sampler = tex.sampler();
+            let mean =
+                mean_albedo(image, (sampler.wrap_s(), sampler.wrap_t()), uvs, tri.corners.iter().map(|c| c.area));
+            for (c, m) in base.iter_mut().zip(mean) {
+                *c *= m;
+            }
+            notes.add(format!(
+                "material `{name}`: the base-colour texture enters as each surface's mean albedo (no per-texel detail yet)"
+            ));
+        }
+        let (model, clamped) = model_of(base, pbr.metallic_factor(), pbr.roughness_factor(), strength);
+        if clamped {
+            notes.add(format!("material `{name}`: roughness below 0.1 is taken as 0.1 (GGX α ≥ 0.01)"));
+        }
+        let grain = if strength > 0.0 && model.lobe().is_some() {
+            let (s, c) = rotation.sin_cos();
+            let mut sum = Vec3::ZERO;
+            for k in &tri.corners {
+                sum += (k.tangent * c + k.bitangent * s) * k.area;
+            }
+            let dir = sum.normalize_or_zero();
+            if dir == Vec3::ZERO {
+                notes.add(format!(
+                    "material `{name}`: anisotropic without TANGENT or TEXCOORD_0; each triangle's first edge is its grain"
+                ));
+                None
+            } else {
+                let spread = tri
+                    .corners
+                    .iter()
+                    .filter(|k| k.area > 0.0)
+                    .any(|k| (k.tangent * c + k.bitangent * s).dot(dir) < 0.95);
+                if spread {
+                    notes.add(format!(
+                        "material `{name}`: the anisotropy direction varies over a surface; its mean direction is used"
+                    ));
+                }
+                Some(dir)
+            }
+        } else {
+            None
+        };
+        let i = if texture.is_some() || grain.is_some() {
+            self.textured += 1;
+            self.push(format!("{name}@{}", self.textured), model)
+        } else {
+            let i = self.push(name, model);
+            self.by_source.insert(Some(index), i);
+            i
+        };
+        Ok((i, grain))
+    }
+}
+
+/// `KHR_materials_anisotropy`'s strength and rotation (0, 0 without it).
+fn anisotropy(
+    path: &Path,
+    at: &str,
+    m: &gltf::Material<'_>,
+    name: &str,
+    notes: &mut Notes,
+) -> Result<(f32, f32), SceneError> {
+    let Some(ext) = m.extension_value("KHR_materials_anisotropy") else { return Ok((0.0, 0.0)) };
+    let at = format!("{at}/extensions/KHR_materials_anisotropy");
+    let number = |key: &str, default: f32| -> Result<f32, SceneError> {
+        match ext.get(key) {
+            None => Ok(default),
+            Some(v) => v
+                .as_f64()
+                .map(|x| x as f32)
+                .filter(|x| x.is_finite())
+                .ok_or_else(|| error(path, format!("{at}/{key}"), "must be a finite number")),
+        }
+    };
+    let strength = number("anisotropyStrength", 0.0)?;
+    if !(0.0..=1.0).contains(&strength) {
+        return Err(error(path, format!("{at}/anisotropyStrength"), "must be in [0, 1]"));
+    }
+    if ext.get("anisotropyTexture").is_some() {
+        notes.add(format!("material `{name}`: anisotropyTexture is ignored (its factors are used)"));
+    }
+    Ok((strength, number("anisotropyRotation", 0.0)?))
+}
+
+/// The area-weighted mean linear albedo of `image` over the texture
+/// triangles `uvs`: each triangle sampled at the centroids of a regular
+/// grid of sub-triangles, about 64 per texel it covers (at least 16, at
+/// most 65 536), nearest texel, sRGB decoded.
+fn mean_albedo(
+    image: &gltf::image::Data,
+    wrap: (gltf::texture::WrappingMode, gltf::texture::WrappingMode),
+    uvs: &[[Vec2; 3]],
+    areas: impl Iterator<Item = f32>,
+) -> [f32; 3] {
+    let (w, h) = (image.width.max(1) as usize, image.height.max(1) as usize);
+    let texels = w * h;
+    let fetch = |uv: Vec2| -> [f32; 3] {
+        let x = wrap_index(uv.x, w, wrap.0);
+        let y = wrap_index(uv.y, h, wrap.1);
+        texel(image, y * w + x)
+    };
+    let mut sum = [0f64; 3];
+    let mut total = 0f64;
+    for (t, area) in uvs.iter().zip(areas) {
+        let uv_area = ((t[1] - t[0]).perp_dot(t[2] - t[0]) / 2.0).abs() as f64;
+        // m² sub-triangles of a regular grid, each sampled at its centroid
+        // (m even: texel edges at half the texture fall on grid lines).
+        let n = (64.0 * uv_area * texels as f64).clamp(16.0, 65_536.0);
+        let m = ((n.sqrt().ceil() as usize).div_ceil(2) * 2).max(2);
+        let mut acc = [0f64; 3];
+        let mut sample = |a: f32, b: f32| {
+            let c = fetch(t[0] + (t[1] - t[0]) * a + (t[2] - t[0]) * b);
+            for i in 0..3 {
+                acc[i] += c[i] as f64;
+            }
+        };
+        let mf = m as f32;
+        for i in 0..m {
+            for j in 0..m - i {
+                sample((i as f32 + 1.0 / 3.0) / mf, (j as f32 + 1.0 / 3.0) / mf);
+                if i + j + 1 < m {
+                    sample((i as f32 + 2.0 / 3.0) / mf, (j as f32 + 2.0 / 3.0) / mf);
+                }
+            }
+        }
+        let n = (m * m) as f64;
+        for i in 0..3 {
+            sum[i] += acc[i] / n * area as f64;
+        }
+        total += area as f64;
+    }
+    if total <= 0.0 {
+        return [1.0; 3];
+    }
+    sum.map(|s| (s / total) as f32)
+}
+
+fn wrap_index(u: f32, n: usize, mode: gltf::texture::WrappingMode) -> usize {
+    use gltf::texture::WrappingMode::*;
+    let x = if u.is_finite() { u } else { 0.0 };
+    let t = match mode {
+        ClampToEdge => x.clamp(0.0, 1.0),
+        Repeat => x - x.floor(),
+        MirroredRepeat => {
+            let f = x.rem_euclid(2.0);
+            if f > 1.0 { 2.0 - f } else { f }
+        }
+    };
+    ((t * n as f32) as usize).min(n - 1)
+}
+
+/// Linear RGB of texel `i` (sRGB-encoded integer formats decoded; grey
+/// formats repeat their one channel).
+fn texel(image: &gltf::image::Data, i: usize) -> [f32; 3] {
+    use gltf::image::Format::*;
+    let px = &image.pixels;
+    let srgb = |v: f32| if v <= 0.04045 { v / 12.92 } else { ((v + 0.055) / 1.055).powf(2.4) };
+    let u8s = |ch: usize, take: usize| -> [f32; 3] {
+        let o = i * ch;
+        let g = |k: usize| px.get(o + k.min(take - 1)).map_or(0.0, |&b| srgb(b as f32 / 255.0));
+        [g(0), g(1), g(2)]
+    };
+    let u16s = |ch: usize, take: usize| -> [f32; 3] {
+        let o = 2 * i * ch;
+        let g = |k: usize| {
+            let j = o + 2 * k.min(take - 1);
+            px.get(j..j + 2).map_or(0.0, |b| srgb(u16::from_le_bytes([b[0], b[1]]) as f32 / 65535.0))
+        };
+        [g(0), g(1), g(2)]
+    };
+    let f32s = |ch: usize| -> [f32; 3] {
+        let o = 4 * i * ch;
+        let g = |k: usize| {
+            let j = o + 4 * k;
+            px.get(j..j + 4).map_or(0.0, |b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]).clamp(0.0, 1.0))
+        };
+        [g(0), g(1), g(2)]
+    };
+    match image.format {
+        R8 => u8s(1, 1),
+        R8G8 => u8s(2, 1),
+        R8G8B8 => u8s(3, 3),
+        R8G8B8A8 => u8s(4, 3),
+        R16 => u16s(1, 1),
+        R16G16 => u16s(2, 1),
+        R16G16B16 => u16s(3, 3),
+        R16G16B16A16 => u16s(4, 3),
+        R32G32B32FLOAT => f32s(3),
+        R32G32B32A32FLOAT => f32s(4),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn metallic_roughness_maps_onto_our_models() {
+        // Matte dielectric: diffuse, the base colour as ρ.
+        assert_eq!(
+            model_of([0.5, 0.4, 0.3], 0.0, 1.0, 0.0).0,
+            ReflectanceModel::Diffuse { reflectance: [0.5, 0.4, 0.3] }
+        );
+        // Metal: k_s = base colour, α = r².
+        let (m, clamped) = model_of([0.9, 0.6, 0.3], 1.0, 0.5, 0.0);
+        assert!(!clamped);
+        let ReflectanceModel::RoughConductor { specular, lobe } = m else { panic!("{m:?}") };
+        assert_eq!(specular, [0.9, 0.6, 0.3]);
+        assert!((lobe.alpha_u - 0.25).abs() < 1e-7 && (lobe.alpha_v - 0.25).abs() < 1e-7);
+        // Glossy dielectric: the 4% layer over 96% of the base colour.
+        let ReflectanceModel::BroadSpecular { reflectance, specular, .. } = model_of([1.0, 0.5, 0.0], 0.0, 0.3, 0.0).0
+        else {
+            panic!()
+        };
+        assert_eq!(reflectance, [0.96, 0.48, 0.0]);
+        assert_eq!(specular, [0.04; 3]);
+        // Half metal: energy stays ≤ 1 in every band.
+        let ReflectanceModel::BroadSpecular { reflectance, specular, .. } = model_of([1.0; 3], 0.5, 0.5, 0.0).0 else {
+            panic!()
+        };
+        assert!(reflectance.iter().zip(specular).all(|(d, s)| d + s <= 1.0 + 1e-6));
+        // Anisotropy: α along the direction grows by s², across it stays.
+        let ReflectanceModel::RoughConductor { lobe, .. } = model_of([1.0; 3], 1.0, 0.4, 0.5).0 else { panic!() };
+        assert!((lobe.alpha_u - (0.16 + 0.84 * 0.25)).abs() < 1e-6 && (lobe.alpha_v - 0.16).abs() < 1e-7);
+        // Mirror-smooth roughness is clamped (and said).
+        assert!(model_of([1.0; 3], 1.0, 0.0, 0.0).1);
+    }
+
+    #[test]
+    fn wrapping_modes() {
+        use gltf::texture::WrappingMode::*;
+        assert_eq!(wrap_index(1.25, 4, Repeat), 1);
+        assert_eq!(wrap_index(-0.25, 4, Repeat), 3);
+        assert_eq!(wrap_index(1.25, 4, ClampToEdge), 3);
+        assert_eq!(wrap_index(1.25, 4, MirroredRepeat), 3);
+        assert_eq!(wrap_index(f32::NAN, 4, Repeat), 0);
+    }
+}

@@ -1,0 +1,486 @@
+//! glTF 2.0 scenes (`.gltf`, `.glb`) → [`Scene`]: what modelling tools
+//! export, mapped onto our surfaces, materials, emitters, camera and
+//! keyframes. The mapping and its limits are stated in
+//! `format-spec/scene.md` ("glTF 2.0 scenes"); whatever cannot be mapped is
+//! listed by name in [`Scene::notes`], never dropped silently.
+//!
+//! * [`triangles`]: a mesh primitive's triangles in world space, pairs that
+//!   make a planar convex quad merged back into quads;
+//! * [`material`]: metallic-roughness, emission and anisotropy onto our
+//!   reflectance models; base-colour textures averaged;
+//! * [`light`]: `KHR_lights_punctual` lamps as small area emitters;
+//! * [`animation`]: node channels sampled at the frame rate.
+//!
+//! Errors name the file and a JSON pointer into it
+//! (`/materials/3/pbrMetallicRoughness`).
+
+mod animation;
+mod light;
+mod material;
+mod triangles;
+
+use std::path::Path;
+
+use glam::{Mat4, Vec3};
+
+use super::motion::{Animation, CameraKey, Interpolation, Keyframe, Motion};
+use super::{BuildHints, Camera, Scene, SceneError, Surface};
+use crate::geometry::Primitive;
+
+/// Choices a glTF file does not make; `Default` is what `illumnet build
+/// model.glb` uses.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct GltfOptions {
+    /// The camera node (or camera) to use by name; `None`: the first one met
+    /// walking the scene's nodes in order.
+    pub camera: Option<String>,
+    /// Radius (m) of the small emitters standing in for point and spot
+    /// lights; `None`: the meshes' bounding diagonal / 64, the default patch
+    /// size, so a default build links every lamp in every direction.
+    pub light_radius: Option<f32>,
+    /// Frames per second at which node animations are sampled (default 24).
+    pub fps: Option<f32>,
+}
+
+/// Whether `path` names a glTF file (`.gltf` or `.glb`, any case).
+pub fn is_gltf_path(path: &Path) -> bool {
+    path.extension()
+        .and_then(|e| e.to_str())
+        .is_some_and(|e| e.eq_ignore_ascii_case("gltf") || e.eq_ignore_ascii_case("glb"))
+}
+
+/// Default image width for a glTF camera (glTF states only an aspect ratio).
+const DEFAULT_WIDTH: u32 = 640;
+/// Default frame rate for sampling animations.
+const DEFAULT_FPS: f32 = 24.0;
+/// Most surfaces (node × mesh-primitive instances) one file may make.
+const MAX_SURFACES: usize = 1_000_000;
+/// Most triangles one file may make, over all instances.
+const MAX_TRIANGLES: usize = 50_000_000;
+
+/// An error at a JSON pointer of the file.
+pub(super) fn error(file: &Path, pointer: impl Into<String>, message: impl Into<String>) -> SceneError {
+    SceneError { file: file.into(), line: 0, column: 0, field: pointer.into(), message: message.into() }
+}
+
+/// What the importer could not map, each said once.
+#[derive(Default)]
+pub(super) struct Notes(Vec<String>);
+
+impl Notes {
+    pub(super) fn add(&mut self, note: impl Into<String>) {
+        let note = note.into();
+        if !self.0.contains(&note) {
+            self.0.push(note);
+        }
+    }
+}
+
+/// A node met walking the scene, with its place in the hierarchy.
+struct Placed<'a> {
+    node: gltf::Node<'a>,
+    /// Index into the placed list of the parent (None for a root).
+    parent: Option<usize>,
+}
+
+/// Reads the glTF or GLB file at `path` into a scene.
+pub fn import(path: &Path, options: &GltfOptions) -> Result<Scene, SceneError> {
+    let (doc, buffers, images) = open(path)?;
+    let mut notes = Notes::default();
+    let mut scene = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+        convert(path, &doc, &buffers, &images, options, &mut notes)
+    }))
+    .map_err(|_| error(path, "", "the glTF reader failed on malformed data"))??;
+    scene.notes = notes.0;
+    Ok(scene)
+}
+
+/// The camera of a glTF file alone (`render --camera-from model.glb`),
+/// with its keyframes and frame count.
+pub fn import_camera(path: &Path, options: &GltfOptions) -> Result<super::CameraPath, SceneError> {
+    let (doc, buffers, _) = open(path)?;
+    let placed = walk(path, &doc)?;
+    let anim = animation::Sampled::new(path, &doc, &buffers, &placed_nodes(&placed), options, &mut Notes::default())?;
+    let worlds = anim.world_matrices(&placed_parents(&placed), &placed_nodes(&placed));
+    let Some((camera, keys)) = camera_of(path, &doc, &placed, &worlds, options)? else {
+        return Err(error(path, "/cameras", "the file has no camera"));
+    };
+    Ok(super::CameraPath { camera, keys, frames: anim.frames })
+}
+
+fn open(path: &Path) -> Result<(gltf::Document, Vec<gltf::buffer::Data>, Vec<gltf::image::Data>), SceneError> {
+    match std::fs::metadata(path) {
+        Err(e) => return Err(SceneError::io(path, e)),
+        Ok(m) if m.is_dir() => return Err(error(path, "", "is a directory, not a glTF file")),
+        Ok(_) => {}
+    }
+    gltf::import(path).map_err(|e| match e {
+        gltf::Error::Validation(list) => {
+            let (p, what) = &list[0];
+            let more = if list.len() > 1 { format!(" (and {} more)", list.len() - 1) } else { String::new() };
+            error(path, pointer(&p.to_string()), format!("invalid glTF: {what}{more}"))
+        }
+        gltf::Error::Io(e) => error(path, "/buffers or /images", format!("cannot read a file it names: {e}")),
+        other => error(path, "", format!("cannot read glTF: {other}")),
+    })
+}
+
+/// A gltf-json path (`meshes[0].primitives[1].attributes["POSITION"]`) as a
+/// JSON pointer (`/meshes/0/primitives/1/attributes/POSITION`).
+fn pointer(path: &str) -> String {
+    let mut out = String::from("/");
+    for c in path.chars() {
+        match c {
+            '.' | '[' => {
+                if !out.ends_with('/') {
+                    out.push('/')
+                }
+            }
+            ']' | '"' => {}
+            c => out.push(c),
+        }
+    }
+    out
+}
+
+/// Every node reachable from the default scene (the first scene without
+/// one), depth first, parents before children; a node met twice on one
+/// path is an error (glTF forbids cycles, a reader must not loop).
+fn walk<'a>(path: &Path, doc: &'a gltf::Document) -> Result<Vec<Placed<'a>>, SceneError> {
+    let Some(root) = doc.default_scene().or_else(|| doc.scenes().next()) else {
+        return Err(error(path, "/scenes", "the file has no scene"));
+    };
+    let mut placed = Vec::new();
+    let mut stack: Vec<(gltf::Node<'a>, Option<usize>)> = root.nodes().map(|n| (n, None)).collect();
+    stack.reverse();
+    while let Some((node, parent)) = stack.pop() {
+        let mut up = parent;
+        while let Some(i) = up {
+            if placed_index(&placed, i) == node.index() {
+                return Err(error(path, format!("/nodes/{}/children", node.index()), "the node hierarchy has a cycle"));
+            }
+            up = placed_parent(&placed, i);
+        }
+        if placed.len() >= MAX_SURFACES {
+            return Err(error(path, "/nodes", format!("more than {MAX_SURFACES} node instances")));
+        }
+        let me = placed.len();
+        placed.push(Placed { node: node.clone(), parent });
+        for child in node.children().collect::<Vec<_>>().into_iter().rev() {
+            stack.push((child, Some(me)));
+        }
+    }
+    Ok(placed)
+}
+
+fn placed_index(placed: &[Placed<'_>], i: usize) -> usize {
+    placed[i].node.index()
+}
+
+fn placed_parent(placed: &[Placed<'_>], i: usize) -> Option<usize> {
+    placed[i].parent
+}
+
+fn placed_nodes<'a>(placed: &[Placed<'a>]) -> Vec<gltf::Node<'a>> {
+    placed.iter().map(|p| p.node.clone()).collect()
+}
+
+fn placed_parents(placed: &[Placed<'_>]) -> Vec<Option<usize>> {
+    placed.iter().map(|p| p.parent).collect()
+}
+
+/// A node's name for messages and surface names.
+fn node_name(node: &gltf::Node<'_>) -> String {
+    node.name().map_or_else(|| format!("node{}", node.index()), str::to_string)
+}
+
+fn convert(
+    path: &Path,
+    doc: &gltf::Document,
+    buffers: &[gltf::buffer::Data],
+    images: &[gltf::image::Data],
+    options: &GltfOptions,
+    notes: &mut Notes,
+) -> Result<Scene, SceneError> {
+    const HANDLED: [&str; 3] = ["KHR_lights_punctual", "KHR_materials_emissive_strength", "KHR_materials_anisotropy"];
+    for ext in doc.extensions_used() {
+        if !HANDLED.contains(&ext) {
+            notes.add(format!("extension {ext} is not supported and was ignored"));
+        }
+    }
+    let placed = walk(path, doc)?;
+    let nodes = placed_nodes(&placed);
+    let parents = placed_parents(&placed);
+    let anim = animation::Sampled::new(path, doc, buffers, &nodes, options, notes)?;
+    let worlds = anim.world_matrices(&parents, &nodes);
+    let moving: Vec<bool> = worlds.iter().map(|w| w.iter().any(|m| *m != w[0])).collect();
+
+    // Meshes: one surface per (node instance, mesh primitive).
+    let mut materials = material::Materials::new(path, doc, images);
+    let mut surfaces: Vec<Surface> = Vec::new();
+    let mut triangle_count = 0usize;
+    for (i, node) in nodes.iter().enumerate() {
+        if node.skin().is_some() {
+            notes.add(format!(
+                "node `{}`: skinning is not supported; the mesh is used in its bind pose",
+                node_name(node)
+            ));
+        }
+        let Some(mesh) = node.mesh() else { continue };
+        let w0 = worlds[i][0];
+        for (k, prim) in mesh.primitives().enumerate() {
+            let at = format!("/meshes/{}/primitives/{k}", mesh.index());
+            if prim.morph_targets().len() > 0 {
+                notes.add(format!(
+                    "mesh `{}`: morph targets are not supported; the base shape is used",
+                    mesh_name(&mesh)
+                ));
+            }
+            let tri = triangles::read(path, &at, &prim, buffers, w0, notes)?;
+            if tri.primitives.is_empty() {
+                continue;
+            }
+            triangle_count += tri.primitives.len();
+            if triangle_count > MAX_TRIANGLES {
+                return Err(error(path, at, format!("the scene has more than {MAX_TRIANGLES} triangles")));
+            }
+            let (material_index, grain) = materials.surface_material(&prim, &tri, notes)?;
+            let emission = materials.emission(&prim);
+            let mut primitives = tri.primitives;
+            if prim.material().double_sided() && !tri.closed {
+                let back: Vec<Primitive> = primitives.iter().map(triangles::flipped).collect();
+                primitives.extend(back);
+            }
+            let base = node_name(node);
+            let name = if mesh.primitives().len() > 1 { format!("{base}#{k}") } else { base };
+            surfaces.push(Surface {
+                name,
+                material: material_index,
+                emission,
+                primitives,
+                motion: moving[i].then(|| motion_of(&worlds[i])),
+                emission_keys: Vec::new(),
+                grain,
+                moved: false,
+            });
+            if surfaces.len() > MAX_SURFACES {
+                return Err(error(path, "/nodes", format!("more than {MAX_SURFACES} mesh instances")));
+            }
+        }
+    }
+    let mesh_bounds = crate::geometry::bounds_of(surfaces.iter().flat_map(|s| &s.primitives));
+
+    // Lamps.
+    let radius = match options.light_radius {
+        Some(r) => r,
+        None if mesh_bounds.0.x <= mesh_bounds.1.x => (mesh_bounds.1 - mesh_bounds.0).length() / 64.0,
+        None => 0.01,
+    };
+    for (i, node) in nodes.iter().enumerate() {
+        let Some(lamp) = node.light() else { continue };
+        let at = format!("/extensions/KHR_lights_punctual/lights/{}", lamp.index());
+        let Some((primitives, emission)) = light::emitter(path, &at, &lamp, radius, worlds[i][0], notes)? else {
+            continue;
+        };
+        let material = materials.lamp_material();
+        surfaces.push(Surface {
+            name: format!("{}:{}", node_name(node), lamp.name().unwrap_or("light")),
+            material,
+            emission,
+            primitives,
+            motion: moving[i].then(|| motion_of(&worlds[i])),
+            emission_keys: Vec::new(),
+            grain: None,
+            moved: false,
+        });
+    }
+    unique_names(&mut surfaces);
+    if surfaces.is_empty() {
+        return Err(error(path, "/meshes", "the scene has no triangles to build"));
+    }
+    if surfaces.iter().all(|s| s.emission.iter().all(|&e| e <= 0.0)) {
+        return Err(error(
+            path,
+            "/materials",
+            "the scene emits no light: give a material an emissiveFactor (with \
+             KHR_materials_emissive_strength for radiance above 1) or add a KHR_lights_punctual \
+             point or spot light",
+        ));
+    }
+
+    let camera = match camera_of(path, doc, &placed, &worlds, options)? {
+        Some(c) => c,
+        None => {
+            notes.add("the file has no camera: one looks at the scene along -Z (give one with render --camera-*)");
+            (default_camera(mesh_bounds), Vec::new())
+        }
+    };
+    let name = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+    let animation = (anim.frames > 1).then_some(Animation { frames: anim.frames, fps: anim.fps });
+    Ok(Scene {
+        name,
+        materials: materials.into_materials(),
+        surfaces,
+        camera: camera.0,
+        build: BuildHints::default(),
+        animation,
+        camera_keys: camera.1,
+        notes: Vec::new(),
+    })
+}
+
+fn mesh_name(mesh: &gltf::Mesh<'_>) -> String {
+    mesh.name().map_or_else(|| format!("mesh{}", mesh.index()), str::to_string)
+}
+
+/// Makes surface names unique (`name`, `name~2`, …): a file may reuse node
+/// names, and `--set NAME.FIELD` needs one surface per name.
+fn unique_names(surfaces: &mut [Surface]) {
+    let mut seen = std::collections::HashMap::<String, u32>::new();
+    for s in surfaces.iter_mut() {
+        let n = seen.entry(s.name.clone()).or_insert(0);
+        *n += 1;
+        if *n > 1 {
+            s.name = format!("{}~{n}", s.name);
+        }
+    }
+}
+
+/// Keyframes moving a surface from its frame-0 world placement (where its
+/// primitives are) to each frame's: one key per frame, `M(f)·M(0)⁻¹`
+/// decomposed into translation, rotation and scale about the origin.
+fn motion_of(worlds: &[Mat4]) -> Motion {
+    let inv0 = worlds[0].inverse();
+    let keyframes = worlds
+        .iter()
+        .enumerate()
+        .map(|(f, w)| {
+            let (scale, rotation, translate) = if f == 0 {
+                (Vec3::ONE, glam::Quat::IDENTITY, Vec3::ZERO)
+            } else {
+                (*w * inv0).to_scale_rotation_translation()
+            };
+            Keyframe { frame: f as u32, translate, rotation, scale }
+        })
+        .collect();
+    Motion { pivot: Vec3::ZERO, interpolation: Interpolation::Linear, keyframes }
+}
+
+/// The chosen camera node: its camera at frame 0 and, when it moves, one key
+/// per frame.
+#[allow(clippy::type_complexity)]
+fn camera_of(
+    path: &Path,
+    doc: &gltf::Document,
+    placed: &[Placed<'_>],
+    worlds: &[Vec<Mat4>],
+    options: &GltfOptions,
+) -> Result<Option<(Camera, Vec<CameraKey>)>, SceneError> {
+    let with_camera = || placed.iter().enumerate().filter(|(_, p)| p.node.camera().is_some());
+    let chosen = match &options.camera {
+        Some(name) => {
+            let found = with_camera().find(|(_, p)| {
+                p.node.name() == Some(name.as_str())
+                    || p.node.camera().and_then(|c| c.name().map(str::to_string)).as_deref() == Some(name)
+            });
+            match found {
+                Some(f) => Some(f),
+                None => {
+                    let known: Vec<String> = with_camera()
+                        .map(|(_, p)| {
+                            p.node
+                                .camera()
+                                .and_then(|c| c.name().map(str::to_string))
+                                .unwrap_or_else(|| node_name(&p.node))
+                        })
+                        .collect();
+                    return Err(error(
+                        path,
+                        "/cameras",
+                        format!(
+                            "no camera named `{name}` (known: {})",
+                            if known.is_empty() { "none".into() } else { known.join(", ") }
+                        ),
+                    ));
+                }
+            }
+        }
+        None => with_camera().next(),
+    };
+    let Some((i, p)) = chosen else {
+        if doc.cameras().len() > 0 {
+            return Err(error(path, "/cameras", "no node of the scene uses the file's cameras"));
+        }
+        return Ok(None);
+    };
+    let cam = p.node.camera().expect("filtered on camera");
+    let at = format!("/cameras/{}", cam.index());
+    let (fov, aspect) = match cam.projection() {
+        gltf::camera::Projection::Perspective(q) => (q.yfov().to_degrees(), q.aspect_ratio().unwrap_or(1.0)),
+        gltf::camera::Projection::Orthographic(_) => {
+            return Err(error(path, at, "orthographic cameras are not supported (a pinhole camera is)"));
+        }
+    };
+    if !(fov.is_finite() && fov > 0.0 && fov < 180.0) {
+        return Err(error(path, format!("{at}/perspective/yfov"), "the field of view must be in (0, π) radians"));
+    }
+    if !(aspect.is_finite() && (1e-3..=1e3).contains(&aspect)) {
+        return Err(error(path, format!("{at}/perspective/aspectRatio"), "the aspect ratio must be in [0.001, 1000]"));
+    }
+    let width = DEFAULT_WIDTH;
+    let height = ((width as f32 / aspect).round() as u32).clamp(1, 16384);
+    let pose = |m: &Mat4| {
+        let position = m.transform_point3(Vec3::ZERO);
+        let forward = m.transform_vector3(Vec3::NEG_Z).normalize_or_zero();
+        let up = m.transform_vector3(Vec3::Y).normalize_or_zero();
+        (position, forward, up)
+    };
+    let (position, forward, up) = pose(&worlds[i][0]);
+    if !position.is_finite() || forward == Vec3::ZERO || up == Vec3::ZERO || forward.cross(up).length() < 1e-3 {
+        return Err(error(path, format!("/nodes/{}", p.node.index()), "the camera node's transform is degenerate"));
+    }
+    let camera = Camera { position, look_at: position + forward, up, fov_y_deg: fov, width, height };
+    let keys = if worlds[i].iter().any(|m| *m != worlds[i][0]) {
+        worlds[i]
+            .iter()
+            .enumerate()
+            .map(|(f, m)| {
+                let (position, forward, _) = pose(m);
+                CameraKey { frame: f as u32, position, look_at: position + forward }
+            })
+            .collect()
+    } else {
+        Vec::new()
+    };
+    Ok(Some((camera, keys)))
+}
+
+/// A camera looking along -Z at the middle of `bounds`, framing it.
+fn default_camera((lo, hi): (Vec3, Vec3)) -> Camera {
+    let centre = (lo + hi) / 2.0;
+    let fov = 40.0f32;
+    let half = (hi - lo).length() / 2.0;
+    let distance = hi.z - centre.z + half / (fov.to_radians() / 2.0).tan();
+    Camera {
+        position: centre + Vec3::Z * distance.max(1e-3),
+        look_at: centre,
+        up: Vec3::Y,
+        fov_y_deg: fov,
+        width: DEFAULT_WIDTH,
+        height: DEFAULT_WIDTH * 3 / 4,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn json_paths_become_pointers() {
+        assert_eq!(
+            pointer("meshes[0].primitives[1].attributes[\"POSITION\"]"),
+            "/meshes/0/primitives/1/attributes/POSITION"
+        );
+        assert_eq!(pointer("materials[3].pbrMetallicRoughness"), "/materials/3/pbrMetallicRoughness");
+    }
+}

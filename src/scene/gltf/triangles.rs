@@ -1,0 +1,247 @@
+//! A mesh primitive's triangles in world space.
+//!
+//! Exporters split every quad into two triangles; two consecutive
+//! triangles `(a, b, c)`, `(c, d, a)` that share the diagonal and make a
+//! planar convex quad become that quad again, so a box exported by any tool
+//! is cut into the same patch grid as the box written in TOML (a quad is one
+//! primitive with a regular grid of patches; two triangles are two).
+
+use std::collections::HashMap;
+use std::path::Path;
+
+use glam::{Mat4, Vec2, Vec3};
+use gltf::mesh::Mode;
+
+use super::{Notes, error};
+use crate::geometry::{Primitive, PrimitiveKind};
+use crate::scene::SceneError;
+
+/// One source triangle's shading frame and texture coordinates.
+#[derive(Clone, Copy)]
+pub(super) struct Corner {
+    /// World-space area (m²).
+    pub(super) area: f32,
+    /// Unit world-space tangent (+u) and bitangent, when the mesh has
+    /// `TANGENT`s or texture coordinates; zero otherwise.
+    pub(super) tangent: Vec3,
+    pub(super) bitangent: Vec3,
+}
+
+/// The triangles of one mesh primitive placed by one node.
+pub(super) struct Triangles {
+    /// Quads (merged pairs) and triangles, front faces as the file winds them.
+    pub(super) primitives: Vec<Primitive>,
+    /// Per source triangle: area and tangent frame.
+    pub(super) corners: Vec<Corner>,
+    /// Per source triangle, texture coordinates of sets 0 and 1 (when present).
+    pub(super) uvs: [Option<Vec<[Vec2; 3]>>; 2],
+    /// Every edge is shared by exactly two triangles: no back face can be seen.
+    pub(super) closed: bool,
+}
+
+/// `p` with its front and back swapped.
+pub(super) fn flipped(p: &Primitive) -> Primitive {
+    match p.kind {
+        PrimitiveKind::Quad => Primitive::quad([p.p[3], p.p[2], p.p[1], p.p[0]]),
+        PrimitiveKind::Triangle => Primitive::triangle(p.p[0], p.p[2], p.p[1]),
+    }
+}
+
+/// Reads `prim` placed by `world`; degenerate triangles are left out and
+/// counted in the notes.
+pub(super) fn read(
+    path: &Path,
+    at: &str,
+    prim: &gltf::Primitive<'_>,
+    buffers: &[gltf::buffer::Data],
+    world: Mat4,
+    notes: &mut Notes,
+) -> Result<Triangles, SceneError> {
+    let reader = prim.reader(|b| buffers.get(b.index()).map(|d| &d.0[..]));
+    let empty = || Triangles { primitives: Vec::new(), corners: Vec::new(), uvs: [None, None], closed: true };
+    match prim.mode() {
+        Mode::Triangles | Mode::TriangleStrip | Mode::TriangleFan => {}
+        other => {
+            notes.add(format!("{at}: {other:?} primitives are not surfaces and were left out"));
+            return Ok(empty());
+        }
+    }
+    let positions: Vec<Vec3> = reader
+        .read_positions()
+        .ok_or_else(|| error(path, format!("{at}/attributes/POSITION"), "the primitive has no readable positions"))?
+        .map(|p| world.transform_point3(Vec3::from(p)))
+        .collect();
+    let indices: Vec<u32> = match reader.read_indices() {
+        Some(i) => i.into_u32().collect(),
+        None => (0..positions.len() as u32).collect(),
+    };
+    if let Some(bad) = indices.iter().find(|&&i| i as usize >= positions.len()) {
+        return Err(error(
+            path,
+            format!("{at}/indices"),
+            format!("index {bad} is out of range ({} vertices)", positions.len()),
+        ));
+    }
+    let tri: Vec<[u32; 3]> = match prim.mode() {
+        Mode::TriangleStrip => (0..indices.len().saturating_sub(2))
+            .map(|i| {
+                let o = i % 2;
+                [indices[i], indices[i + 1 + o], indices[i + 2 - o]]
+            })
+            .collect(),
+        Mode::TriangleFan => {
+            (1..indices.len().saturating_sub(1)).map(|i| [indices[i], indices[i + 1], indices[0]]).collect()
+        }
+        _ => indices.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect(),
+    };
+    let mirrored = world.determinant() < 0.0;
+    let uv_sets: [Option<Vec<Vec2>>; 2] =
+        [0, 1].map(|set| reader.read_tex_coords(set).map(|t| t.into_f32().map(Vec2::from).collect()));
+    for (set, uv) in uv_sets.iter().enumerate() {
+        if uv.as_ref().is_some_and(|u| u.len() != positions.len()) {
+            return Err(error(path, format!("{at}/attributes/TEXCOORD_{set}"), "not one coordinate per vertex"));
+        }
+    }
+    let tangents: Option<Vec<[f32; 4]>> = reader.read_tangents().map(|t| t.collect());
+    if tangents.as_ref().is_some_and(|t| t.len() != positions.len()) {
+        return Err(error(path, format!("{at}/attributes/TANGENT"), "not one tangent per vertex"));
+    }
+
+    let mut kept: Vec<[u32; 3]> = Vec::with_capacity(tri.len());
+    let mut degenerate = 0usize;
+    for t in tri {
+        let t = if mirrored { [t[0], t[2], t[1]] } else { t };
+        let p = Primitive::triangle(positions[t[0] as usize], positions[t[1] as usize], positions[t[2] as usize]);
+        if crate::scene::parse::check_primitive(&p).is_ok() {
+            kept.push(t);
+        } else {
+            degenerate += 1;
+        }
+    }
+    if degenerate > 0 {
+        notes.add(format!("{at}: {degenerate} degenerate (zero-area or non-finite) triangles left out"));
+    }
+
+    let corners = kept
+        .iter()
+        .map(|t| {
+            let p = t.map(|i| positions[i as usize]);
+            let normal = (p[1] - p[0]).cross(p[2] - p[0]);
+            let area = normal.length() / 2.0;
+            let n = normal.normalize_or_zero();
+            let (tangent, sign) = if let Some(tg) = &tangents {
+                let s: Vec3 = t.iter().map(|&i| Vec3::from_slice(&tg[i as usize][..3])).sum();
+                let w = tg[t[0] as usize][3];
+                (world.transform_vector3(s), if w < 0.0 { -1.0 } else { 1.0 })
+            } else if let Some(uv) = &uv_sets[0] {
+                let q = t.map(|i| uv[i as usize]);
+                let (d1, d2) = (q[1] - q[0], q[2] - q[0]);
+                let det = d1.x * d2.y - d2.x * d1.y;
+                let tg = ((p[1] - p[0]) * d2.y - (p[2] - p[0]) * d1.y) * det.signum();
+                (tg, if mirrored { -1.0 } else { 1.0 })
+            } else {
+                (Vec3::ZERO, 1.0)
+            };
+            let tangent = (tangent - n * tangent.dot(n)).normalize_or_zero();
+            let bitangent = if tangent == Vec3::ZERO { Vec3::ZERO } else { n.cross(tangent) * sign };
+            Corner { area, tangent, bitangent }
+        })
+        .collect();
+    let uvs = uv_sets.map(|u| u.map(|uv| kept.iter().map(|t| t.map(|i| uv[i as usize])).collect()));
+    let closed = prim.material().double_sided() && is_closed(&positions, &kept);
+    Ok(Triangles { primitives: merge_quads(&positions, &kept), corners, uvs, closed })
+}
+
+/// Whether every edge of `tri` is shared by exactly two triangles, vertices
+/// welded by position (exporters split vertices where normals or texture
+/// coordinates differ).
+fn is_closed(pos: &[Vec3], tri: &[[u32; 3]]) -> bool {
+    let mut ids: HashMap<[u32; 3], u32> = HashMap::new();
+    let mut id = |i: u32| {
+        let n = ids.len() as u32;
+        *ids.entry(pos[i as usize].to_array().map(f32::to_bits)).or_insert(n)
+    };
+    let welded: Vec<[u32; 3]> = tri.iter().map(|t| t.map(&mut id)).collect();
+    let mut edges: HashMap<(u32, u32), u32> = HashMap::with_capacity(tri.len() * 3);
+    for t in &welded {
+        for k in 0..3 {
+            let (a, b) = (t[k], t[(k + 1) % 3]);
+            *edges.entry((a.min(b), a.max(b))).or_insert(0) += 1;
+        }
+    }
+    !tri.is_empty() && edges.values().all(|&n| n == 2)
+}
+
+/// Consecutive triangles `(a, b, c)`, `(c, d, a)` (in any rotation) that make
+/// a planar convex quad, as that quad; the rest as triangles.
+fn merge_quads(pos: &[Vec3], tri: &[[u32; 3]]) -> Vec<Primitive> {
+    let mut out = Vec::with_capacity(tri.len());
+    let mut i = 0;
+    while i < tri.len() {
+        if i + 1 < tri.len()
+            && let Some(q) = quad_of(pos, tri[i], tri[i + 1])
+        {
+            out.push(q);
+            i += 2;
+            continue;
+        }
+        let t = tri[i].map(|k| pos[k as usize]);
+        out.push(Primitive::triangle(t[0], t[1], t[2]));
+        i += 1;
+    }
+    out
+}
+
+fn quad_of(pos: &[Vec3], t1: [u32; 3], t2: [u32; 3]) -> Option<Primitive> {
+    for r1 in 0..3 {
+        let (a, b, c) = (t1[r1], t1[(r1 + 1) % 3], t1[(r1 + 2) % 3]);
+        for r2 in 0..3 {
+            if t2[r2] == c && t2[(r2 + 2) % 3] == a {
+                let d = t2[(r2 + 1) % 3];
+                let q = Primitive::quad([a, b, c, d].map(|k| pos[k as usize]));
+                let size = (q.p[2] - q.p[0]).length().max((q.p[3] - q.p[1]).length());
+                let n = q.normal();
+                let off = (q.p[3] - q.p[0]).dot(n).abs().max((q.p[1] - q.p[0]).dot(n).abs());
+                if off <= 1e-6 * size && crate::scene::parse::check_primitive(&q).is_ok() {
+                    return Some(q);
+                }
+                return None;
+            }
+        }
+    }
+    None
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn triangle_pairs_become_quads_only_when_planar_and_convex() {
+        let pos = [Vec3::ZERO, Vec3::X, Vec3::new(1.0, 1.0, 0.0), Vec3::Y, Vec3::new(1.0, 1.0, 0.5)];
+        // (0,1,2),(0,2,3): the usual split; any rotation of either triangle.
+        for (t1, t2) in [([0, 1, 2], [0, 2, 3]), ([1, 2, 0], [2, 3, 0]), ([2, 0, 1], [3, 0, 2])] {
+            let out = merge_quads(&pos, &[t1, t2]);
+            assert_eq!(out.len(), 1);
+            assert_eq!(out[0].kind, PrimitiveKind::Quad);
+            assert!((out[0].area() - 1.0).abs() < 1e-6);
+        }
+        // Not planar: the fourth corner is lifted.
+        assert_eq!(merge_quads(&pos, &[[0, 1, 4], [0, 4, 3]]).len(), 2);
+        // Not sharing a reversed diagonal (opposite windings).
+        assert_eq!(merge_quads(&pos, &[[0, 1, 2], [0, 3, 2]]).len(), 2);
+        // Not convex: a dart.
+        let dart = [Vec3::ZERO, Vec3::new(2.0, 0.0, 0.0), Vec3::new(0.5, 0.5, 0.0), Vec3::new(0.0, 2.0, 0.0)];
+        assert_eq!(merge_quads(&dart, &[[0, 1, 2], [0, 2, 3]]).len(), 2);
+    }
+
+    #[test]
+    fn closed_means_every_edge_twice() {
+        let pos = [Vec3::ZERO, Vec3::X, Vec3::Y, Vec3::Z, Vec3::Z];
+        let tetra = [[0, 1, 2], [0, 3, 1], [1, 3, 2], [2, 3, 0]];
+        assert!(is_closed(&pos, &tetra));
+        assert!(!is_closed(&pos, &tetra[..3]));
+        // Vertex 4 repeats vertex 3's position: welded, still closed.
+        assert!(is_closed(&pos, &[[0, 1, 2], [0, 4, 1], [1, 3, 2], [2, 3, 0]]));
+    }
+}

@@ -1,0 +1,254 @@
+//! glTF 2.0 import (format-spec/scene.md, "glTF 2.0 scenes") on files
+//! written by another tool: `tools/make_gltf.py` (pygltflib) made every
+//! file of `tests/data/gltf/`.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+
+use glam::Vec3;
+use illumnet::archive::Archive;
+use illumnet::distribute::{self, DistributeOptions};
+use illumnet::geometry::PrimitiveKind;
+use illumnet::progress::NoProgress;
+use illumnet::render::{self, RenderOptions, image_io};
+use illumnet::scene::{BuildHints, GltfOptions, ReflectanceModel, Scene};
+
+fn data(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/gltf").join(name)
+}
+
+fn import(name: &str, options: &GltfOptions) -> Scene {
+    Scene::from_file_with(&data(name), options).unwrap_or_else(|e| panic!("{e}"))
+}
+
+/// Coarse settings: the comparisons are between two builds of one scene.
+fn coarse(scene: &Scene) -> BuildHints {
+    let (lo, hi) = scene.bounds();
+    let d = (hi - lo).length();
+    BuildHints { patch_size: Some(d / 40.0), ray_spacing: Some(d / 90.0), frequency: Some(6), buckets: None }
+}
+
+/// Frame `frame` of `archive`, direct light per pixel plus the I-net's
+/// indirect light (the renderer's default shading).
+fn render_frame(archive: &Archive, frame: u32) -> render::Image {
+    let v = archive.view();
+    let sol = distribute::distribute_frame(&v, frame, &DistributeOptions::default(), &NoProgress).unwrap();
+    let light = render::DirectLight::new(&v, &sol, render::direct::DEFAULT_LIGHT_SAMPLES);
+    let indirect = render::indirect_frame_radiance(&v, frame, &sol);
+    let opts = RenderOptions { samples_per_axis: 2 };
+    render::Renderer::new(&v, opts).frame_direct(frame, &indirect, &light).0
+}
+
+#[test]
+fn the_cornell_box_exported_as_gltf_is_the_toml_scene() {
+    let toml = Scene::from_file(&Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/cornell_box.toml")).unwrap();
+    let mut glb = import("cornell_box.glb", &GltfOptions::default());
+    assert!(glb.notes.is_empty(), "{:?}", glb.notes);
+    // Every wall's two triangles are one quad again: the same primitives.
+    assert_eq!(glb.surfaces.len(), toml.surfaces.len());
+    for (a, b) in glb.surfaces.iter().zip(&toml.surfaces) {
+        assert_eq!(a.name, b.name);
+        assert_eq!(a.primitives.len(), b.primitives.len(), "{}", a.name);
+        for (p, q) in a.primitives.iter().zip(&b.primitives) {
+            assert_eq!(p.kind, PrimitiveKind::Quad);
+            assert!(p.p.iter().zip(&q.p).all(|(x, y)| (*x - *y).length() < 1e-6), "{}: {p:?} vs {q:?}", a.name);
+        }
+        let e: Vec3 = a.emission.into();
+        assert!((e - Vec3::from(b.emission)).length() < 1e-5 * e.length().max(1.0), "{}", a.name);
+        assert_eq!(glb.materials[a.material as usize].model, toml.materials[b.material as usize].model);
+    }
+    // The camera node: position, view direction and field of view.
+    let (c, t) = (glb.camera, toml.camera);
+    assert!((c.position - t.position).length() < 1e-6);
+    assert!(((c.look_at - c.position).normalize() - (t.look_at - t.position).normalize()).length() < 1e-6);
+    assert!((c.fov_y_deg - t.fov_y_deg).abs() < 1e-4);
+    assert_eq!((c.width, c.height), (640, 640), "glTF gives an aspect ratio, and the default width is 640");
+    glb.camera.width = t.width;
+    glb.camera.height = t.height;
+    let hints = coarse(&toml);
+    let a = render_frame(&common::build_archive(&glb, hints), 0);
+    let b = render_frame(&common::build_archive(&toml, hints), 0);
+    let err = image_io::relative_l2(&a, &b).unwrap();
+    assert!(err < 0.01, "relative L2 {err} between the glTF and the TOML Cornell box (bar 1%)");
+}
+
+#[test]
+fn the_animated_fan_room_exported_as_gltf_builds_the_same_sequence() {
+    let toml = Scene::from_file(&Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/fan_room.toml")).unwrap();
+    // glTF has no frame rate: the scene's 15 fps is given, as `--fps 15`.
+    let mut glb = import("fan_room.glb", &GltfOptions { fps: Some(15.0), ..Default::default() });
+    assert_eq!(glb.frame_count(), 60);
+    assert_eq!(glb.animation.unwrap().fps, 15.0);
+    let moving: Vec<&str> = glb.surfaces.iter().filter(|s| s.motion.is_some()).map(|s| s.name.as_str()).collect();
+    assert_eq!(moving, ["fan_blade_0", "fan_blade_1", "fan_blade_2", "fan_blade_3", "heat_lamp"]);
+    // Between keys too, each moving surface is where the TOML's motion puts it.
+    for f in [0, 7, 23, 52, 59] {
+        let (a, b) = (glb.at_frame(f), toml.at_frame(f));
+        for (s, t) in a.surfaces.iter().zip(&b.surfaces) {
+            let worst = s
+                .primitives
+                .iter()
+                .zip(&t.primitives)
+                .flat_map(|(p, q)| p.p.iter().zip(q.p).map(|(x, y)| (*x - y).length()))
+                .fold(0f32, f32::max);
+            assert!(worst < 2e-5, "frame {f}, {}: a corner is {worst} m off", s.name);
+        }
+    }
+    glb.camera.width = toml.camera.width / 2;
+    glb.camera.height = toml.camera.height / 2;
+    let mut toml = toml;
+    toml.camera = glb.camera;
+    let hints = coarse(&toml);
+    let (ga, ta) = (common::build_sequence_archive(&glb, hints), common::build_sequence_archive(&toml, hints));
+    for f in [0, 31, 59] {
+        let err = image_io::relative_l2(&render_frame(&ga, f), &render_frame(&ta, f)).unwrap();
+        assert!(err < 0.01, "frame {f}: relative L2 {err} between the glTF and the TOML fan room (bar 1%)");
+    }
+}
+
+#[test]
+fn features_import_with_their_geometry_materials_lights_and_animation() {
+    let s = import("features.gltf", &GltfOptions { light_radius: Some(0.05), ..Default::default() });
+    let by_name = |name: &str| {
+        s.surfaces.iter().find(|x| x.name == name).unwrap_or_else(|| {
+            panic!("no surface `{name}` in {:?}", s.surfaces.iter().map(|x| &x.name).collect::<Vec<_>>())
+        })
+    };
+    let material = |name: &str| &s.materials[by_name(name).material as usize];
+
+    // The first camera: at (0, 1.5, 4) looking at (0, 0.5, 0), 45°, aspect 1.5.
+    assert!((s.camera.position - Vec3::new(0.0, 1.5, 4.0)).length() < 1e-5);
+    let dir = (s.camera.look_at - s.camera.position).normalize();
+    assert!((dir - (Vec3::new(0.0, 0.5, 0.0) - Vec3::new(0.0, 1.5, 4.0)).normalize()).length() < 1e-5);
+    assert!((s.camera.fov_y_deg - 45.0).abs() < 1e-3);
+    assert_eq!((s.camera.width, s.camera.height), (640, 427));
+    // Another by name.
+    let side = import("features.gltf", &GltfOptions { camera: Some("side".into()), ..Default::default() });
+    assert!((side.camera.position - Vec3::new(4.0, 1.0, 0.0)).length() < 1e-5);
+    let err = Scene::from_file_with(
+        &data("features.gltf"),
+        &GltfOptions { camera: Some("top".into()), ..Default::default() },
+    )
+    .unwrap_err();
+    assert!(err.to_string().contains("no camera named `top` (known: main, side)"), "{err}");
+
+    // One box mesh, two instances under a parent scaled 2× and raised 0.5 m:
+    // centres at (±1, 0.5, 0), 0.4 m wide; 6 faces each (quads again), and
+    // no back faces although double sided: the box is closed.
+    for (name, x) in [("box_a", -1.0f32), ("box_b", 1.0)] {
+        let b = by_name(name);
+        assert_eq!(b.primitives.len(), 6, "{name}");
+        let (lo, hi) = illumnet::geometry::bounds_of(&b.primitives);
+        assert!((((lo + hi) / 2.0) - Vec3::new(x, 0.5, 0.0)).length() < 1e-6, "{name}: {lo} {hi}");
+        assert!(((hi - lo) - Vec3::splat(0.4)).length() < 1e-6, "{name}");
+    }
+    // grey: metallic 0, roughness 0.9: diffuse.
+    assert_eq!(material("box_a").model, ReflectanceModel::Diffuse { reflectance: [0.5; 3] });
+
+    // The texture's mean linear albedo (red, green, blue, white: 0.5 per
+    // band) times the factor 0.8.
+    let ReflectanceModel::Diffuse { reflectance } = material("floor").model else { panic!() };
+    assert!(reflectance.iter().all(|r| (r - 0.4).abs() < 0.01), "{reflectance:?}");
+
+    // Emission: factor (1, .5, .25) × strength 8.
+    assert_eq!(by_name("panel").emission, [8.0, 4.0, 2.0]);
+
+    // Anisotropic metal: α = 0.4² = 0.16 across, 0.16 + 0.84·0.6² along the
+    // anisotropy direction, which rotation π/2 turns from the tangent (+x)
+    // onto the bitangent N × T = −z.
+    let plate = by_name("plate");
+    let ReflectanceModel::RoughConductor { specular, lobe } = s.materials[plate.material as usize].model else {
+        panic!()
+    };
+    assert_eq!(specular, [0.9; 3]);
+    assert!((lobe.alpha_v - 0.16).abs() < 1e-6 && (lobe.alpha_u - (0.16 + 0.84 * 0.36)).abs() < 1e-6, "{lobe:?}");
+    let grain = plate.grain.expect("a grain");
+    assert!((grain - Vec3::NEG_Z).length() < 1e-5, "{grain}");
+
+    // Lamps: power equals the light's (4π·I for a point light of I W/sr;
+    // 683 cd is 1 W/sr), and the spot sends I straight down its axis.
+    let power = |name: &str| -> [f64; 3] {
+        let e = by_name(name);
+        let area: f64 = e.primitives.iter().map(|p| p.area() as f64).sum();
+        e.emission.map(|l| std::f64::consts::PI * l as f64 * area)
+    };
+    let bulb = power("bulb_node:bulb");
+    let want = [2.0, 1.0, 0.5].map(|i| 4.0 * std::f64::consts::PI * i);
+    assert!(bulb.iter().zip(want).all(|(a, b)| (a - b).abs() < 1e-4 * b), "{bulb:?} vs {want:?}");
+    let bulb_prims = &by_name("bulb_node:bulb").primitives;
+    assert_eq!(bulb_prims.len(), 20);
+    assert!(bulb_prims.iter().all(|p| ((p.p[0] - Vec3::new(-1.0, 2.0, 0.0)).length() - 0.05).abs() < 1e-6));
+    let spot = by_name("spot_node:spot");
+    assert!((spot.primitives[0].normal() - Vec3::NEG_Y).length() < 1e-5);
+    let on_axis = spot.emission[0] as f64 * spot.primitives[0].area() as f64;
+    assert!((on_axis - 1.0).abs() < 1e-4, "on-axis intensity {on_axis} W/sr");
+
+    // The animation: 1 s at 24 fps. Translation STEP: (0,1,0) until 1 s;
+    // rotation CUBICSPLINE with zero tangents: the quaternions blended with
+    // the weight w = 3t² − 2t³ and renormalised (the specification's rule).
+    assert_eq!(s.frame_count(), 25);
+    let spinner = by_name("spinner");
+    let corner = |f: u32| s.at_frame(f).surfaces.iter().find(|x| x.name == "spinner").unwrap().primitives[0].p[1];
+    assert!((spinner.primitives[0].p[0] - Vec3::new(0.0, 1.0, 0.0)).length() < 1e-6);
+    for f in [0u32, 6, 12, 18, 24] {
+        let t = f as f32 / 24.0;
+        let w = 3.0 * t * t - 2.0 * t * t * t;
+        let half = std::f32::consts::FRAC_PI_4;
+        let angle = 2.0 * (w * half.sin()).atan2(1.0 - w + w * half.cos());
+        let z = if f == 24 { 1.0 } else { 0.0 };
+        let want = Vec3::new(0.0, 1.0, z) + Vec3::new(0.1 * angle.cos(), 0.0, -0.1 * angle.sin());
+        assert!((corner(f) - want).length() < 1e-5, "frame {f}: {} vs {want}", corner(f));
+    }
+
+    // What could not be mapped is said, by name.
+    let said = s.notes.join("\n");
+    for expected in
+        ["light `sun`: directional lights are not supported", "mesh `morphing`: morph targets", "light `spot`"]
+    {
+        assert!(said.contains(expected), "no note `{expected}` in:\n{said}");
+    }
+}
+
+#[test]
+fn errors_name_the_file_and_a_json_pointer() {
+    let dir = tempfile::tempdir().unwrap();
+    let write = |name: &str, text: &str| {
+        let p = dir.path().join(name);
+        std::fs::write(&p, text).unwrap();
+        p
+    };
+    // An index out of range, caught by the glTF validator.
+    let base = std::fs::read_to_string(data("features.gltf")).unwrap();
+    let json: serde_json::Value = serde_json::from_str(&base).unwrap();
+    let mut bad = json.clone();
+    bad["meshes"][0]["primitives"][0]["material"] = 99.into();
+    std::fs::copy(data("features.bin"), dir.path().join("features.bin")).unwrap();
+    std::fs::copy(data("checker.png"), dir.path().join("checker.png")).unwrap();
+    let p = write("bad_material.gltf", &bad.to_string());
+    let e = Scene::from_file(&p).unwrap_err().to_string();
+    assert!(e.contains("bad_material.gltf") && e.contains("/meshes/0/primitives/0/material"), "{e}");
+    // Anisotropy strength out of range.
+    let mut bad = json.clone();
+    let plate = bad["materials"].as_array().unwrap().iter().position(|m| m["name"] == "brushed").unwrap();
+    bad["materials"][plate]["extensions"]["KHR_materials_anisotropy"]["anisotropyStrength"] = 2.0.into();
+    let e = Scene::from_file(&write("bad_aniso.gltf", &bad.to_string())).unwrap_err().to_string();
+    assert!(e.contains(&format!("/materials/{plate}/extensions/KHR_materials_anisotropy/anisotropyStrength")), "{e}");
+    // No light at all: says how to add one.
+    let mut dark = json.clone();
+    for m in dark["materials"].as_array_mut().unwrap() {
+        m.as_object_mut().unwrap().remove("emissiveFactor");
+    }
+    for n in dark["nodes"].as_array_mut().unwrap() {
+        n.as_object_mut().unwrap().remove("extensions");
+    }
+    let e = Scene::from_file(&write("dark.gltf", &dark.to_string())).unwrap_err().to_string();
+    assert!(e.contains("emits no light") && e.contains("KHR_lights_punctual"), "{e}");
+    // A buffer file that is missing.
+    std::fs::remove_file(dir.path().join("features.bin")).unwrap();
+    let e = Scene::from_file(&write("nobin.gltf", &base)).unwrap_err().to_string();
+    assert!(e.contains("nobin.gltf") && e.contains("/buffers"), "{e}");
+    // Not glTF at all.
+    let e = Scene::from_file(&write("junk.glb", "not a glb")).unwrap_err().to_string();
+    assert!(e.contains("junk.glb") && e.contains("cannot read glTF"), "{e}");
+}
