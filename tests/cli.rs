@@ -590,3 +590,33 @@ fn inspect_histograms_count_everything_once() {
     let (code, _) = failing(&["inspect", &path("a.inet"), "--histograms", "--patch", "0"]);
     assert_eq!(code, 2, "one view at a time");
 }
+
+#[test]
+fn gltf_scenes_end_to_end() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = |name: &str| dir.path().join(name).to_str().unwrap().to_string();
+    let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/gltf");
+    let glb = data.join("cornell_box.glb");
+    let glb = glb.to_str().unwrap();
+    let quality = ["--frequency", "8", "--patch-size", "0.05"];
+    // build model.glb works with defaults; its camera is the file's.
+    illumnet(&[&["build", "-q", glb, "-o", &path("g.inet")][..], &quality[..]].concat());
+    let out = illumnet(&["inspect", &path("g.inet"), "--json"]);
+    let json: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(json["surfaces"].as_array().unwrap().len(), 8, "{json}");
+    // --camera-from takes a glTF file's camera: the same image as the archive's own.
+    illumnet(&["render", "-q", &path("g.inet"), "--size", "48x48", "-o", &path("a.png"), "--exr", &path("a.exr")]);
+    let args = ["render", "-q", &path("g.inet"), "--size", "48x48", "-o", &path("b.png"), "--exr", &path("b.exr")];
+    illumnet(&[&args[..], &["--camera-from", glb]].concat());
+    assert!(read_exr(Path::new(&path("a.exr"))).unwrap() == read_exr(Path::new(&path("b.exr"))).unwrap());
+    // What cannot be mapped is said on stderr, once, by name.
+    let f = data.join("features.gltf");
+    let out = illumnet(&[&["build", "-q", f.to_str().unwrap(), "-o", &path("f.inet")][..], &quality[..]].concat());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(err.matches("light `sun`: directional lights are not supported").count(), 1, "{err}");
+    // glTF options on a TOML scene are refused.
+    let toml = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/cornell_box.toml");
+    let (code, msg) = failing(&["build", toml.to_str().unwrap(), "-o", &path("t.inet"), "--fps", "15"]);
+    assert_eq!(code, 3, "bad input: {msg}");
+    assert!(msg.contains("glTF scenes"), "{msg}");
+}

@@ -252,3 +252,62 @@ fn errors_name_the_file_and_a_json_pointer() {
     let e = Scene::from_file(&write("junk.glb", "not a glb")).unwrap_err().to_string();
     assert!(e.contains("junk.glb") && e.contains("cannot read glTF"), "{e}");
 }
+
+#[test]
+fn a_toml_scene_starts_from_a_gltf_file_and_overrides_by_name() {
+    let dir = data("");
+    let text = r#"
+[gltf]
+file = "features.gltf"
+camera = "side"
+light_radius = 0.1
+
+[build]
+patch_size = 0.2
+
+# Replaces the file's `grey` (diffuse 0.5) by name.
+[[material]]
+name = "grey"
+type = "diffuse"
+reflectance = [0.2, 0.3, 0.4]
+
+[[surface]]
+name = "extra"
+material = "grey"
+emission = [1.0, 1.0, 1.0]
+quad = [[-1.0, 3.0, -1.0], [-1.0, 3.0, 1.0], [1.0, 3.0, 1.0], [1.0, 3.0, -1.0]]
+"#;
+    let s = Scene::from_toml(text, &dir.join("over.toml"), &dir).unwrap_or_else(|e| panic!("{e}"));
+    let get = |n: &str| s.surfaces.iter().find(|x| x.name == n).unwrap();
+    assert_eq!(s.name, "over");
+    assert!((s.camera.position - Vec3::new(4.0, 1.0, 0.0)).length() < 1e-5, "the camera named in [gltf]");
+    assert_eq!(s.build.patch_size, Some(0.2));
+    assert_eq!(s.materials.iter().filter(|m| m.name == "grey").count(), 1);
+    for n in ["box_a", "extra"] {
+        assert_eq!(
+            s.materials[get(n).material as usize].model,
+            ReflectanceModel::Diffuse { reflectance: [0.2, 0.3, 0.4] },
+            "{n}"
+        );
+    }
+    // The lamp radius reaches the importer: the bulb's corners lie 0.1 m out.
+    assert!(
+        get("bulb_node:bulb")
+            .primitives
+            .iter()
+            .all(|p| ((p.p[0] - Vec3::new(-1.0, 2.0, 0.0)).length() - 0.1).abs() < 1e-6)
+    );
+    assert_eq!(s.frame_count(), 25, "the file's animation");
+    assert!(!s.notes.is_empty());
+
+    // A [camera] table wins over the file's; a surface name taken by the file is refused.
+    let cam = "[camera]\nposition = [0, 1, 5]\nlook_at = [0, 1, 0]\nfov_y_deg = 30\nwidth = 64\nheight = 48\n";
+    let s = Scene::from_toml(&format!("[gltf]\nfile = 'features.gltf'\n{cam}"), &dir.join("c.toml"), &dir).unwrap();
+    assert_eq!((s.camera.width, s.camera.height), (64, 48));
+    let dup = "[gltf]\nfile = 'features.gltf'\n[[surface]]\nname = 'floor'\nmaterial = 'grey'\nquad = [[0,0,0],[1,0,0],[1,0,1],[0,0,1]]\n";
+    let e = Scene::from_toml(dup, &dir.join("d.toml"), &dir).unwrap_err();
+    assert!(e.to_string().contains("duplicate surface name `floor`"), "{e}");
+    let e = Scene::from_toml("[gltf]\nfile = 'features.gltf'\n[animation]\nframes = 3\n", &dir.join("a.toml"), &dir)
+        .unwrap_err();
+    assert!(e.field == "animation" && e.line == 3, "{e}");
+}

@@ -83,13 +83,24 @@ impl<'de, T: Deserialize<'de>, const N: usize> Deserialize<'de> for Exact<T, N> 
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct RawScene {
-    camera: Spanned<RawCamera>,
+    camera: Option<Spanned<RawCamera>>,
+    gltf: Option<Spanned<RawGltf>>,
     build: Option<Spanned<RawBuild>>,
     #[serde(default)]
     material: Vec<Spanned<RawMaterial>>,
     #[serde(default)]
     surface: Vec<Spanned<RawSurface>>,
     animation: Option<Spanned<RawAnimation>>,
+}
+
+/// `[gltf]`: a glTF file whose scene this one starts from.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawGltf {
+    file: Spanned<String>,
+    camera: Option<String>,
+    light_radius: Option<Spanned<f32>>,
+    fps: Option<Spanned<f32>>,
 }
 
 #[derive(Deserialize)]
@@ -484,7 +495,45 @@ pub(super) fn parse(text: &str, file: &Path, base_dir: &Path, name: String) -> R
     let cx = Ctx { text, file };
     let raw: RawScene = cx.deserialize()?;
 
-    let (camera, camera_keys) = camera_of(&cx, &raw.camera, &raw.animation)?;
+    // A glTF file to start from: its materials and surfaces come first; this
+    // file's override materials of the same name and add the rest.
+    let imported = match &raw.gltf {
+        None => None,
+        Some(g) => {
+            let gs = g.get_ref();
+            if let Some(a) = &raw.animation {
+                return Err(cx.err(
+                    a.span(),
+                    "animation",
+                    "a scene with [gltf] takes its frames from the glTF file's animation (set its rate with [gltf] fps)",
+                ));
+            }
+            let positive = |v: &Option<Spanned<f32>>, key: &str| -> Result<Option<f32>, SceneError> {
+                match v {
+                    Some(x) if !(x.get_ref().is_finite() && *x.get_ref() > 0.0) => {
+                        Err(cx.err(x.span(), format!("gltf.{key}"), "must be a positive number"))
+                    }
+                    Some(x) => Ok(Some(*x.get_ref())),
+                    None => Ok(None),
+                }
+            };
+            let options = super::GltfOptions {
+                camera: if raw.camera.is_some() { None } else { gs.camera.clone() },
+                light_radius: positive(&gs.light_radius, "light_radius")?,
+                fps: positive(&gs.fps, "fps")?,
+            };
+            let path = base_dir.join(gs.file.get_ref());
+            if !super::gltf::is_gltf_path(&path) {
+                return Err(cx.err(gs.file.span(), "gltf.file", "must name a .gltf or .glb file"));
+            }
+            Some(super::gltf::import_unchecked(&path, &options)?)
+        }
+    };
+    let (camera, camera_keys) = match (&raw.camera, &imported) {
+        (Some(c), _) => camera_of(&cx, c, &raw.animation)?,
+        (None, Some(g)) => (g.camera, g.camera_keys.clone()),
+        (None, None) => return Err(cx.err(0..0, "camera", "the scene has no [camera] table")),
+    };
 
     // Build hints.
     let mut build = BuildHints::default();
@@ -521,11 +570,12 @@ pub(super) fn parse(text: &str, file: &Path, base_dir: &Path, name: String) -> R
     }
 
     // Materials.
-    let mut materials: Vec<Material> = Vec::new();
+    let mut materials: Vec<Material> = imported.as_ref().map_or_else(Vec::new, |g| g.materials.clone());
+    let from_gltf = materials.len();
     for (i, m) in raw.material.iter().enumerate() {
         let m = m.get_ref();
         let field = |f: &str| format!("material[{i}].{f}");
-        if materials.iter().any(|x| x.name == *m.name.get_ref()) {
+        if materials[from_gltf..].iter().any(|x| x.name == *m.name.get_ref()) {
             return Err(cx.err(
                 m.name.span(),
                 field("name"),
@@ -620,11 +670,14 @@ pub(super) fn parse(text: &str, file: &Path, base_dir: &Path, name: String) -> R
                 ));
             }
         };
-        materials.push(Material { name: m.name.get_ref().clone(), model });
+        match materials[..from_gltf].iter_mut().find(|x| x.name == *m.name.get_ref()) {
+            Some(overridden) => overridden.model = model,
+            None => materials.push(Material { name: m.name.get_ref().clone(), model }),
+        }
     }
 
     // Surfaces.
-    let mut surfaces: Vec<Surface> = Vec::new();
+    let mut surfaces: Vec<Surface> = imported.as_ref().map_or_else(Vec::new, |g| g.surfaces.clone());
     for (i, s) in raw.surface.iter().enumerate() {
         let sspan = s.span();
         let s = s.get_ref();
@@ -752,6 +805,7 @@ pub(super) fn parse(text: &str, file: &Path, base_dir: &Path, name: String) -> R
         return Err(cx.err(0..0, "surface", "the scene has no surfaces"));
     }
     let animation = match &raw.animation {
+        None if imported.is_some() => imported.as_ref().and_then(|g| g.animation),
         Some(a) => {
             let (frames, fps) = (a.get_ref().frames.get_ref(), a.get_ref().fps.get_ref());
             if !(1..=100_000).contains(frames) {
@@ -764,7 +818,8 @@ pub(super) fn parse(text: &str, file: &Path, base_dir: &Path, name: String) -> R
         }
         None => None,
     };
-    let scene = Scene { name, materials, surfaces, camera, build, animation, camera_keys, notes: Vec::new() };
+    let notes = imported.map_or_else(Vec::new, |g| g.notes);
+    let scene = Scene { name, materials, surfaces, camera, build, animation, camera_keys, notes };
     Ok(scene)
 }
 

@@ -83,8 +83,25 @@ struct Placed<'a> {
     parent: Option<usize>,
 }
 
-/// Reads the glTF or GLB file at `path` into a scene.
+/// Reads the glTF or GLB file at `path` into a scene; a scene that emits no
+/// light is an error saying how to add a lamp.
 pub fn import(path: &Path, options: &GltfOptions) -> Result<Scene, SceneError> {
+    let scene = import_unchecked(path, options)?;
+    if scene.surfaces.iter().all(|s| s.emission.iter().all(|&e| e <= 0.0)) {
+        return Err(error(
+            path,
+            "/materials",
+            "the scene emits no light: give a material an emissiveFactor (with \
+             KHR_materials_emissive_strength for radiance above 1) or add a KHR_lights_punctual \
+             point or spot light",
+        ));
+    }
+    Ok(scene)
+}
+
+/// [`import`] without the emitter check: a TOML scene that starts from a
+/// glTF file may add its lamps itself.
+pub(super) fn import_unchecked(path: &Path, options: &GltfOptions) -> Result<Scene, SceneError> {
     let (doc, buffers, images) = open(path)?;
     let mut notes = Notes::default();
     let mut scene = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
@@ -297,15 +314,6 @@ fn convert(
     unique_names(&mut surfaces);
     if surfaces.is_empty() {
         return Err(error(path, "/meshes", "the scene has no triangles to build"));
-    }
-    if surfaces.iter().all(|s| s.emission.iter().all(|&e| e <= 0.0)) {
-        return Err(error(
-            path,
-            "/materials",
-            "the scene emits no light: give a material an emissiveFactor (with \
-             KHR_materials_emissive_strength for radiance above 1) or add a KHR_lights_punctual \
-             point or spot light",
-        ));
     }
 
     let camera = match camera_of(path, doc, &placed, &worlds, options)? {
