@@ -311,3 +311,55 @@ quad = [[-1.0, 3.0, -1.0], [-1.0, 3.0, 1.0], [1.0, 3.0, 1.0], [1.0, 3.0, -1.0]]
         .unwrap_err();
     assert!(e.field == "animation" && e.line == 3, "{e}");
 }
+
+/// OBJ + MTL scenes (format-spec/scene.md, "OBJ + MTL scenes"), written by
+/// `tools/make_gltf.py` too.
+fn obj(name: &str) -> Scene {
+    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/obj").join(name);
+    Scene::from_file(&p).unwrap_or_else(|e| panic!("{e}"))
+}
+
+#[test]
+fn the_cornell_box_as_obj_and_mtl_is_the_toml_scene() {
+    let toml = Scene::from_file(&Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/cornell_box.toml")).unwrap();
+    let mut o = obj("cornell_box.obj");
+    assert_eq!(o.notes, ["OBJ has no camera: one looks at the scene along -Z (give one with render --camera-*)"]);
+    assert_eq!(o.surfaces.len(), toml.surfaces.len());
+    for (a, b) in o.surfaces.iter().zip(&toml.surfaces) {
+        assert_eq!(a.name, b.name);
+        assert_eq!(a.primitives, b.primitives, "{}: four-corner faces are the same quads", a.name);
+        assert_eq!(a.emission, b.emission, "{}", a.name);
+        assert_eq!(o.materials[a.material as usize].model, toml.materials[b.material as usize].model, "{}", a.name);
+    }
+    o.camera = toml.camera;
+    let hints = coarse(&toml);
+    let err = image_io::relative_l2(
+        &render_frame(&common::build_archive(&o, hints), 0),
+        &render_frame(&common::build_archive(&toml, hints), 0),
+    )
+    .unwrap();
+    assert!(err < 0.01, "relative L2 {err} between the OBJ and the TOML Cornell box (bar 1%)");
+}
+
+#[test]
+fn mtl_textures_specular_and_emission() {
+    let s = obj("textured.obj");
+    let get = |n: &str| s.surfaces.iter().find(|x| x.name == n).unwrap();
+    // Kd 0.8 × the checker's mean linear albedo 0.5 (its v flipped: same mean).
+    let ReflectanceModel::Diffuse { reflectance } = s.materials[get("floor").material as usize].model else { panic!() };
+    assert!(reflectance.iter().all(|r| (r - 0.4).abs() < 1e-5), "{reflectance:?}");
+    // Ks 0.9 with Ns 48 and no Kd: a rough conductor of α = √(2/50) = 0.2.
+    let ReflectanceModel::RoughConductor { specular, lobe } = s.materials[get("plate").material as usize].model else {
+        panic!()
+    };
+    assert_eq!(specular, [0.9; 3]);
+    assert!((lobe.alpha_u - 0.2).abs() < 1e-6);
+    assert_eq!(get("lamp").emission, [5.0; 3]);
+    assert!(s.notes.iter().any(|n| n.contains("map_Kd enters as each surface's mean albedo")), "{:?}", s.notes);
+    // No light: an error that says how to add one.
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("dark.obj");
+    std::fs::write(&p, "v 0 0 0\nv 1 0 0\nv 1 1 0\nf 1 2 3\n").unwrap();
+    let e = Scene::from_file(&p).unwrap_err().to_string();
+    assert!(e.contains("dark.obj") && e.contains("Ke r g b"), "{e}");
+}

@@ -20,6 +20,10 @@ Files:
   directional lights; an anisotropic metal plate with TANGENTs; a node
   animated with STEP translation and CUBICSPLINE rotation; a mesh with a
   morph target. tests/gltf.rs states what each must import as.
+* ../obj/cornell_box.obj (+ .mtl): the Cornell box as Wavefront OBJ, one
+  object per surface, quads as `f` of four corners, Kd and the lamp's Ke in
+  the MTL; ../obj/textured.obj: a floor with map_Kd (checker.png) and Ks/Ns
+  plates, under an emitter.
 """
 
 import math
@@ -338,7 +342,51 @@ def features(out_path):
     w.save(out_path, binary=False)
 
 
+def obj_from_toml(scene_path, out_path):
+    scene = tomllib.loads(scene_path.read_text())
+    lines, mtl, v = ["mtllib %s" % out_path.with_suffix(".mtl").name], [], 0
+    for m in scene["material"]:
+        mtl += ["newmtl " + m["name"], "Kd %g %g %g" % tuple(m["reflectance"]), "Ks 0 0 0"]
+    for s in scene["surface"]:
+        name = s["material"]
+        if "emission" in s:
+            name += "_emitter"
+            m = next(m for m in scene["material"] if m["name"] == s["material"])
+            mtl += ["newmtl " + name, "Kd %g %g %g" % tuple(m["reflectance"]), "Ke %.9g %.9g %.9g" % tuple(s["emission"])]
+        lines += ["o " + s["name"], "usemtl " + name]
+        for q in surface_quads(s):
+            lines += ["v %.9g %.9g %.9g" % tuple(p) for p in q]
+            lines.append("f %d %d %d %d" % (v + 1, v + 2, v + 3, v + 4))
+            v += 4
+    out_path.parent.mkdir(parents=True, exist_ok=True)
+    out_path.write_text("\n".join(lines) + "\n")
+    out_path.with_suffix(".mtl").write_text("\n".join(mtl) + "\n")
+
+
+def obj_textured(out_path):
+    from PIL import Image
+
+    Image.frombytes("RGB", (2, 2), bytes([255, 0, 0, 0, 255, 0, 0, 0, 255, 255, 255, 255])).save(out_path.parent / "checker.png")
+    out_path.with_suffix(".mtl").write_text(
+        "newmtl checker\nKd 0.8 0.8 0.8\nmap_Kd -s 1 1 1 checker.png\n"
+        "newmtl steel\nKd 0 0 0\nKs 0.9 0.9 0.9\nNs 48\n"
+        "newmtl lamp\nKd 0 0 0\nKe 5 5 5\n"
+    )
+    out_path.write_text(
+        "mtllib textured.mtl\n"
+        "o floor\nusemtl checker\n"
+        "v -2 0 2\nv 2 0 2\nv 2 0 -2\nv -2 0 -2\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\n"
+        "f 1/1 2/2 3/3 4/4\n"
+        "o plate\nusemtl steel\n"
+        "v 0 0.5 0\nv 1 0.5 0\nv 1 0.5 -1\nv 0 0.5 -1\nf 5 6 7 8\n"
+        "o lamp\nusemtl lamp\n"
+        "v -0.5 2 -0.5\nv 0.5 2 -0.5\nv 0.5 2 0.5\nv -0.5 2 0.5\nf 9 10 11 12\n"
+    )
+
+
 if __name__ == "__main__":
+    obj_from_toml(ROOT / "scenes" / "cornell_box.toml", ROOT / "tests" / "data" / "obj" / "cornell_box.obj")
+    obj_textured(ROOT / "tests" / "data" / "obj" / "textured.obj")
     from_toml(ROOT / "scenes" / "cornell_box.toml", OUT / "cornell_box.glb")
     from_toml(ROOT / "scenes" / "fan_room.toml", OUT / "fan_room.glb")
     features(OUT / "features.gltf")

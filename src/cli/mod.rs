@@ -273,7 +273,8 @@ struct RelightArgs {
 enum Command {
     /// Build an I-net archive from a scene file.
     Build {
-        /// Scene file: TOML (format-spec/scene.md) or glTF 2.0 (.gltf, .glb).
+        /// Scene file: TOML (format-spec/scene.md), glTF 2.0 (.gltf, .glb) or
+        /// Wavefront OBJ with its MTL (.obj).
         scene: PathBuf,
         /// Archive to write.
         #[arg(short, long, value_name = "ARCHIVE")]

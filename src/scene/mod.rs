@@ -8,7 +8,9 @@
 
 pub mod gltf;
 pub mod motion;
+mod obj;
 mod parse;
+pub mod texture;
 
 use std::path::Path;
 
@@ -151,6 +153,23 @@ fn camera_at(camera: &Camera, keys: &[motion::CameraKey], frame: u32) -> Camera 
     }
 }
 
+/// A camera looking along −Z at the middle of `bounds` and framing it, for
+/// imported scenes that bring none: 40°, `width` × ¾·`width` pixels.
+fn framing_camera((lo, hi): (Vec3, Vec3), width: u32) -> Camera {
+    let centre = (lo + hi) / 2.0;
+    let fov = 40.0f32;
+    let half = (hi - lo).length() / 2.0;
+    let distance = hi.z - centre.z + half / (fov.to_radians() / 2.0).tan();
+    Camera {
+        position: centre + Vec3::Z * distance.max(1e-3),
+        look_at: centre,
+        up: Vec3::Y,
+        fov_y_deg: fov,
+        width,
+        height: (width * 3 / 4).max(1),
+    }
+}
+
 /// A camera read from a file on its own (`render --camera-from`,
 /// `--camera-path`): a scene file's `[camera]`, or a file holding just
 /// `[camera]` and, for a path, `[animation] frames` and the camera's
@@ -231,6 +250,9 @@ impl Scene {
     pub fn from_file_with(path: &Path, gltf_options: &GltfOptions) -> Result<Self, SceneError> {
         if gltf::is_gltf_path(path) {
             return gltf::import(path, gltf_options);
+        }
+        if obj::is_obj_path(path) {
+            return obj::import(path);
         }
         let text = std::fs::read_to_string(path).map_err(|e| SceneError::io(path, e))?;
         let name = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();

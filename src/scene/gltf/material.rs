@@ -15,11 +15,12 @@
 use std::collections::HashMap;
 use std::path::Path;
 
-use glam::{Vec2, Vec3};
+use glam::Vec3;
 
 use super::triangles::Triangles;
 use super::{Notes, error};
 use crate::reflectance::Lobe;
+use crate::scene::texture::{Texture, Wrap, srgb_to_linear};
 use crate::scene::{Material, ReflectanceModel, SceneError};
 
 /// Roughness at or above which a non-metal without anisotropy is taken as
@@ -158,8 +159,18 @@ impl<'a> Materials<'a> {
                 error(self.path, format!("/textures/{}/source", tex.index()), "the image cannot be read")
             })?;
             let sampler = tex.sampler();
-            let mean =
-                mean_albedo(image, (sampler.wrap_s(), sampler.wrap_t()), uvs, tri.corners.iter().map(|c| c.area));
+            let wrap = |m: gltf::texture::WrappingMode| match m {
+                gltf::texture::WrappingMode::ClampToEdge => Wrap::Clamp,
+                gltf::texture::WrappingMode::Repeat => Wrap::Repeat,
+                gltf::texture::WrappingMode::MirroredRepeat => Wrap::Mirror,
+            };
+            let fetch = |i: usize| texel(image, i);
+            let texture = Texture { width: image.width, height: image.height, texel: &fetch };
+            let mean = texture.mean_albedo(
+                (wrap(sampler.wrap_s()), wrap(sampler.wrap_t())),
+                uvs,
+                tri.corners.iter().map(|c| c.area),
+            );
             for (c, m) in base.iter_mut().zip(mean) {
                 *c *= m;
             }
@@ -241,79 +252,12 @@ fn anisotropy(
     Ok((strength, number("anisotropyRotation", 0.0)?))
 }
 
-/// The area-weighted mean linear albedo of `image` over the texture
-/// triangles `uvs`: each triangle sampled at the centroids of a regular
-/// grid of sub-triangles, about 64 per texel it covers (at least 16, at
-/// most 65 536), nearest texel, sRGB decoded.
-fn mean_albedo(
-    image: &gltf::image::Data,
-    wrap: (gltf::texture::WrappingMode, gltf::texture::WrappingMode),
-    uvs: &[[Vec2; 3]],
-    areas: impl Iterator<Item = f32>,
-) -> [f32; 3] {
-    let (w, h) = (image.width.max(1) as usize, image.height.max(1) as usize);
-    let texels = w * h;
-    let fetch = |uv: Vec2| -> [f32; 3] {
-        let x = wrap_index(uv.x, w, wrap.0);
-        let y = wrap_index(uv.y, h, wrap.1);
-        texel(image, y * w + x)
-    };
-    let mut sum = [0f64; 3];
-    let mut total = 0f64;
-    for (t, area) in uvs.iter().zip(areas) {
-        let uv_area = ((t[1] - t[0]).perp_dot(t[2] - t[0]) / 2.0).abs() as f64;
-        // m² sub-triangles of a regular grid, each sampled at its centroid
-        // (m even: texel edges at half the texture fall on grid lines).
-        let n = (64.0 * uv_area * texels as f64).clamp(16.0, 65_536.0);
-        let m = ((n.sqrt().ceil() as usize).div_ceil(2) * 2).max(2);
-        let mut acc = [0f64; 3];
-        let mut sample = |a: f32, b: f32| {
-            let c = fetch(t[0] + (t[1] - t[0]) * a + (t[2] - t[0]) * b);
-            for i in 0..3 {
-                acc[i] += c[i] as f64;
-            }
-        };
-        let mf = m as f32;
-        for i in 0..m {
-            for j in 0..m - i {
-                sample((i as f32 + 1.0 / 3.0) / mf, (j as f32 + 1.0 / 3.0) / mf);
-                if i + j + 1 < m {
-                    sample((i as f32 + 2.0 / 3.0) / mf, (j as f32 + 2.0 / 3.0) / mf);
-                }
-            }
-        }
-        let n = (m * m) as f64;
-        for i in 0..3 {
-            sum[i] += acc[i] / n * area as f64;
-        }
-        total += area as f64;
-    }
-    if total <= 0.0 {
-        return [1.0; 3];
-    }
-    sum.map(|s| (s / total) as f32)
-}
-
-fn wrap_index(u: f32, n: usize, mode: gltf::texture::WrappingMode) -> usize {
-    use gltf::texture::WrappingMode::*;
-    let x = if u.is_finite() { u } else { 0.0 };
-    let t = match mode {
-        ClampToEdge => x.clamp(0.0, 1.0),
-        Repeat => x - x.floor(),
-        MirroredRepeat => {
-            let f = x.rem_euclid(2.0);
-            if f > 1.0 { 2.0 - f } else { f }
-        }
-    };
-    ((t * n as f32) as usize).min(n - 1)
-}
-
 /// Linear RGB of texel `i` (sRGB-encoded integer formats decoded; grey
 /// formats repeat their one channel).
 fn texel(image: &gltf::image::Data, i: usize) -> [f32; 3] {
     use gltf::image::Format::*;
     let px = &image.pixels;
-    let srgb = |v: f32| if v <= 0.04045 { v / 12.92 } else { ((v + 0.055) / 1.055).powf(2.4) };
+    let srgb = srgb_to_linear;
     let u8s = |ch: usize, take: usize| -> [f32; 3] {
         let o = i * ch;
         let g = |k: usize| px.get(o + k.min(take - 1)).map_or(0.0, |&b| srgb(b as f32 / 255.0));
@@ -383,15 +327,5 @@ mod tests {
         assert!((lobe.alpha_u - (0.16 + 0.84 * 0.25)).abs() < 1e-6 && (lobe.alpha_v - 0.16).abs() < 1e-7);
         // Mirror-smooth roughness is clamped (and said).
         assert!(model_of([1.0; 3], 1.0, 0.0, 0.0).1);
-    }
-
-    #[test]
-    fn wrapping_modes() {
-        use gltf::texture::WrappingMode::*;
-        assert_eq!(wrap_index(1.25, 4, Repeat), 1);
-        assert_eq!(wrap_index(-0.25, 4, Repeat), 3);
-        assert_eq!(wrap_index(1.25, 4, ClampToEdge), 3);
-        assert_eq!(wrap_index(1.25, 4, MirroredRepeat), 3);
-        assert_eq!(wrap_index(f32::NAN, 4, Repeat), 0);
     }
 }

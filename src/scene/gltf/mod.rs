@@ -17,7 +17,7 @@
 mod animation;
 mod light;
 mod material;
-mod triangles;
+pub(super) mod triangles;
 
 use std::path::Path;
 
@@ -68,6 +68,10 @@ pub(super) fn error(file: &Path, pointer: impl Into<String>, message: impl Into<
 pub(super) struct Notes(Vec<String>);
 
 impl Notes {
+    pub(super) fn into_vec(self) -> Vec<String> {
+        self.0
+    }
+
     pub(super) fn add(&mut self, note: impl Into<String>) {
         let note = note.into();
         if !self.0.contains(&note) {
@@ -320,7 +324,7 @@ fn convert(
         Some(c) => c,
         None => {
             notes.add("the file has no camera: one looks at the scene along -Z (give one with render --camera-*)");
-            (default_camera(mesh_bounds), Vec::new())
+            (super::framing_camera(mesh_bounds, DEFAULT_WIDTH), Vec::new())
         }
     };
     let name = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
@@ -343,7 +347,7 @@ fn mesh_name(mesh: &gltf::Mesh<'_>) -> String {
 
 /// Makes surface names unique (`name`, `name~2`, …): a file may reuse node
 /// names, and `--set NAME.FIELD` needs one surface per name.
-fn unique_names(surfaces: &mut [Surface]) {
+pub(super) fn unique_names(surfaces: &mut [Surface]) {
     let mut seen = std::collections::HashMap::<String, u32>::new();
     for s in surfaces.iter_mut() {
         let n = seen.entry(s.name.clone()).or_insert(0);
@@ -461,22 +465,6 @@ fn camera_of(
         Vec::new()
     };
     Ok(Some((camera, keys)))
-}
-
-/// A camera looking along -Z at the middle of `bounds`, framing it.
-fn default_camera((lo, hi): (Vec3, Vec3)) -> Camera {
-    let centre = (lo + hi) / 2.0;
-    let fov = 40.0f32;
-    let half = (hi - lo).length() / 2.0;
-    let distance = hi.z - centre.z + half / (fov.to_radians() / 2.0).tan();
-    Camera {
-        position: centre + Vec3::Z * distance.max(1e-3),
-        look_at: centre,
-        up: Vec3::Y,
-        fov_y_deg: fov,
-        width: DEFAULT_WIDTH,
-        height: DEFAULT_WIDTH * 3 / 4,
-    }
 }
 
 #[cfg(test)]

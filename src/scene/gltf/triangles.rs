@@ -174,7 +174,7 @@ fn is_closed(pos: &[Vec3], tri: &[[u32; 3]]) -> bool {
 
 /// Consecutive triangles `(a, b, c)`, `(c, d, a)` (in any rotation) that make
 /// a planar convex quad, as that quad; the rest as triangles.
-fn merge_quads(pos: &[Vec3], tri: &[[u32; 3]]) -> Vec<Primitive> {
+pub(in crate::scene) fn merge_quads(pos: &[Vec3], tri: &[[u32; 3]]) -> Vec<Primitive> {
     let mut out = Vec::with_capacity(tri.len());
     let mut i = 0;
     while i < tri.len() {

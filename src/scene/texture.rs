@@ -1,0 +1,127 @@
+//! Base-colour textures of imported scenes (glTF, OBJ + MTL), reduced to
+//! what the I-net uses: a surface's mean albedo.
+
+use glam::Vec2;
+
+/// How texture coordinates outside `[0, 1]` are brought back in.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Wrap {
+    /// The edge texel repeats.
+    Clamp,
+    /// The texture tiles.
+    Repeat,
+    /// The texture tiles, every other copy mirrored.
+    Mirror,
+}
+
+/// sRGB-encoded value in `[0, 1]` → linear.
+pub fn srgb_to_linear(v: f32) -> f32 {
+    if v <= 0.04045 { v / 12.92 } else { ((v + 0.055) / 1.055).powf(2.4) }
+}
+
+/// A texture's size and a reader of its linear RGB texels (row-major, top
+/// row first): decoded one at a time, so a large texture is not copied.
+pub struct Texture<'a> {
+    /// Width in texels.
+    pub width: u32,
+    /// Height in texels.
+    pub height: u32,
+    /// Linear RGB of texel `y·width + x`.
+    pub texel: &'a dyn Fn(usize) -> [f32; 3],
+}
+
+impl Texture<'_> {
+    /// The area-weighted mean linear albedo over the texture triangles
+    /// `uvs` (`areas` their world areas): each triangle sampled at the
+    /// centroids of a regular grid of sub-triangles, about 64 per texel it
+    /// covers (at least 16, at most 65 536), nearest texel. `[1, 1, 1]`
+    /// for no area.
+    pub fn mean_albedo(&self, wrap: (Wrap, Wrap), uvs: &[[Vec2; 3]], areas: impl Iterator<Item = f32>) -> [f32; 3] {
+        let (w, h) = (self.width.max(1) as usize, self.height.max(1) as usize);
+        let texels = (w * h) as f64;
+        let fetch = |uv: Vec2| -> [f32; 3] {
+            let x = wrap_index(uv.x, w, wrap.0);
+            let y = wrap_index(uv.y, h, wrap.1);
+            (self.texel)(y * w + x)
+        };
+        let mut sum = [0f64; 3];
+        let mut total = 0f64;
+        for (t, area) in uvs.iter().zip(areas) {
+            if !(area > 0.0 && area.is_finite()) {
+                continue;
+            }
+            let uv_area = ((t[1] - t[0]).perp_dot(t[2] - t[0]) / 2.0).abs() as f64;
+            // m² sub-triangles, each sampled at its centroid (m even: texel
+            // edges at half the texture fall on grid lines).
+            let n = if uv_area.is_finite() { (64.0 * uv_area * texels).clamp(16.0, 65_536.0) } else { 16.0 };
+            let m = ((n.sqrt().ceil() as usize).div_ceil(2) * 2).max(2);
+            let mut acc = [0f64; 3];
+            let mut sample = |a: f32, b: f32| {
+                let c = fetch(t[0] + (t[1] - t[0]) * a + (t[2] - t[0]) * b);
+                for i in 0..3 {
+                    acc[i] += c[i] as f64;
+                }
+            };
+            let mf = m as f32;
+            for i in 0..m {
+                for j in 0..m - i {
+                    sample((i as f32 + 1.0 / 3.0) / mf, (j as f32 + 1.0 / 3.0) / mf);
+                    if i + j + 1 < m {
+                        sample((i as f32 + 2.0 / 3.0) / mf, (j as f32 + 2.0 / 3.0) / mf);
+                    }
+                }
+            }
+            for i in 0..3 {
+                sum[i] += acc[i] / (m * m) as f64 * area as f64;
+            }
+            total += area as f64;
+        }
+        if total <= 0.0 {
+            return [1.0; 3];
+        }
+        sum.map(|s| (s / total) as f32)
+    }
+}
+
+/// The texel column (or row) of coordinate `u` in a texture `n` wide.
+fn wrap_index(u: f32, n: usize, mode: Wrap) -> usize {
+    let x = if u.is_finite() { u } else { 0.0 };
+    let t = match mode {
+        Wrap::Clamp => x.clamp(0.0, 1.0),
+        Wrap::Repeat => x - x.floor(),
+        Wrap::Mirror => {
+            let f = x.rem_euclid(2.0);
+            if f > 1.0 { 2.0 - f } else { f }
+        }
+    };
+    ((t * n as f32) as usize).min(n - 1)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn wrapping_modes() {
+        assert_eq!(wrap_index(1.25, 4, Wrap::Repeat), 1);
+        assert_eq!(wrap_index(-0.25, 4, Wrap::Repeat), 3);
+        assert_eq!(wrap_index(1.25, 4, Wrap::Clamp), 3);
+        assert_eq!(wrap_index(1.25, 4, Wrap::Mirror), 3);
+        assert_eq!(wrap_index(f32::NAN, 4, Wrap::Repeat), 0);
+    }
+
+    #[test]
+    fn the_mean_of_a_checker_is_exact_over_a_split_square() {
+        // 2 × 2 texels 0, 1, 1, 0 (one channel): mean 0.5 over the square
+        // cut on its diagonal, and 0 or 1 over a single texel.
+        let v = [0.0, 1.0, 1.0, 0.0];
+        let fetch = |i: usize| [v[i]; 3];
+        let t = Texture { width: 2, height: 2, texel: &fetch };
+        let (a, b, c, d) = (Vec2::ZERO, Vec2::X, Vec2::ONE, Vec2::Y);
+        let square = [[a, b, c], [a, c, d]];
+        let mean = t.mean_albedo((Wrap::Repeat, Wrap::Repeat), &square, [1.0, 1.0].into_iter());
+        assert!((mean[0] - 0.5).abs() < 1e-6, "{mean:?}");
+        let texel = [[Vec2::new(0.5, 0.0), Vec2::new(1.0, 0.0), Vec2::new(0.5, 0.5)]];
+        assert_eq!(t.mean_albedo((Wrap::Clamp, Wrap::Clamp), &texel, [1.0].into_iter())[0], 1.0);
+    }
+}
