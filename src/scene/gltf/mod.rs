@@ -4,12 +4,12 @@
 //! `format-spec/scene.md` ("glTF 2.0 scenes"); whatever cannot be mapped is
 //! listed by name in [`Scene::notes`], never dropped silently.
 //!
-//! * [`triangles`]: a mesh primitive's triangles in world space, pairs that
+//! * `triangles`: a mesh primitive's triangles in world space, pairs that
 //!   make a planar convex quad merged back into quads;
-//! * [`material`]: metallic-roughness, emission and anisotropy onto our
+//! * `material`: metallic-roughness, emission and anisotropy onto our
 //!   reflectance models; base-colour textures averaged;
-//! * [`light`]: `KHR_lights_punctual` lamps as small area emitters;
-//! * [`animation`]: node channels sampled at the frame rate.
+//! * `light`: `KHR_lights_punctual` lamps as small area emitters;
+//! * `animation`: node channels sampled at the frame rate.
 //!
 //! Errors name the file and a JSON pointer into it
 //! (`/materials/3/pbrMetallicRoughness`).
