@@ -166,8 +166,9 @@ fn features_import_with_their_geometry_materials_lights_and_animation() {
     let grain = plate.grain.expect("a grain");
     assert!((grain - Vec3::NEG_Z).length() < 1e-5, "{grain}");
 
-    // Lamps: power equals the light's (4π·I for a point light of I W/sr;
-    // 683 cd is 1 W/sr), and the spot sends I straight down its axis.
+    // Lamps: power equals the light's (4π·I for a point light of I W/sr,
+    // 683 cd being 1 W/sr; 2π(1 − cos θ)·I for a spot, θ the mean of its
+    // inner and outer cone angles, 0 and 0.6 here), and the spot faces down.
     let power = |name: &str| -> [f64; 3] {
         let e = by_name(name);
         let area: f64 = e.primitives.iter().map(|p| p.area() as f64).sum();
@@ -181,8 +182,9 @@ fn features_import_with_their_geometry_materials_lights_and_animation() {
     assert!(bulb_prims.iter().all(|p| ((p.p[0] - Vec3::new(-1.0, 2.0, 0.0)).length() - 0.05).abs() < 1e-6));
     let spot = by_name("spot_node:spot");
     assert!((spot.primitives[0].normal() - Vec3::NEG_Y).length() < 1e-5);
-    let on_axis = spot.emission[0] as f64 * spot.primitives[0].area() as f64;
-    assert!((on_axis - 1.0).abs() < 1e-4, "on-axis intensity {on_axis} W/sr");
+    let cone = 2.0 * std::f64::consts::PI * (1.0 - 0.3f64.cos());
+    let spot_power = power("spot_node:spot");
+    assert!(spot_power.iter().all(|p| (p - cone).abs() < 1e-4 * cone), "{spot_power:?} vs {cone}");
 
     // The animation: 1 s at 24 fps. Translation STEP: (0,1,0) until 1 s;
     // rotation CUBICSPLINE with zero tangents: the quaternions blended with
@@ -248,6 +250,40 @@ fn errors_name_the_file_and_a_json_pointer() {
     std::fs::remove_file(dir.path().join("features.bin")).unwrap();
     let e = Scene::from_file(&write("nobin.gltf", &base)).unwrap_err().to_string();
     assert!(e.contains("nobin.gltf") && e.contains("/buffers"), "{e}");
+    // Hostile files (found by an adversarial review): each a clear error.
+    let hostile = |name: &str, edit: &dyn Fn(&mut serde_json::Value)| {
+        let mut j = json.clone();
+        edit(&mut j);
+        Scene::from_file(&write(name, &j.to_string())).unwrap_err().to_string()
+    };
+    std::fs::copy(data("features.bin"), dir.path().join("features.bin")).unwrap();
+    // A node with two parents would be instanced twice (or exponentially often).
+    let e = hostile("two_parents.gltf", &|j| {
+        let boxes = j["nodes"].as_array().unwrap().iter().position(|n| n["name"] == "boxes").unwrap();
+        let child = j["nodes"][boxes]["children"][0].clone();
+        j["scenes"][0]["nodes"].as_array_mut().unwrap().push(child);
+    });
+    assert!(e.contains("reached twice"), "{e}");
+    // A buffer that is not a regular file is not read (it could be endless).
+    let e = hostile("devzero.gltf", &|j| j["buffers"][0]["uri"] = "/dev/zero".into());
+    assert!(e.contains("/buffers/0/uri") && e.contains("not a regular file"), "{e}");
+    let e = hostile("percent.gltf", &|j| j["buffers"][0]["uri"] = "x%FF.bin".into());
+    assert!(e.contains("bad percent escape"), "{e}");
+    // Float indices would reach `unreachable!` in the gltf crate.
+    let e = hostile("float_indices.gltf", &|j| {
+        let a = j["meshes"][0]["primitives"][0]["indices"].as_u64().unwrap() as usize;
+        j["accessors"][a]["componentType"] = 5126.into();
+    });
+    assert!(e.contains("indices: Scalar F32 is not a layout glTF allows here"), "{e}");
+    // A sparse accessor of 2³⁰ positions would allocate 12 GiB.
+    let e = hostile("huge.gltf", &|j| {
+        let a = j["meshes"][0]["primitives"][0]["attributes"]["POSITION"].as_u64().unwrap() as usize;
+        j["accessors"][a]["count"] = (1u64 << 30).into();
+        j["accessors"][a].as_object_mut().unwrap().remove("bufferView");
+        j["accessors"][a]["sparse"] = serde_json::json!({"count": 1, "indices": {"bufferView": 0, "componentType": 5125}, "values": {"bufferView": 0}});
+    });
+    assert!(e.contains("/count") && e.contains("more than 16777216 elements"), "{e}");
+
     // Not glTF at all.
     let e = Scene::from_file(&write("junk.glb", "not a glb")).unwrap_err().to_string();
     assert!(e.contains("junk.glb") && e.contains("cannot read glTF"), "{e}");

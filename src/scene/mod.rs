@@ -145,10 +145,11 @@ fn camera_at(camera: &Camera, keys: &[motion::CameraKey], frame: u32) -> Camera 
             frame,
             position: a.position.lerp(b.position, t),
             look_at: a.look_at.lerp(b.look_at, t),
+            up: a.up.lerp(b.up, t),
         },
     );
     match key {
-        Some(k) => Camera { position: k.position, look_at: k.look_at, ..*camera },
+        Some(k) => Camera { position: k.position, look_at: k.look_at, up: k.up, ..*camera },
         None => *camera,
     }
 }

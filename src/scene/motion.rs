@@ -149,6 +149,9 @@ pub struct CameraKey {
     pub position: Vec3,
     /// Point looked at (m).
     pub look_at: Vec3,
+    /// Up vector (the camera's own for TOML keys; a glTF camera node's as
+    /// it turns).
+    pub up: Vec3,
 }
 
 /// An emission keyframe of a surface.

@@ -872,7 +872,7 @@ fn camera_of(
                     "position and look_at must be finite (within ±1e9 m), distinct and not along `up`",
                 ));
             }
-            camera_keys.push(CameraKey { frame: k.frame, position: p, look_at: l });
+            camera_keys.push(CameraKey { frame: k.frame, position: p, look_at: l, up: camera.up });
         }
     }
     let frames = animation.as_ref().map_or(1, |a| *a.get_ref().frames.get_ref());

@@ -34,7 +34,7 @@ impl Texture<'_> {
     /// The area-weighted mean linear albedo over the texture triangles
     /// `uvs` (`areas` their world areas): each triangle sampled at the
     /// centroids of a regular grid of sub-triangles, about 64 per texel it
-    /// covers (at least 16, at most 65 536), nearest texel. `[1, 1, 1]`
+    /// covers (at least 16, at most 4 096), nearest texel. `[1, 1, 1]`
     /// for no area.
     pub fn mean_albedo(&self, wrap: (Wrap, Wrap), uvs: &[[Vec2; 3]], areas: impl Iterator<Item = f32>) -> [f32; 3] {
         let (w, h) = (self.width.max(1) as usize, self.height.max(1) as usize);
@@ -53,7 +53,7 @@ impl Texture<'_> {
             let uv_area = ((t[1] - t[0]).perp_dot(t[2] - t[0]) / 2.0).abs() as f64;
             // m² sub-triangles, each sampled at its centroid (m even: texel
             // edges at half the texture fall on grid lines).
-            let n = if uv_area.is_finite() { (64.0 * uv_area * texels).clamp(16.0, 65_536.0) } else { 16.0 };
+            let n = if uv_area.is_finite() { (64.0 * uv_area * texels).clamp(16.0, 4096.0) } else { 16.0 };
             let m = ((n.sqrt().ceil() as usize).div_ceil(2) * 2).max(2);
             let mut acc = [0f64; 3];
             let mut sample = |a: f32, b: f32| {

@@ -12,6 +12,10 @@ use gltf::animation::{Interpolation, Property, util::ReadOutputs};
 use super::{GltfOptions, Notes, error};
 use crate::scene::SceneError;
 
+/// Most node placements (moving nodes × frames) an animation may make: 4 Mi
+/// matrices, 256 MiB.
+const MAX_ANIMATED_MATRICES: usize = 1 << 22;
+
 /// One channel's keys: times and values (4 numbers; translation and scale
 /// use 3), with the in- and out-tangents of a cubic spline.
 struct Track {
@@ -94,6 +98,19 @@ impl Sampled {
                     notes.add(format!("animation {}: morph target weights are not supported", anim.index()));
                     continue;
                 }
+                use gltf::accessor::{DataType::*, Dimensions};
+                let sampler = channel.sampler();
+                super::load::check_accessor(path, &sampler.input(), &[F32], Dimensions::Scalar, "key times")?;
+                match property {
+                    Property::Rotation => super::load::check_accessor(
+                        path,
+                        &sampler.output(),
+                        &[F32, I8, U8, I16, U16],
+                        Dimensions::Vec4,
+                        "rotation keys",
+                    )?,
+                    _ => super::load::check_accessor(path, &sampler.output(), &[F32], Dimensions::Vec3, "keys")?,
+                }
                 let reader = channel.reader(|b| buffers.get(b.index()).map(|d| &d.0[..]));
                 let times: Vec<f32> = reader
                     .read_inputs()
@@ -118,8 +135,14 @@ impl Sampled {
                 if times.windows(2).any(|w| w[0] >= w[1]) || !times.iter().all(|t| t.is_finite() && *t >= 0.0) {
                     return Err(error(path, format!("{at}/sampler"), "key times must be finite, ≥ 0 and increasing"));
                 }
-                if !values.iter().all(|v| v.is_finite()) {
-                    return Err(error(path, format!("{at}/sampler"), "key values must be finite"));
+                if !values.iter().all(|v| v.is_finite() && v.abs().max_element() <= crate::limits::MAX_COORDINATE) {
+                    return Err(error(path, format!("{at}/sampler"), "key values must be finite and within ±1e9"));
+                }
+                if property == Property::Rotation {
+                    let keys = values.iter().skip(per_key / 2).step_by(per_key);
+                    if keys.clone().any(|q| q.length() < 1e-6) {
+                        return Err(error(path, format!("{at}/sampler"), "a rotation key is the zero quaternion"));
+                    }
                 }
                 end = end.max(*times.last().expect("non-empty"));
                 tracks.entry(channel.target().node().index()).or_default().push(Track {
@@ -163,12 +186,34 @@ impl Sampled {
     /// World matrices of the placed nodes (parents listed before children):
     /// one per frame for a node that an animation moves (itself or an
     /// ancestor), else just one.
-    pub(super) fn world_matrices(&self, parents: &[Option<usize>], nodes: &[gltf::Node<'_>]) -> Vec<Vec<Mat4>> {
+    ///
+    /// At most [`MAX_ANIMATED_MATRICES`] matrices over all moving nodes.
+    pub(super) fn world_matrices(
+        &self,
+        path: &Path,
+        parents: &[Option<usize>],
+        nodes: &[gltf::Node<'_>],
+    ) -> Result<Vec<Vec<Mat4>>, SceneError> {
         let mut out: Vec<Vec<Mat4>> = Vec::with_capacity(nodes.len());
+        let mut animated_total = 0usize;
         for (i, node) in nodes.iter().enumerate() {
             let parent: Option<&Vec<Mat4>> = parents[i].map(|p| &out[p]);
             let animated = self.tracks.contains_key(&node.index()) || parent.is_some_and(|p| p.len() > 1);
             let frames = if animated { self.frames } else { 1 };
+            if animated {
+                animated_total += frames as usize;
+                if animated_total > MAX_ANIMATED_MATRICES {
+                    return Err(error(
+                        path,
+                        "/animations",
+                        format!(
+                            "{} frames of {} or more moving nodes: more than {MAX_ANIMATED_MATRICES} node placements",
+                            self.frames,
+                            animated_total / self.frames as usize
+                        ),
+                    ));
+                }
+            }
             let row = (0..frames)
                 .map(|f| {
                     let local = self.local(node, f);
@@ -180,6 +225,6 @@ impl Sampled {
                 .collect();
             out.push(row);
         }
-        out
+        Ok(out)
     }
 }

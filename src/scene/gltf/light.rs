@@ -8,8 +8,12 @@
 //!   mean projected area is `A/4`, so it sends `I` on average in every
 //!   direction and `4π·I` in all.
 //! * A **spot** light becomes a square of the disc's area `π r²` facing the
-//!   light's -Z axis, emitting `L = I / A`: its on-axis intensity is `I`; its
-//!   falloff is Lambertian, not the cone's (said in the notes).
+//!   light's −Z axis, emitting the cone's power: `2π(1 − cos θ)·I` with `θ`
+//!   the mean of the inner and outer cone angles (the light is full inside
+//!   the inner cone and fades to nothing at the outer), so
+//!   `L = 2(1 − cos θ)·I / A`. Its falloff is Lambertian, not the cone's
+//!   (said in the notes): the energy balance is right, the spot's shape is
+//!   not.
 //! * Directional lights have no place in a closed energy balance; they are
 //!   said and left out.
 
@@ -65,11 +69,13 @@ pub(super) fn emitter(
             let area: f32 = prims.iter().map(Primitive::area).sum();
             (prims, area, 4.0)
         }
-        Kind::Spot { outer_cone_angle, .. } => {
+        Kind::Spot { inner_cone_angle, outer_cone_angle } => {
             notes.add(format!(
-                "{name}: a spot light's cone (outer angle {:.1}°) is approximated by a Lambertian square facing its axis",
+                "{name}: a spot light's cone (outer angle {:.1}°) is approximated by a Lambertian square facing its \
+                 axis, of the cone's power",
                 outer_cone_angle.to_degrees()
             ));
+            let theta = ((inner_cone_angle + outer_cone_angle) / 2.0).clamp(0.0, std::f32::consts::FRAC_PI_2);
             let axis = world.transform_vector3(Vec3::NEG_Z).normalize_or_zero();
             if axis == Vec3::ZERO {
                 return Err(error(path, at, "the spot light's node has a degenerate transform"));
@@ -77,13 +83,18 @@ pub(super) fn emitter(
             let side = radius * std::f32::consts::PI.sqrt();
             let q = square(centre, axis, side);
             let area = q.area();
-            (vec![q], area, 1.0)
+            (vec![q], area, 2.0 * (1.0 - theta.cos()))
         }
     };
-    if !centre.is_finite() || area <= 0.0 {
-        return Err(error(path, at, "the lamp's node places it outside the scene's range"));
+    let within = centre.is_finite() && centre.abs().max_element() <= crate::limits::MAX_COORDINATE;
+    if !within || area.is_nan() || area <= 0.0 {
+        return Err(error(path, at, "the lamp's node places it beyond ±1e9 m"));
     }
-    let radiance = i.map(|x| (per_area * x / area).min(crate::limits::MAX_RADIANCE));
+    let radiance = i.map(|x| per_area * x / area);
+    if radiance.iter().any(|&l| l > crate::limits::MAX_RADIANCE) {
+        notes.add(format!("{name}: its radiance is above 1e9 W·sr⁻¹·m⁻² and was clamped there"));
+    }
+    let radiance = radiance.map(|l| l.min(crate::limits::MAX_RADIANCE));
     Ok(Some((primitives, radiance)))
 }
 

@@ -56,7 +56,12 @@ pub fn model_of(base: [f32; 3], metallic: f32, roughness: f32, anisotropy: f32) 
 /// The materials made so far, and the glTF materials they came from.
 pub(super) struct Materials<'a> {
     path: &'a Path,
-    images: &'a [gltf::image::Data],
+    doc: &'a gltf::Document,
+    buffers: &'a [gltf::buffer::Data],
+    images: &'a mut super::load::Images,
+    /// A textured mesh primitive's mean albedo, by (mesh, primitive): every
+    /// instance of it shares the first one's.
+    means: HashMap<(usize, usize), [f32; 3]>,
     out: Vec<Material>,
     /// Our index of each untextured glTF material (`None`: the default).
     by_source: HashMap<Option<usize>, u32>,
@@ -65,8 +70,23 @@ pub(super) struct Materials<'a> {
 }
 
 impl<'a> Materials<'a> {
-    pub(super) fn new(path: &'a Path, _doc: &gltf::Document, images: &'a [gltf::image::Data]) -> Self {
-        Self { path, images, out: Vec::new(), by_source: HashMap::new(), lamp: None, textured: 0 }
+    pub(super) fn new(
+        path: &'a Path,
+        doc: &'a gltf::Document,
+        buffers: &'a [gltf::buffer::Data],
+        images: &'a mut super::load::Images,
+    ) -> Self {
+        Self {
+            path,
+            doc,
+            buffers,
+            images,
+            means: HashMap::new(),
+            out: Vec::new(),
+            by_source: HashMap::new(),
+            lamp: None,
+            textured: 0,
+        }
     }
 
     /// The materials, in index order.
@@ -75,10 +95,12 @@ impl<'a> Materials<'a> {
     }
 
     fn push(&mut self, name: String, model: ReflectanceModel) -> u32 {
-        let mut name = name;
-        if self.out.iter().any(|m| m.name == name) {
-            name = format!("{name}~{}", self.out.len());
-        }
+        let taken = |n: &str| self.out.iter().any(|m| m.name == n);
+        let name = if taken(&name) {
+            (2..).map(|k| format!("{name}~{k}")).find(|c| !taken(c)).expect("unbounded")
+        } else {
+            name
+        };
         self.out.push(Material { name, model });
         (self.out.len() - 1) as u32
     }
@@ -94,10 +116,15 @@ impl<'a> Materials<'a> {
     }
 
     /// Emitted radiance of a primitive's material: factor × strength.
-    pub(super) fn emission(&self, prim: &gltf::Primitive<'_>) -> [f32; 3] {
+    pub(super) fn emission(&self, prim: &gltf::Primitive<'_>, notes: &mut Notes) -> [f32; 3] {
         let m = prim.material();
         let strength = m.emissive_strength().unwrap_or(1.0);
-        m.emissive_factor().map(|e| (e * strength).clamp(0.0, crate::limits::MAX_RADIANCE))
+        let e = m.emissive_factor().map(|e| e * strength);
+        if !e.iter().all(|x| x.is_finite() && (0.0..=crate::limits::MAX_RADIANCE).contains(x)) {
+            let name = m.name().map_or_else(|| format!("material{}", m.index().unwrap_or(0)), str::to_string);
+            notes.add(format!("material `{name}`: its emission is not in [0, 1e9] W·sr⁻¹·m⁻² and was clamped there"));
+        }
+        e.map(|x| if x.is_nan() { 0.0 } else { x.clamp(0.0, crate::limits::MAX_RADIANCE) })
     }
 
     /// Our material for a surface made of `tri` (a textured material gets
@@ -106,6 +133,7 @@ impl<'a> Materials<'a> {
     pub(super) fn surface_material(
         &mut self,
         prim: &gltf::Primitive<'_>,
+        key: (usize, usize),
         tri: &Triangles,
         notes: &mut Notes,
     ) -> Result<(u32, Option<Vec3>), SceneError> {
@@ -154,23 +182,25 @@ impl<'a> Materials<'a> {
                     format!("the mesh has no TEXCOORD_{set} for the base-colour texture"),
                 ));
             };
-            let tex = info.texture();
-            let image = self.images.get(tex.source().index()).ok_or_else(|| {
-                error(self.path, format!("/textures/{}/source", tex.index()), "the image cannot be read")
-            })?;
-            let sampler = tex.sampler();
-            let wrap = |m: gltf::texture::WrappingMode| match m {
-                gltf::texture::WrappingMode::ClampToEdge => Wrap::Clamp,
-                gltf::texture::WrappingMode::Repeat => Wrap::Repeat,
-                gltf::texture::WrappingMode::MirroredRepeat => Wrap::Mirror,
+            let mean = match self.means.get(&key) {
+                Some(m) => *m,
+                None => {
+                    let tex = info.texture();
+                    let image = self.images.get(self.path, self.doc, self.buffers, tex.source().index())?;
+                    let sampler = tex.sampler();
+                    let wrap = |m: gltf::texture::WrappingMode| match m {
+                        gltf::texture::WrappingMode::ClampToEdge => Wrap::Clamp,
+                        gltf::texture::WrappingMode::Repeat => Wrap::Repeat,
+                        gltf::texture::WrappingMode::MirroredRepeat => Wrap::Mirror,
+                    };
+                    let fetch = |i: usize| texel(image, i);
+                    let texture = Texture { width: image.width, height: image.height, texel: &fetch };
+                    let wraps = (wrap(sampler.wrap_s()), wrap(sampler.wrap_t()));
+                    let m = texture.mean_albedo(wraps, uvs, tri.corners.iter().map(|c| c.area));
+                    self.means.insert(key, m);
+                    m
+                }
             };
-            let fetch = |i: usize| texel(image, i);
-            let texture = Texture { width: image.width, height: image.height, texel: &fetch };
-            let mean = texture.mean_albedo(
-                (wrap(sampler.wrap_s()), wrap(sampler.wrap_t())),
-                uvs,
-                tri.corners.iter().map(|c| c.area),
-            );
             for (c, m) in base.iter_mut().zip(mean) {
                 *c *= m;
             }

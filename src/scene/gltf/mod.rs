@@ -16,6 +16,7 @@
 
 mod animation;
 mod light;
+mod load;
 mod material;
 pub(super) mod triangles;
 
@@ -63,20 +64,39 @@ pub(super) fn error(file: &Path, pointer: impl Into<String>, message: impl Into<
     SceneError { file: file.into(), line: 0, column: 0, field: pointer.into(), message: message.into() }
 }
 
-/// What the importer could not map, each said once.
+/// What the importer could not map, each said once; after
+/// [`Notes::MAX`] different notes the rest are counted.
 #[derive(Default)]
-pub(super) struct Notes(Vec<String>);
+pub(super) struct Notes {
+    said: Vec<String>,
+    seen: std::collections::HashSet<String>,
+    more: usize,
+}
 
 impl Notes {
-    pub(super) fn into_vec(self) -> Vec<String> {
-        self.0
+    const MAX: usize = 50;
+
+    pub(super) fn into_vec(mut self) -> Vec<String> {
+        if self.more > 0 {
+            self.said.push(format!("… and {} more notes", self.more));
+        }
+        self.said
     }
 
     pub(super) fn add(&mut self, note: impl Into<String>) {
         let note = note.into();
-        if !self.0.contains(&note) {
-            self.0.push(note);
+        if self.seen.contains(&note) {
+            return;
         }
+        if self.said.len() >= Self::MAX {
+            self.more += 1;
+            if self.seen.len() < 10 * Self::MAX {
+                self.seen.insert(note);
+            }
+            return;
+        }
+        self.seen.insert(note.clone());
+        self.said.push(note);
     }
 }
 
@@ -106,44 +126,43 @@ pub fn import(path: &Path, options: &GltfOptions) -> Result<Scene, SceneError> {
 /// [`import`] without the emitter check: a TOML scene that starts from a
 /// glTF file may add its lamps itself.
 pub(super) fn import_unchecked(path: &Path, options: &GltfOptions) -> Result<Scene, SceneError> {
-    let (doc, buffers, images) = open(path)?;
+    let load::Loaded { doc, buffers, mut images } = open(path)?;
     let mut notes = Notes::default();
-    let mut scene = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-        convert(path, &doc, &buffers, &images, options, &mut notes)
-    }))
-    .map_err(|_| error(path, "", "the glTF reader failed on malformed data"))??;
-    scene.notes = notes.0;
+    let mut scene = guarded(path, || convert(path, &doc, &buffers, &mut images, options, &mut notes))?;
+    scene.notes = notes.into_vec();
     Ok(scene)
+}
+
+/// `work`, with a panic inside the `gltf` crate on data our checks did not
+/// foresee turned into an error (the checks in `load` come first).
+fn guarded<T>(path: &Path, work: impl FnOnce() -> Result<T, SceneError>) -> Result<T, SceneError> {
+    std::panic::catch_unwind(std::panic::AssertUnwindSafe(work))
+        .map_err(|_| error(path, "", "the glTF reader failed on malformed data"))?
 }
 
 /// The camera of a glTF file alone (`render --camera-from model.glb`),
 /// with its keyframes and frame count.
 pub fn import_camera(path: &Path, options: &GltfOptions) -> Result<super::CameraPath, SceneError> {
-    let (doc, buffers, _) = open(path)?;
-    let placed = walk(path, &doc)?;
-    let anim = animation::Sampled::new(path, &doc, &buffers, &placed_nodes(&placed), options, &mut Notes::default())?;
-    let worlds = anim.world_matrices(&placed_parents(&placed), &placed_nodes(&placed));
-    let Some((camera, keys)) = camera_of(path, &doc, &placed, &worlds, options)? else {
-        return Err(error(path, "/cameras", "the file has no camera"));
-    };
-    Ok(super::CameraPath { camera, keys, frames: anim.frames })
+    let load::Loaded { doc, buffers, .. } = open(path)?;
+    guarded(path, || {
+        let placed = walk(path, &doc)?;
+        let nodes = placed_nodes(&placed);
+        let anim = animation::Sampled::new(path, &doc, &buffers, &nodes, options, &mut Notes::default())?;
+        let worlds = anim.world_matrices(path, &placed_parents(&placed), &nodes)?;
+        let Some((camera, keys)) = camera_of(path, &doc, &placed, &worlds, options)? else {
+            return Err(error(path, "/cameras", "the file has no camera"));
+        };
+        Ok(super::CameraPath { camera, keys, frames: anim.frames })
+    })
 }
 
-fn open(path: &Path) -> Result<(gltf::Document, Vec<gltf::buffer::Data>, Vec<gltf::image::Data>), SceneError> {
+fn open(path: &Path) -> Result<load::Loaded, SceneError> {
     match std::fs::metadata(path) {
         Err(e) => return Err(SceneError::io(path, e)),
         Ok(m) if m.is_dir() => return Err(error(path, "", "is a directory, not a glTF file")),
         Ok(_) => {}
     }
-    gltf::import(path).map_err(|e| match e {
-        gltf::Error::Validation(list) => {
-            let (p, what) = &list[0];
-            let more = if list.len() > 1 { format!(" (and {} more)", list.len() - 1) } else { String::new() };
-            error(path, pointer(&p.to_string()), format!("invalid glTF: {what}{more}"))
-        }
-        gltf::Error::Io(e) => error(path, "/buffers or /images", format!("cannot read a file it names: {e}")),
-        other => error(path, "", format!("cannot read glTF: {other}")),
-    })
+    load::Loaded::open(path)
 }
 
 /// A gltf-json path (`meshes[0].primitives[1].attributes["POSITION"]`) as a
@@ -165,8 +184,9 @@ fn pointer(path: &str) -> String {
 }
 
 /// Every node reachable from the default scene (the first scene without
-/// one), depth first, parents before children; a node met twice on one
-/// path is an error (glTF forbids cycles, a reader must not loop).
+/// one), depth first, parents before children. A node met twice is an
+/// error: glTF gives a node at most one parent and no cycles (a file that
+/// breaks the rule could otherwise make exponentially many instances).
 fn walk<'a>(path: &Path, doc: &'a gltf::Document) -> Result<Vec<Placed<'a>>, SceneError> {
     let Some(root) = doc.default_scene().or_else(|| doc.scenes().next()) else {
         return Err(error(path, "/scenes", "the file has no scene"));
@@ -174,13 +194,14 @@ fn walk<'a>(path: &Path, doc: &'a gltf::Document) -> Result<Vec<Placed<'a>>, Sce
     let mut placed = Vec::new();
     let mut stack: Vec<(gltf::Node<'a>, Option<usize>)> = root.nodes().map(|n| (n, None)).collect();
     stack.reverse();
+    let mut seen = vec![false; doc.nodes().len()];
     while let Some((node, parent)) = stack.pop() {
-        let mut up = parent;
-        while let Some(i) = up {
-            if placed_index(&placed, i) == node.index() {
-                return Err(error(path, format!("/nodes/{}/children", node.index()), "the node hierarchy has a cycle"));
-            }
-            up = placed_parent(&placed, i);
+        if std::mem::replace(&mut seen[node.index()], true) {
+            return Err(error(
+                path,
+                format!("/nodes/{}", node.index()),
+                "the node is reached twice: glTF allows a node one parent and no cycles (share its mesh instead)",
+            ));
         }
         if placed.len() >= MAX_SURFACES {
             return Err(error(path, "/nodes", format!("more than {MAX_SURFACES} node instances")));
@@ -192,14 +213,6 @@ fn walk<'a>(path: &Path, doc: &'a gltf::Document) -> Result<Vec<Placed<'a>>, Sce
         }
     }
     Ok(placed)
-}
-
-fn placed_index(placed: &[Placed<'_>], i: usize) -> usize {
-    placed[i].node.index()
-}
-
-fn placed_parent(placed: &[Placed<'_>], i: usize) -> Option<usize> {
-    placed[i].parent
 }
 
 fn placed_nodes<'a>(placed: &[Placed<'a>]) -> Vec<gltf::Node<'a>> {
@@ -219,7 +232,7 @@ fn convert(
     path: &Path,
     doc: &gltf::Document,
     buffers: &[gltf::buffer::Data],
-    images: &[gltf::image::Data],
+    images: &mut load::Images,
     options: &GltfOptions,
     notes: &mut Notes,
 ) -> Result<Scene, SceneError> {
@@ -233,11 +246,12 @@ fn convert(
     let nodes = placed_nodes(&placed);
     let parents = placed_parents(&placed);
     let anim = animation::Sampled::new(path, doc, buffers, &nodes, options, notes)?;
-    let worlds = anim.world_matrices(&parents, &nodes);
+    let worlds = anim.world_matrices(path, &parents, &nodes)?;
     let moving: Vec<bool> = worlds.iter().map(|w| w.iter().any(|m| *m != w[0])).collect();
 
     // Meshes: one surface per (node instance, mesh primitive).
-    let mut materials = material::Materials::new(path, doc, images);
+    let mut materials = material::Materials::new(path, doc, buffers, images);
+    let mut degenerate = (0usize, 0usize);
     let mut surfaces: Vec<Surface> = Vec::new();
     let mut triangle_count = 0usize;
     for (i, node) in nodes.iter().enumerate() {
@@ -249,6 +263,7 @@ fn convert(
         }
         let Some(mesh) = node.mesh() else { continue };
         let w0 = worlds[i][0];
+        let motion = if moving[i] { Some(motion_of(path, node, &worlds[i])?) } else { None };
         for (k, prim) in mesh.primitives().enumerate() {
             let at = format!("/meshes/{}/primitives/{k}", mesh.index());
             if prim.morph_targets().len() > 0 {
@@ -258,6 +273,9 @@ fn convert(
                 ));
             }
             let tri = triangles::read(path, &at, &prim, buffers, w0, notes)?;
+            if tri.degenerate > 0 {
+                degenerate = (degenerate.0 + tri.degenerate, degenerate.1 + 1);
+            }
             if tri.primitives.is_empty() {
                 continue;
             }
@@ -265,8 +283,8 @@ fn convert(
             if triangle_count > MAX_TRIANGLES {
                 return Err(error(path, at, format!("the scene has more than {MAX_TRIANGLES} triangles")));
             }
-            let (material_index, grain) = materials.surface_material(&prim, &tri, notes)?;
-            let emission = materials.emission(&prim);
+            let (material_index, grain) = materials.surface_material(&prim, (mesh.index(), k), &tri, notes)?;
+            let emission = materials.emission(&prim, notes);
             let mut primitives = tri.primitives;
             if prim.material().double_sided() && !tri.closed {
                 let back: Vec<Primitive> = primitives.iter().map(triangles::flipped).collect();
@@ -279,7 +297,7 @@ fn convert(
                 material: material_index,
                 emission,
                 primitives,
-                motion: moving[i].then(|| motion_of(&worlds[i])),
+                motion: motion.clone(),
                 emission_keys: Vec::new(),
                 grain,
                 moved: false,
@@ -288,6 +306,12 @@ fn convert(
                 return Err(error(path, "/nodes", format!("more than {MAX_SURFACES} mesh instances")));
             }
         }
+    }
+    if degenerate.0 > 0 {
+        notes.add(format!(
+            "{} degenerate (zero-area or non-finite) triangles in {} mesh instances were left out",
+            degenerate.0, degenerate.1
+        ));
     }
     let mesh_bounds = crate::geometry::bounds_of(surfaces.iter().flat_map(|s| &s.primitives));
 
@@ -304,12 +328,13 @@ fn convert(
             continue;
         };
         let material = materials.lamp_material();
+        let motion = if moving[i] { Some(motion_of(path, node, &worlds[i])?) } else { None };
         surfaces.push(Surface {
             name: format!("{}:{}", node_name(node), lamp.name().unwrap_or("light")),
             material,
             emission,
             primitives,
-            motion: moving[i].then(|| motion_of(&worlds[i])),
+            motion,
             emission_keys: Vec::new(),
             grain: None,
             moved: false,
@@ -348,34 +373,55 @@ fn mesh_name(mesh: &gltf::Mesh<'_>) -> String {
 /// Makes surface names unique (`name`, `name~2`, …): a file may reuse node
 /// names, and `--set NAME.FIELD` needs one surface per name.
 pub(super) fn unique_names(surfaces: &mut [Surface]) {
-    let mut seen = std::collections::HashMap::<String, u32>::new();
+    let mut taken: std::collections::HashSet<String> = std::collections::HashSet::new();
     for s in surfaces.iter_mut() {
-        let n = seen.entry(s.name.clone()).or_insert(0);
-        *n += 1;
-        if *n > 1 {
-            s.name = format!("{}~{n}", s.name);
+        if !taken.insert(s.name.clone()) {
+            let name = (2..).map(|n| format!("{}~{n}", s.name)).find(|c| !taken.contains(c)).expect("unbounded");
+            taken.insert(name.clone());
+            s.name = name;
         }
     }
 }
 
 /// Keyframes moving a surface from its frame-0 world placement (where its
 /// primitives are) to each frame's: one key per frame, `M(f)·M(0)⁻¹`
-/// decomposed into translation, rotation and scale about the origin.
-fn motion_of(worlds: &[Mat4]) -> Motion {
+/// decomposed into translation, rotation and scale about the origin. A node
+/// scaled to (nearly) nothing at some frame is an error: a surface keeps its
+/// area in every frame.
+fn motion_of(path: &Path, node: &gltf::Node<'_>, worlds: &[Mat4]) -> Result<Motion, SceneError> {
+    let flat = |f: usize| {
+        error(
+            path,
+            format!("/nodes/{}", node.index()),
+            format!(
+                "node `{}`: at frame {f} its animation scales it to (nearly) nothing or moves it beyond ±1e9 m; \
+                 a surface must keep its area in every frame",
+                node_name(node)
+            ),
+        )
+    };
+    let det0 = worlds[0].determinant();
+    if !(det0.is_finite() && det0.abs() > 1e-18) {
+        return Err(flat(0));
+    }
     let inv0 = worlds[0].inverse();
-    let keyframes = worlds
-        .iter()
-        .enumerate()
-        .map(|(f, w)| {
-            let (scale, rotation, translate) = if f == 0 {
-                (Vec3::ONE, glam::Quat::IDENTITY, Vec3::ZERO)
-            } else {
-                (*w * inv0).to_scale_rotation_translation()
-            };
-            Keyframe { frame: f as u32, translate, rotation, scale }
-        })
-        .collect();
-    Motion { pivot: Vec3::ZERO, interpolation: Interpolation::Linear, keyframes }
+    let mut keyframes = Vec::with_capacity(worlds.len());
+    for (f, w) in worlds.iter().enumerate() {
+        let (scale, rotation, translate) = if f == 0 {
+            (Vec3::ONE, glam::Quat::IDENTITY, Vec3::ZERO)
+        } else {
+            (*w * inv0).to_scale_rotation_translation()
+        };
+        let usable = scale.is_finite()
+            && scale.abs().min_element() > 1e-6
+            && rotation.is_finite()
+            && translate.abs().max_element() <= crate::limits::MAX_COORDINATE;
+        if !usable {
+            return Err(flat(f));
+        }
+        keyframes.push(Keyframe { frame: f as u32, translate, rotation, scale });
+    }
+    Ok(Motion { pivot: Vec3::ZERO, interpolation: Interpolation::Linear, keyframes })
 }
 
 /// The chosen camera node: its camera at frame 0 and, when it moves, one key
@@ -447,23 +493,35 @@ fn camera_of(
         let up = m.transform_vector3(Vec3::Y).normalize_or_zero();
         (position, forward, up)
     };
-    let (position, forward, up) = pose(&worlds[i][0]);
-    if !position.is_finite() || forward == Vec3::ZERO || up == Vec3::ZERO || forward.cross(up).length() < 1e-3 {
-        return Err(error(path, format!("/nodes/{}", p.node.index()), "the camera node's transform is degenerate"));
-    }
-    let camera = Camera { position, look_at: position + forward, up, fov_y_deg: fov, width, height };
-    let keys = if worlds[i].iter().any(|m| *m != worlds[i][0]) {
-        worlds[i]
-            .iter()
-            .enumerate()
-            .map(|(f, m)| {
-                let (position, forward, _) = pose(m);
-                CameraKey { frame: f as u32, position, look_at: position + forward }
-            })
-            .collect()
-    } else {
-        Vec::new()
+    let degenerate = |f: usize| {
+        error(
+            path,
+            format!("/nodes/{}", p.node.index()),
+            format!("the camera node's transform is degenerate (or beyond ±1e9 m) at frame {f}"),
+        )
     };
+    let usable = |(position, forward, up): (Vec3, Vec3, Vec3)| {
+        forward != Vec3::ZERO
+            && up != Vec3::ZERO
+            && crate::limits::camera_is_usable(position.to_array(), (position + forward).to_array(), up.to_array())
+    };
+    let first = pose(&worlds[i][0]);
+    if !usable(first) {
+        return Err(degenerate(0));
+    }
+    let (position, forward, up) = first;
+    let camera = Camera { position, look_at: position + forward, up, fov_y_deg: fov, width, height };
+    let mut keys = Vec::new();
+    if worlds[i].iter().any(|m| *m != worlds[i][0]) {
+        for (f, m) in worlds[i].iter().enumerate() {
+            let pose = pose(m);
+            if !usable(pose) {
+                return Err(degenerate(f));
+            }
+            let (position, forward, up) = pose;
+            keys.push(CameraKey { frame: f as u32, position, look_at: position + forward, up });
+        }
+    }
     Ok(Some((camera, keys)))
 }
 

@@ -37,6 +37,8 @@ pub(super) struct Triangles {
     pub(super) uvs: [Option<Vec<[Vec2; 3]>>; 2],
     /// Every edge is shared by exactly two triangles: no back face can be seen.
     pub(super) closed: bool,
+    /// Zero-area or non-finite triangles left out.
+    pub(super) degenerate: usize,
 }
 
 /// `p` with its front and back swapped.
@@ -48,7 +50,7 @@ pub(super) fn flipped(p: &Primitive) -> Primitive {
 }
 
 /// Reads `prim` placed by `world`; degenerate triangles are left out and
-/// counted in the notes.
+/// counted.
 pub(super) fn read(
     path: &Path,
     at: &str,
@@ -57,14 +59,32 @@ pub(super) fn read(
     world: Mat4,
     notes: &mut Notes,
 ) -> Result<Triangles, SceneError> {
+    use gltf::Semantic;
+    use gltf::accessor::{DataType::*, Dimensions};
+    let check = super::load::check_accessor;
     let reader = prim.reader(|b| buffers.get(b.index()).map(|d| &d.0[..]));
-    let empty = || Triangles { primitives: Vec::new(), corners: Vec::new(), uvs: [None, None], closed: true };
+    let empty =
+        || Triangles { primitives: Vec::new(), corners: Vec::new(), uvs: [None, None], closed: true, degenerate: 0 };
     match prim.mode() {
         Mode::Triangles | Mode::TriangleStrip | Mode::TriangleFan => {}
         other => {
-            notes.add(format!("{at}: {other:?} primitives are not surfaces and were left out"));
+            notes.add(format!("{other:?} primitives (points or lines) are not surfaces and were left out"));
             return Ok(empty());
         }
+    }
+    if let Some(a) = prim.get(&Semantic::Positions) {
+        check(path, &a, &[F32], Dimensions::Vec3, "POSITION")?;
+    }
+    if let Some(a) = prim.indices() {
+        check(path, &a, &[U8, U16, U32], Dimensions::Scalar, "indices")?;
+    }
+    for set in 0..2 {
+        if let Some(a) = prim.get(&Semantic::TexCoords(set)) {
+            check(path, &a, &[F32, U8, U16], Dimensions::Vec2, "TEXCOORD")?;
+        }
+    }
+    if let Some(a) = prim.get(&Semantic::Tangents) {
+        check(path, &a, &[F32], Dimensions::Vec4, "TANGENT")?;
     }
     let positions: Vec<Vec3> = reader
         .read_positions()
@@ -118,9 +138,6 @@ pub(super) fn read(
             degenerate += 1;
         }
     }
-    if degenerate > 0 {
-        notes.add(format!("{at}: {degenerate} degenerate (zero-area or non-finite) triangles left out"));
-    }
 
     let corners = kept
         .iter()
@@ -149,7 +166,7 @@ pub(super) fn read(
         .collect();
     let uvs = uv_sets.map(|u| u.map(|uv| kept.iter().map(|t| t.map(|i| uv[i as usize])).collect()));
     let closed = prim.material().double_sided() && is_closed(&positions, &kept);
-    Ok(Triangles { primitives: merge_quads(&positions, &kept), corners, uvs, closed })
+    Ok(Triangles { primitives: merge_quads(&positions, &kept), corners, uvs, closed, degenerate })
 }
 
 /// Whether every edge of `tri` is shared by exactly two triangles, vertices

@@ -1,0 +1,231 @@
+//! Reading a glTF file and the files it names, bounded and checked before
+//! any accessor is read: the `gltf` crate's own importer reads whatever a
+//! URI names (`/dev/zero`, a FIFO), decodes every image whether used or not,
+//! and panics on some malformed input (a bad percent escape, an image view
+//! past its buffer, an unexpected component type).
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+
+use gltf::accessor::{DataType, Dimensions};
+
+use super::error;
+use crate::scene::SceneError;
+
+/// Most elements one accessor may hold (2²⁴ vertices, indices or keys).
+pub(super) const MAX_ACCESSOR: usize = 1 << 24;
+/// Largest file (the glTF itself, a buffer or an image) read, in bytes.
+const MAX_FILE: u64 = 8 << 30;
+/// Largest decoded texture, in pixels (an 8192² image).
+const MAX_TEXTURE_PIXELS: u64 = 1 << 26;
+
+/// A parsed file: the document, its buffers, and its images.
+pub(super) struct Loaded {
+    pub(super) doc: gltf::Document,
+    pub(super) buffers: Vec<gltf::buffer::Data>,
+    pub(super) images: Images,
+}
+
+/// The file's images, each decoded once, on first use.
+pub(super) struct Images {
+    /// Where relative URIs resolve.
+    base: PathBuf,
+    decoded: HashMap<usize, gltf::image::Data>,
+}
+
+/// Reads a regular file of at most [`MAX_FILE`] bytes.
+fn read_file(path: &Path, named_by: &Path, at: &str) -> Result<Vec<u8>, SceneError> {
+    let meta =
+        std::fs::metadata(path).map_err(|e| error(named_by, at, format!("cannot read `{}`: {e}", path.display())))?;
+    if !meta.is_file() {
+        return Err(error(named_by, at, format!("`{}` is not a regular file", path.display())));
+    }
+    if meta.len() > MAX_FILE {
+        return Err(error(named_by, at, format!("`{}` is larger than {} GiB", path.display(), MAX_FILE >> 30)));
+    }
+    std::fs::read(path).map_err(|e| error(named_by, at, format!("cannot read `{}`: {e}", path.display())))
+}
+
+/// `%XX` escapes decoded; `None` for a bad escape or bytes that are not UTF-8.
+fn percent_decode(uri: &str) -> Option<String> {
+    let b = uri.as_bytes();
+    let mut out = Vec::with_capacity(b.len());
+    let mut i = 0;
+    while i < b.len() {
+        if b[i] == b'%' {
+            let hex = std::str::from_utf8(b.get(i + 1..i + 3)?).ok()?;
+            out.push(u8::from_str_radix(hex, 16).ok()?);
+            i += 3;
+        } else {
+            out.push(b[i]);
+            i += 1;
+        }
+    }
+    String::from_utf8(out).ok()
+}
+
+/// The file a non-`data:` URI names, relative to `base`.
+fn uri_path(file: &Path, base: &Path, uri: &str, at: &str) -> Result<PathBuf, SceneError> {
+    let local = if let Some(rest) = uri.strip_prefix("file://").or_else(|| uri.strip_prefix("file:")) {
+        rest
+    } else if uri.contains(':') {
+        return Err(error(file, at, format!("URI `{uri}`: only relative paths, file: and data: URIs are read")));
+    } else {
+        uri
+    };
+    let decoded =
+        percent_decode(local).ok_or_else(|| error(file, at, format!("URI `{uri}` has a bad percent escape")))?;
+    Ok(base.join(decoded))
+}
+
+impl Loaded {
+    /// Parses and validates the file at `path` and reads its buffers.
+    pub(super) fn open(path: &Path) -> Result<Self, SceneError> {
+        let bytes = read_file(path, path, "")?;
+        let gltf = gltf::Gltf::from_slice(&bytes).map_err(|e| match e {
+            gltf::Error::Validation(list) => {
+                let (p, what) = &list[0];
+                let more = if list.len() > 1 { format!(" (and {} more)", list.len() - 1) } else { String::new() };
+                error(path, super::pointer(&p.to_string()), format!("invalid glTF: {what}{more}"))
+            }
+            other => error(path, "", format!("cannot read glTF: {other}")),
+        })?;
+        drop(bytes);
+        let base = path.parent().unwrap_or(Path::new(".")).to_path_buf();
+        let mut blob = gltf.blob;
+        let doc = gltf.document;
+        let mut buffers = Vec::with_capacity(doc.buffers().len());
+        for buffer in doc.buffers() {
+            let at = format!("/buffers/{}", buffer.index());
+            let mut data = match buffer.source() {
+                gltf::buffer::Source::Bin => {
+                    blob.take().ok_or_else(|| error(path, &at, "the GLB file has no binary chunk for this buffer"))?
+                }
+                gltf::buffer::Source::Uri(uri) if uri.starts_with("data:") => {
+                    gltf::buffer::Data::from_source(buffer.source(), None)
+                        .map_err(|e| error(path, format!("{at}/uri"), format!("cannot decode the data URI: {e}")))?
+                        .0
+                }
+                gltf::buffer::Source::Uri(uri) => {
+                    read_file(&uri_path(path, &base, uri, &format!("{at}/uri"))?, path, &format!("{at}/uri"))?
+                }
+            };
+            if data.len() < buffer.length() {
+                return Err(error(
+                    path,
+                    format!("{at}/byteLength"),
+                    format!("{} bytes declared, {} present", buffer.length(), data.len()),
+                ));
+            }
+            data.resize(data.len().next_multiple_of(4), 0);
+            buffers.push(gltf::buffer::Data(data));
+        }
+        Ok(Self { doc, buffers, images: Images { base, decoded: HashMap::new() } })
+    }
+}
+
+impl Images {
+    /// Image `index`, decoded on first use (8-bit RGB, or as a data URI
+    /// decodes), within [`MAX_TEXTURE_PIXELS`].
+    pub(super) fn get(
+        &mut self,
+        file: &Path,
+        doc: &gltf::Document,
+        buffers: &[gltf::buffer::Data],
+        index: usize,
+    ) -> Result<&gltf::image::Data, SceneError> {
+        if !self.decoded.contains_key(&index) {
+            let at = format!("/images/{index}");
+            let img = doc.images().nth(index).ok_or_else(|| error(file, &at, "no such image"))?;
+            let decode = |bytes: &[u8]| -> Result<image::DynamicImage, SceneError> {
+                let mut reader = image::ImageReader::new(std::io::Cursor::new(bytes))
+                    .with_guessed_format()
+                    .map_err(|e| error(file, &at, format!("cannot read the image: {e}")))?;
+                let mut limits = image::Limits::default();
+                limits.max_alloc = Some(MAX_TEXTURE_PIXELS * 8);
+                reader.limits(limits);
+                reader.decode().map_err(|e| error(file, &at, format!("cannot decode the image: {e}")))
+            };
+            let decoded = match img.source() {
+                gltf::image::Source::View { view, .. } => {
+                    let data = &buffers[view.buffer().index()].0;
+                    let bytes = view
+                        .offset()
+                        .checked_add(view.length())
+                        .and_then(|end| data.get(view.offset()..end))
+                        .ok_or_else(|| {
+                        error(file, format!("{at}/bufferView"), "the view lies outside its buffer")
+                    })?;
+                    decode(bytes)?
+                }
+                gltf::image::Source::Uri { uri, .. } if uri.starts_with("data:") => {
+                    if !uri.contains(";base64,") {
+                        return Err(error(file, format!("{at}/uri"), "a data URI image must be base64"));
+                    }
+                    let d = gltf::image::Data::from_source(img.source(), None, buffers)
+                        .map_err(|e| error(file, format!("{at}/uri"), format!("cannot decode the image: {e}")))?;
+                    if d.width as u64 * d.height as u64 > MAX_TEXTURE_PIXELS {
+                        return Err(error(file, &at, "the image is larger than 8192² pixels"));
+                    }
+                    self.decoded.insert(index, d);
+                    return Ok(&self.decoded[&index]);
+                }
+                gltf::image::Source::Uri { uri, .. } => {
+                    let p = uri_path(file, &self.base, uri, &format!("{at}/uri"))?;
+                    decode(&read_file(&p, file, &format!("{at}/uri"))?)?
+                }
+            };
+            if decoded.width() as u64 * decoded.height() as u64 > MAX_TEXTURE_PIXELS {
+                return Err(error(file, &at, "the image is larger than 8192² pixels"));
+            }
+            let rgb = decoded.into_rgb8();
+            let (width, height) = rgb.dimensions();
+            self.decoded.insert(
+                index,
+                gltf::image::Data { pixels: rgb.into_raw(), format: gltf::image::Format::R8G8B8, width, height },
+            );
+        }
+        Ok(&self.decoded[&index])
+    }
+}
+
+/// Checks an accessor before it is read: its component type and shape are
+/// ones the reader handles (others reach `unreachable!` in the `gltf`
+/// crate) and it holds at most [`MAX_ACCESSOR`] elements.
+pub(super) fn check_accessor(
+    file: &Path,
+    accessor: &gltf::Accessor<'_>,
+    types: &[DataType],
+    dims: Dimensions,
+    what: &str,
+) -> Result<(), SceneError> {
+    let at = format!("/accessors/{}", accessor.index());
+    if !types.contains(&accessor.data_type()) || accessor.dimensions() != dims {
+        return Err(error(
+            file,
+            at,
+            format!(
+                "{what}: {:?} {:?} is not a layout glTF allows here (expected {dims:?} of {types:?})",
+                accessor.dimensions(),
+                accessor.data_type()
+            ),
+        ));
+    }
+    if accessor.count() > MAX_ACCESSOR {
+        return Err(error(file, format!("{at}/count"), format!("{what}: more than {MAX_ACCESSOR} elements")));
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn percent_escapes() {
+        assert_eq!(percent_decode("a%20b.bin").as_deref(), Some("a b.bin"));
+        assert_eq!(percent_decode("x%FF.bin"), None, "not UTF-8");
+        assert_eq!(percent_decode("x%2"), None, "cut short");
+        assert_eq!(percent_decode("x%zz"), None);
+    }
+}
