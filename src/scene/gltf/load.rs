@@ -82,14 +82,57 @@ impl Loaded {
     /// Parses and validates the file at `path` and reads its buffers.
     pub(super) fn open(path: &Path) -> Result<Self, SceneError> {
         let bytes = read_file(path, path, "")?;
-        let gltf = gltf::Gltf::from_slice(&bytes).map_err(|e| match e {
+        // A GLB header's length below its own 12 bytes overflows a
+        // subtraction in the gltf crate (found by fuzzing).
+        if bytes.starts_with(b"glTF")
+            && bytes.get(8..12).is_none_or(|l| u32::from_le_bytes([l[0], l[1], l[2], l[3]]) < 12)
+        {
+            return Err(error(path, "", "cannot read glTF: the GLB header's length is shorter than the header"));
+        }
+        let invalid = |e: gltf::Error| match e {
             gltf::Error::Validation(list) => {
                 let (p, what) = &list[0];
                 let more = if list.len() > 1 { format!(" (and {} more)", list.len() - 1) } else { String::new() };
                 error(path, super::pointer(&p.to_string()), format!("invalid glTF: {what}{more}"))
             }
             other => error(path, "", format!("cannot read glTF: {other}")),
-        })?;
+        };
+        let gltf = gltf::Gltf::from_slice_without_validation(&bytes).map_err(invalid)?;
+        // The validator indexes a primitive's POSITION accessor before it
+        // checks the index (a panic in gltf-json, found by fuzzing).
+        let root = gltf.document.into_json();
+        for (m, mesh) in root.meshes.iter().enumerate() {
+            for (k, prim) in mesh.primitives.iter().enumerate() {
+                for (semantic, index) in &prim.attributes {
+                    if index.value() >= root.accessors.len() {
+                        let name = match semantic {
+                            gltf::json::validation::Checked::Valid(s) => s.to_string(),
+                            gltf::json::validation::Checked::Invalid => "?".into(),
+                        };
+                        return Err(error(
+                            path,
+                            format!("/meshes/{m}/primitives/{k}/attributes/{name}"),
+                            format!("accessor {} does not exist", index.value()),
+                        ));
+                    }
+                }
+            }
+        }
+        // Nor does it check animation channels' targets (gltf-json 1.4.1
+        // validates only their sampler index), which the reader unwraps.
+        for (a, anim) in root.animations.iter().enumerate() {
+            for (c, channel) in anim.channels.iter().enumerate() {
+                let at = format!("/animations/{a}/channels/{c}/target");
+                if channel.target.node.value() >= root.nodes.len() {
+                    return Err(error(path, format!("{at}/node"), "no such node"));
+                }
+                if matches!(channel.target.path, gltf::json::validation::Checked::Invalid) {
+                    return Err(error(path, format!("{at}/path"), "must be translation, rotation, scale or weights"));
+                }
+            }
+        }
+        let doc = gltf::Document::from_json(root).map_err(invalid)?;
+        let gltf = gltf::Gltf { document: doc, blob: gltf.blob };
         drop(bytes);
         let base = path.parent().unwrap_or(Path::new(".")).to_path_buf();
         let mut blob = gltf.blob;
@@ -137,6 +180,18 @@ impl Images {
         if !self.decoded.contains_key(&index) {
             let at = format!("/images/{index}");
             let img = doc.images().nth(index).ok_or_else(|| error(file, &at, "no such image"))?;
+            // `Image::source` unwraps these (gltf 1.4.1).
+            let raw = &doc.as_json().images[index];
+            match (&raw.buffer_view, &raw.uri) {
+                (Some(v), _) if v.value() >= doc.views().len() => {
+                    return Err(error(file, format!("{at}/bufferView"), "no such buffer view"));
+                }
+                (Some(_), _) if raw.mime_type.is_none() => {
+                    return Err(error(file, format!("{at}/mimeType"), "an image in a buffer view needs a mimeType"));
+                }
+                (None, None) => return Err(error(file, &at, "the image has neither a uri nor a bufferView")),
+                _ => {}
+            }
             let decode = |bytes: &[u8]| -> Result<image::DynamicImage, SceneError> {
                 let mut reader = image::ImageReader::new(std::io::Cursor::new(bytes))
                     .with_guessed_format()
@@ -209,6 +264,20 @@ pub(super) fn check_accessor(
                 accessor.dimensions(),
                 accessor.data_type()
             ),
+        ));
+    }
+    // A count of 0 and a stride shorter than an element trip the gltf
+    // crate's arithmetic and assertions (found by fuzzing); glTF forbids both.
+    if accessor.count() == 0 {
+        return Err(error(file, format!("{at}/count"), format!("{what}: an accessor holds at least one element")));
+    }
+    if let Some(stride) = accessor.view().and_then(|v| v.stride())
+        && stride < accessor.size()
+    {
+        return Err(error(
+            file,
+            format!("/bufferViews/{}/byteStride", accessor.view().map_or(0, |v| v.index())),
+            format!("{what}: a stride of {stride} bytes is shorter than an element ({} bytes)", accessor.size()),
         ));
     }
     if accessor.count() > MAX_ACCESSOR {
