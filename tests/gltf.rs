@@ -284,6 +284,31 @@ fn errors_name_the_file_and_a_json_pointer() {
     });
     assert!(e.contains("/count") && e.contains("more than 16777216 elements"), "{e}");
 
+    // Panics in the gltf crates found by fuzzing (docs/RELIABILITY.md),
+    // refused before the crate reaches them.
+    let e = hostile("position_index.gltf", &|j| j["meshes"][0]["primitives"][0]["attributes"]["POSITION"] = 999.into());
+    assert!(e.contains("/meshes/0/primitives/0/attributes/POSITION") && e.contains("accessor 999"), "{e}");
+    let e = hostile("count0.gltf", &|j| {
+        let a = j["meshes"][0]["primitives"][0]["indices"].as_u64().unwrap() as usize;
+        j["accessors"][a]["count"] = 0.into();
+    });
+    assert!(e.contains("/count") && e.contains("at least one element"), "{e}");
+    let e = hostile("target_path.gltf", &|j| j["animations"][0]["channels"][0]["target"]["path"] = "pointer".into());
+    assert!(e.contains("/animations/0/channels/0/target/path"), "{e}");
+    let e = hostile("target_node.gltf", &|j| j["animations"][0]["channels"][0]["target"]["node"] = 999.into());
+    assert!(e.contains("/animations/0/channels/0/target/node"), "{e}");
+    let e = hostile("image_mime.gltf", &|j| {
+        j["images"][0] = serde_json::json!({"bufferView": 0});
+    });
+    assert!(e.contains("/images/0/mimeType"), "{e}");
+    let mut glb = std::fs::read(data("cornell_box.glb")).unwrap();
+    glb[8..12].copy_from_slice(&4u32.to_le_bytes());
+    let e = Scene::from_file(&write("short_header.glb", "")).unwrap_err().to_string();
+    assert!(e.contains("short_header.glb"), "{e}");
+    std::fs::write(dir.path().join("short_header.glb"), &glb).unwrap();
+    let e = Scene::from_file(&dir.path().join("short_header.glb")).unwrap_err().to_string();
+    assert!(e.contains("GLB header's length"), "{e}");
+
     // Not glTF at all.
     let e = Scene::from_file(&write("junk.glb", "not a glb")).unwrap_err().to_string();
     assert!(e.contains("junk.glb") && e.contains("cannot read glTF"), "{e}");
