@@ -589,6 +589,35 @@ fn inspect_histograms_count_everything_once() {
     assert!(text.contains("link ends per patch") && text.contains('#'), "{text}");
     let (code, _) = failing(&["inspect", &path("a.inet"), "--histograms", "--patch", "0"]);
     assert_eq!(code, 2, "one view at a time");
+
+    // inspect --surface: every surface's patches and link ends add up to
+    // the archive's, and light exchange is reciprocal (each link is stored
+    // at both its ends with one weight): rays A→B equal rays B→A.
+    let names: Vec<String> =
+        summary["surfaces"].as_array().unwrap().iter().map(|s| s.as_str().unwrap().to_string()).collect();
+    let mut rays = std::collections::HashMap::new();
+    let (mut patches, mut ends) = (0, 0);
+    for n in &names {
+        let out = illumnet(&["inspect", &path("a.inet"), "--surface", n, "--json"]);
+        let j: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+        patches += j["patches"].as_u64().unwrap();
+        ends += j["link_ends"].as_u64().unwrap();
+        for e in j["exchanges_with"].as_array().unwrap() {
+            rays.insert((n.clone(), e["surface"].as_str().unwrap().to_string()), e["rays"].as_f64().unwrap());
+        }
+    }
+    assert_eq!(patches, summary["patches"].as_u64().unwrap());
+    assert_eq!(ends, summary["link_ends"].as_u64().unwrap());
+    assert!(rays.len() > 20, "{rays:?}");
+    for ((a, b), w) in &rays {
+        let back = rays.get(&(b.clone(), a.clone())).copied().unwrap_or(0.0);
+        assert!((back - w).abs() <= 1e-9 * w, "{a} → {b}: {w} rays, back {back}");
+    }
+    let text =
+        String::from_utf8_lossy(&illumnet(&["inspect", &path("a.inet"), "--surface", "light"]).stdout).into_owned();
+    assert!(text.contains("emits") && text.contains("light exchanged with"), "{text}");
+    let (code, msg) = failing(&["inspect", &path("a.inet"), "--surface", "lamp"]);
+    assert!(code == 3 && msg.contains("known: floor"), "{code} {msg}");
 }
 
 #[test]

@@ -6,6 +6,7 @@ mod camera;
 mod commands;
 mod exit;
 mod histograms;
+mod inspect_surface;
 mod progress_bar;
 
 use std::path::PathBuf;
@@ -328,8 +329,13 @@ enum Command {
         /// Explain one patch instead: its surface, geometry, hit counts,
         /// neighbours, and where its link ends lead (grouped by the patch
         /// at their other end, heaviest first).
-        #[arg(long, value_name = "N", conflicts_with = "histograms")]
+        #[arg(long, value_name = "N", conflicts_with_all = ["histograms", "surface"])]
         patch: Option<u32>,
+        /// Explain one surface instead: material, emission, patches, ray
+        /// coverage (Σ H_p over its expectation), and the surfaces its links
+        /// exchange light with (heaviest first).
+        #[arg(long, value_name = "NAME", conflicts_with = "histograms")]
+        surface: Option<String>,
         /// Print histograms instead: link ends per patch and per direction,
         /// link lengths, H_p over its expectation, bucket use, and a
         /// sequence's changes per frame.
@@ -476,6 +482,9 @@ pub fn main() -> ExitCode {
             })
         }
         Command::Inspect { archive, json, patch: Some(p), .. } => commands::inspect_patch(&archive, p, json),
+        Command::Inspect { archive, json, surface: Some(s), .. } => {
+            inspect_surface::inspect_surface(&archive, &s, json)
+        }
         Command::Inspect { archive, json, histograms: true, .. } => histograms::inspect_histograms(&archive, json),
         Command::Inspect { archive, json, .. } => commands::inspect(&archive, json),
         Command::Verify { archive, json } => commands::verify(&archive, json),

@@ -1,0 +1,116 @@
+//! `illumnet inspect --surface NAME`: one surface of an archive explained —
+//! its material and emission, its primitives and patches, how well rays
+//! cover them (H_p over its expectation), and which surfaces its links
+//! exchange light with. Link rows are read a block of patches at a time.
+
+use std::path::Path;
+
+use anyhow::Result;
+use illumnet::archive::{self, Archive};
+
+use super::exit::BadInput;
+
+/// Patches whose link rows are read at once.
+const BLOCK: usize = 4096;
+/// Surfaces listed as exchange partners, heaviest first.
+const PARTNERS: usize = 12;
+
+pub fn inspect_surface(path: &Path, name: &str, json: bool) -> Result<()> {
+    let archive = super::commands::opened(path, Archive::open_streamed(path, archive::CHUNK_ENDS))?;
+    let v = archive.view();
+    let meta = archive.meta();
+    let names = &meta.surface_names;
+    let Some(s) = names.iter().position(|n| n == name) else {
+        let shown: Vec<&str> = names.iter().take(20).map(String::as_str).collect();
+        let more = if names.len() > 20 { format!(", … {} more", names.len() - 20) } else { String::new() };
+        return Err(BadInput(format!("--surface `{name}`: no such surface (known: {}{more})", shown.join(", "))).into());
+    };
+    let record = &v.surfaces[s];
+    let material = meta.material_names.get(record.material as usize).cloned().unwrap_or_default();
+    let surface_of = |p: usize| v.primitives[v.patch_primitive[p] as usize].surface as usize;
+    let patches: Vec<u32> = (0..v.patch_count()).filter(|&p| surface_of(p) == s).map(|p| p as u32).collect();
+    let area: f64 = patches.iter().map(|&p| v.patch_area[p as usize] as f64).sum();
+    let hits: u64 = patches.iter().map(|&p| v.patch_hits[p as usize] as u64).sum();
+    let expected: f64 = patches.iter().map(|&p| v.patch_expected_hits[p as usize] as f64).sum();
+    let (mut lo, mut hi) = ([f32::MAX; 3], [f32::MIN; 3]);
+    for &p in &patches {
+        for (k, &c) in v.patch_centre[p as usize].iter().enumerate() {
+            lo[k] = lo[k].min(c);
+            hi[k] = hi[k].max(c);
+        }
+    }
+    // Rays along this surface's link ends, by the surface at their other end.
+    let mut to = vec![0f64; v.surfaces.len()];
+    let mut ends = 0u64;
+    let mut unlinked = 0usize;
+    for block in patches.chunks(BLOCK) {
+        let rows = v.link_rows(block)?;
+        for k in 0..block.len() {
+            let (other, weight, _) = rows.ends(k);
+            ends += other.len() as u64;
+            unlinked += other.is_empty() as usize;
+            for (&q, &w) in other.iter().zip(weight) {
+                to[surface_of(q as usize)] += w as f64;
+            }
+        }
+    }
+    let rays: f64 = to.iter().sum();
+    let mut partners: Vec<(usize, f64)> = to.iter().copied().enumerate().filter(|&(_, w)| w > 0.0).collect();
+    partners.sort_by(|a, b| b.1.total_cmp(&a.1).then(a.0.cmp(&b.0)));
+    let power = std::f64::consts::PI * area * record.emission.iter().map(|&e| e as f64).sum::<f64>();
+    let surface_name = |k: usize| names.get(k).cloned().unwrap_or_else(|| format!("#{k}"));
+    if json {
+        let top: Vec<serde_json::Value> = partners
+            .iter()
+            .take(PARTNERS)
+            .map(|&(k, w)| serde_json::json!({ "surface": surface_name(k), "rays": w, "share": w / rays.max(1.0) }))
+            .collect();
+        let out = serde_json::json!({
+            "surface": name,
+            "index": s,
+            "material": material,
+            "emission": record.emission,
+            "power_w": power,
+            "primitives": record.primitive_count,
+            "patches": patches.len(),
+            "area_m2": area,
+            "bounds_of_patch_centres": if patches.is_empty() { serde_json::Value::Null } else { serde_json::json!([lo, hi]) },
+            "hits": hits,
+            "expected_hits": expected,
+            "patches_without_links": unlinked,
+            "link_ends": ends,
+            "rays": rays,
+            "exchanges_with": top,
+        });
+        println!("{}", serde_json::to_string_pretty(&out)?);
+        return Ok(());
+    }
+    println!("{} surface `{name}` (#{s} of {})", path.display(), v.surfaces.len());
+    let plural = |n: usize, word: &str| format!("{n} {word}{}", if n == 1 { "" } else { "s" });
+    println!(
+        "  material {material}, {}, {}, {area:.4} m²",
+        plural(record.primitive_count as usize, "primitive"),
+        plural(patches.len(), "patch").replace("patchs", "patches")
+    );
+    if record.emission.iter().any(|&e| e > 0.0) {
+        println!("  emits {:?} W·sr⁻¹·m⁻²: {power:.4} W (π·L·area, summed over RGB)", record.emission);
+    }
+    if !patches.is_empty() {
+        println!("  patch centres within {lo:?} .. {hi:?} m");
+    }
+    println!(
+        "  crossed by {hits} rays (Σ H_p), {expected:.0} expected from area and orientation ({:.0}%)",
+        if expected > 0.0 { 100.0 * hits as f64 / expected } else { 0.0 }
+    );
+    if unlinked > 0 {
+        println!("  {unlinked} of its patches have no link end: no ray joined them to another patch");
+    }
+    println!("  {ends} link ends carrying {rays:.0} rays; light exchanged with:");
+    for &(k, w) in partners.iter().take(PARTNERS) {
+        println!("    {} : {w:.0} rays ({:.1}%)", surface_name(k), 100.0 * w / rays.max(1.0));
+    }
+    if partners.len() > PARTNERS {
+        println!("    … and {} more surfaces", partners.len() - PARTNERS);
+    }
+    Ok(())
+}
