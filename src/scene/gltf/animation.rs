@@ -80,7 +80,6 @@ impl Sampled {
         path: &Path,
         doc: &gltf::Document,
         buffers: &[gltf::buffer::Data],
-        _nodes: &[gltf::Node<'_>],
         options: &GltfOptions,
         notes: &mut Notes,
     ) -> Result<Self, SceneError> {

@@ -147,7 +147,7 @@ pub fn import_camera(path: &Path, options: &GltfOptions) -> Result<super::Camera
     guarded(path, || {
         let placed = walk(path, &doc)?;
         let nodes = placed_nodes(&placed);
-        let anim = animation::Sampled::new(path, &doc, &buffers, &nodes, options, &mut Notes::default())?;
+        let anim = animation::Sampled::new(path, &doc, &buffers, options, &mut Notes::default())?;
         let worlds = anim.world_matrices(path, &placed_parents(&placed), &nodes)?;
         let Some((camera, keys)) = camera_of(path, &doc, &placed, &worlds, options)? else {
             return Err(error(path, "/cameras", "the file has no camera"));
@@ -245,7 +245,7 @@ fn convert(
     let placed = walk(path, doc)?;
     let nodes = placed_nodes(&placed);
     let parents = placed_parents(&placed);
-    let anim = animation::Sampled::new(path, doc, buffers, &nodes, options, notes)?;
+    let anim = animation::Sampled::new(path, doc, buffers, options, notes)?;
     let worlds = anim.world_matrices(path, &parents, &nodes)?;
     let moving: Vec<bool> = worlds.iter().map(|w| w.iter().any(|m| *m != w[0])).collect();
 
