@@ -649,3 +649,27 @@ fn gltf_scenes_end_to_end() {
     assert_eq!(code, 3, "bad input: {msg}");
     assert!(msg.contains("glTF scenes"), "{msg}");
 }
+
+#[test]
+fn a_lamp_facing_a_nearby_surface_is_warned_of() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = |name: &str| dir.path().join(name).to_str().unwrap().to_string();
+    // A lamp hung 1 cm below the ceiling of a closed box; facing up, its
+    // light lands on the ceiling within two patch sizes.
+    let scene = |corners: &str| {
+        format!(
+            "[camera]\nposition = [0.5, 0.5, -1.0]\nlook_at = [0.5, 0.5, 0.0]\nfov_y_deg = 40\nwidth = 16\nheight = 16\n\
+             [[material]]\nname = 'w'\ntype = 'diffuse'\nreflectance = [0.8, 0.8, 0.8]\n\
+             [[surface]]\nname = 'room'\nmaterial = 'w'\nbox = {{ min = [0, 0, 0], max = [1, 1, 1], inward = true }}\n\
+             [[surface]]\nname = 'lamp'\nmaterial = 'w'\nemission = [10, 10, 10]\nquad = {corners}\n"
+        )
+    };
+    let up = "[[0.4, 0.99, 0.4], [0.4, 0.99, 0.6], [0.6, 0.99, 0.6], [0.6, 0.99, 0.4]]";
+    let down = "[[0.4, 0.99, 0.4], [0.6, 0.99, 0.4], [0.6, 0.99, 0.6], [0.4, 0.99, 0.6]]";
+    for (corners, warned) in [(up, true), (down, false)] {
+        std::fs::write(path("s.toml"), scene(corners)).unwrap();
+        let out = illumnet(&["build", "-q", &path("s.toml"), "-o", &path("s.inet"), "--quality", "draft"]);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(err.contains("emitter `lamp` sends") && err.contains("facing a nearby surface"), warned, "{err}");
+    }
+}

@@ -117,6 +117,14 @@ fn build_scene(scene: &Scene, output: &Path, args: &BuildArgs, progress: &dyn Pr
             stats.reflectance_s
         );
     }
+    // Lamps facing a nearby surface, read back from the archive (the
+    // emitters' link rows, a block at a time).
+    drop(contents);
+    let written = Archive::open_streamed(output, archive::CHUNK_ENDS)?;
+    for w in super::inspect_surface::facing_nearby(&written.view(), &written.meta().surface_names, settings.patch_size)?
+    {
+        eprintln!("illumnet: warning: {w}");
+    }
     Ok(())
 }
 

@@ -15,6 +15,83 @@ const BLOCK: usize = 4096;
 /// Surfaces listed as exchange partners, heaviest first.
 const PARTNERS: usize = 12;
 
+/// What a surface's link ends carry: rays by the surface at their other
+/// end, link ends, patches without any, and the rays along links shorter
+/// than `near` metres (centre to centre).
+pub struct Exchange {
+    /// Rays (link weights) by surface index.
+    pub to: Vec<f64>,
+    /// Link ends of the surface's patches.
+    pub ends: u64,
+    /// The surface's patches without a link end.
+    pub unlinked: usize,
+    /// Rays along links shorter than `near`, by surface index.
+    pub near: Vec<f64>,
+}
+
+/// The [`Exchange`] of the surface whose patches are `patches`, read
+/// [`BLOCK`] patches at a time.
+pub fn exchange(v: &archive::InetView<'_>, patches: &[u32], near: f32) -> Result<Exchange> {
+    let surface_of = |p: usize| v.primitives[v.patch_primitive[p] as usize].surface as usize;
+    let mut x = Exchange { to: vec![0.0; v.surfaces.len()], ends: 0, unlinked: 0, near: vec![0.0; v.surfaces.len()] };
+    for block in patches.chunks(BLOCK) {
+        let rows = v.link_rows(block)?;
+        for (k, &p) in block.iter().enumerate() {
+            let (other, weight, _) = rows.ends(k);
+            x.ends += other.len() as u64;
+            x.unlinked += other.is_empty() as usize;
+            let c = glam::Vec3::from(v.patch_centre[p as usize]);
+            for (&q, &w) in other.iter().zip(weight) {
+                let t = surface_of(q as usize);
+                x.to[t] += w as f64;
+                if near > 0.0 && c.distance(glam::Vec3::from(v.patch_centre[q as usize])) < near {
+                    x.near[t] += w as f64;
+                }
+            }
+        }
+    }
+    Ok(x)
+}
+
+/// Warnings for emitters that send most of their rays to surfaces within
+/// two patch sizes: a lamp facing a nearby surface lights that surface
+/// first (often a lamp placed the wrong way round, or against a wall).
+pub fn facing_nearby(v: &archive::InetView<'_>, names: &[String], patch_size: f32) -> Result<Vec<String>> {
+    let surface_of = |p: usize| v.primitives[v.patch_primitive[p] as usize].surface as usize;
+    let emitters: Vec<usize> =
+        (0..v.surfaces.len()).filter(|&s| v.surfaces[s].emission.iter().any(|&e| e > 0.0)).collect();
+    if emitters.is_empty() {
+        return Ok(Vec::new());
+    }
+    let mut patches_of: Vec<Vec<u32>> = vec![Vec::new(); v.surfaces.len()];
+    for p in 0..v.patch_count() {
+        let s = surface_of(p);
+        if emitters.contains(&s) {
+            patches_of[s].push(p as u32);
+        }
+    }
+    let near = 2.0 * patch_size;
+    let mut out = Vec::new();
+    for &s in &emitters {
+        let x = exchange(v, &patches_of[s], near)?;
+        let total: f64 = x.to.iter().sum();
+        let close: f64 = x.near.iter().sum();
+        if total > 0.0 && close > 0.5 * total {
+            let mut by: Vec<(usize, f64)> = x.near.iter().copied().enumerate().filter(|&(_, w)| w > 0.0).collect();
+            by.sort_by(|a, b| b.1.total_cmp(&a.1));
+            let name = |k: usize| names.get(k).cloned().unwrap_or_else(|| format!("#{k}"));
+            out.push(format!(
+                "emitter `{}` sends {:.0}% of its linked rays to surfaces within {near:.3} m (mostly `{}`): \
+                 is it facing a nearby surface? That surface is lit first",
+                name(s),
+                100.0 * close / total,
+                name(by[0].0)
+            ));
+        }
+    }
+    Ok(out)
+}
+
 pub fn inspect_surface(path: &Path, name: &str, json: bool) -> Result<()> {
     let archive = super::commands::opened(path, Archive::open_streamed(path, archive::CHUNK_ENDS))?;
     let v = archive.view();
@@ -39,21 +116,8 @@ pub fn inspect_surface(path: &Path, name: &str, json: bool) -> Result<()> {
             hi[k] = hi[k].max(c);
         }
     }
-    // Rays along this surface's link ends, by the surface at their other end.
-    let mut to = vec![0f64; v.surfaces.len()];
-    let mut ends = 0u64;
-    let mut unlinked = 0usize;
-    for block in patches.chunks(BLOCK) {
-        let rows = v.link_rows(block)?;
-        for k in 0..block.len() {
-            let (other, weight, _) = rows.ends(k);
-            ends += other.len() as u64;
-            unlinked += other.is_empty() as usize;
-            for (&q, &w) in other.iter().zip(weight) {
-                to[surface_of(q as usize)] += w as f64;
-            }
-        }
-    }
+    let x = exchange(&v, &patches, 0.0)?;
+    let (to, ends, unlinked) = (x.to, x.ends, x.unlinked);
     let rays: f64 = to.iter().sum();
     let mut partners: Vec<(usize, f64)> = to.iter().copied().enumerate().filter(|&(_, w)| w > 0.0).collect();
     partners.sort_by(|a, b| b.1.total_cmp(&a.1).then(a.0.cmp(&b.0)));
