@@ -673,3 +673,35 @@ fn a_lamp_facing_a_nearby_surface_is_warned_of() {
         assert_eq!(err.contains("emitter `lamp` sends") && err.contains("facing a nearby surface"), warned, "{err}");
     }
 }
+
+#[test]
+fn json_commands_answer_failures_in_json() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = |name: &str| dir.path().join(name).to_str().unwrap().to_string();
+    common::coarse_box_archive(Path::new(&path("a.inet")));
+    let bytes = std::fs::read(path("a.inet")).unwrap();
+    std::fs::write(path("cut.inet"), &bytes[..bytes.len() / 2]).unwrap();
+    let run = |args: &[&str]| {
+        let out = Command::new(env!("CARGO_BIN_EXE_illumnet")).args(args).output().unwrap();
+        let stdout = String::from_utf8_lossy(&out.stdout).into_owned();
+        let json: serde_json::Value = serde_json::from_str(&stdout)
+            .unwrap_or_else(|e| panic!("{args:?}: stdout is not one JSON value ({e}): {stdout}"));
+        (out.status.code().unwrap(), json)
+    };
+    for (args, code, kind) in [
+        (vec!["inspect", &path("cut.inet"), "--json"], 4, "corrupt_archive"),
+        (vec!["inspect", &path("none.inet"), "--json"], 5, "io"),
+        (vec!["inspect", &path("a.inet"), "--json", "--surface", "nope"], 3, "bad_input"),
+        (vec!["verify", &path("none.inet"), "--json"], 5, "io"),
+    ] {
+        let (got, json) = run(&args);
+        assert_eq!(got, code, "{args:?}: {json}");
+        assert_eq!(json["error"]["exit_code"], code, "{args:?}: {json}");
+        assert_eq!(json["error"]["kind"], kind, "{args:?}: {json}");
+        assert!(!json["error"]["message"].as_str().unwrap().is_empty());
+    }
+    // verify's findings are its answer: one object, no error object after it.
+    let (code, json) = run(&["verify", &path("cut.inet"), "--json"]);
+    assert_eq!(code, 4);
+    assert_eq!(json["sound"], false, "{json}");
+}

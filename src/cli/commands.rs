@@ -1230,13 +1230,15 @@ pub fn verify(path: &Path, json: bool) -> Result<()> {
     if r.sound() {
         Ok(())
     } else {
-        Err(archive::ArchiveError::Corrupt(format!(
+        let e = archive::ArchiveError::Corrupt(format!(
             "{} finding{} in {}",
             r.finding_count,
             if r.finding_count == 1 { "" } else { "s" },
             path.display()
-        ))
-        .into())
+        ));
+        let e = anyhow::Error::new(e);
+        // With --json the findings are the answer, already on stdout.
+        if json { Err(e.context(super::exit::JsonReported)) } else { Err(e) }
     }
 }
 

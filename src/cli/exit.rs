@@ -99,6 +99,30 @@ impl<T, E> InputContext<T> for Result<T, E> {
     }
 }
 
+/// A `--json` command's failure already written to stdout as JSON (the
+/// findings of `verify --json`): `main` adds no JSON error object. Displays
+/// as nothing, so the message on stderr is the error it wraps.
+#[derive(Debug)]
+pub struct JsonReported;
+
+impl fmt::Display for JsonReported {
+    fn fmt(&self, _: &mut fmt::Formatter<'_>) -> fmt::Result {
+        Ok(())
+    }
+}
+
+/// The name of an exit code's kind, for `--json` error objects.
+pub fn kind(code: u8) -> &'static str {
+    match code {
+        BAD_INPUT => "bad_input",
+        CORRUPT_ARCHIVE => "corrupt_archive",
+        IO => "io",
+        BUDGET => "memory_budget",
+        RESULT => "result_refused",
+        _ => "failure",
+    }
+}
+
 fn archive_code(e: &ArchiveError) -> u8 {
     match e {
         ArchiveError::Io { .. } => IO,

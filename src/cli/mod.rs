@@ -455,6 +455,7 @@ pub fn main() -> ExitCode {
         return ExitCode::FAILURE;
     }
     let progress = progress_bar::BarProgress::new(cli.quiet);
+    let json = matches!(cli.command, Command::Inspect { json: true, .. } | Command::Verify { json: true, .. });
     let result = match cli.command {
         Command::Build { scene, output, frame, settings, gltf } => {
             commands::build(&scene, &gltf.options(), &output, frame, settings, &progress)
@@ -497,8 +498,14 @@ pub fn main() -> ExitCode {
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
+            let code = exit::code(&e);
             eprintln!("illumnet: error: {}", report(&e));
-            ExitCode::from(exit::code(&e))
+            if json && e.downcast_ref::<exit::JsonReported>().is_none() {
+                // A `--json` command answers on stdout in JSON, failures too.
+                let error = serde_json::json!({ "exit_code": code, "kind": exit::kind(code), "message": report(&e) });
+                println!("{}", serde_json::json!({ "error": error }));
+            }
+            ExitCode::from(code)
         }
     }
 }
