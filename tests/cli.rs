@@ -590,6 +590,19 @@ fn inspect_histograms_count_everything_once() {
     let (code, _) = failing(&["inspect", &path("a.inet"), "--histograms", "--patch", "0"]);
     assert_eq!(code, 2, "one view at a time");
 
+    // --charts: one PNG per histogram, bars in proportion to the counts.
+    illumnet(&["inspect", &path("a.inet"), "--histograms", "--charts", &path("charts")]);
+    for key in h["histograms"].as_object().unwrap().keys() {
+        let img = image::open(dir.path().join("charts").join(format!("{key}.png"))).unwrap().to_rgb8();
+        assert_eq!(img.dimensions(), (800, 480), "{key}");
+        // Bar pixels (the chart's one dark purple): the tallest bar fills
+        // most of the 400-pixel plot.
+        let bar =
+            |x: u32| (0..480).filter(|&y| img.get_pixel(x, y).0[0] < 120 && img.get_pixel(x, y).0[2] < 130).count();
+        let heights: Vec<usize> = (0..800).map(bar).collect();
+        assert!(heights.iter().any(|&n| n > 100), "{key}: no tall bar");
+    }
+
     // inspect --surface: every surface's patches and link ends add up to
     // the archive's, and light exchange is reciprocal (each link is stored
     // at both its ends with one weight): rays A→B equal rays B→A.

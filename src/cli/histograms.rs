@@ -74,7 +74,7 @@ fn length_bins(counts: &[u64], lo: i32) -> Vec<Bin> {
 /// Shortest length bin's upper end: 2^-10 m, about a millimetre.
 const LENGTH_LO: i32 = -10;
 
-pub fn inspect_histograms(path: &Path, json: bool) -> Result<()> {
+pub fn inspect_histograms(path: &Path, json: bool, charts: Option<&Path>) -> Result<()> {
     let archive = opened(path, Archive::open_streamed(path, archive::CHUNK_ENDS))?;
     let v = archive.view();
     let n = v.patch_count();
@@ -154,6 +154,21 @@ pub fn inspect_histograms(path: &Path, json: bool) -> Result<()> {
             bins: log2_bins(s.index.iter().map(|d| d.count)),
         });
     }
+    if let Some(dir) = charts {
+        let charts: Vec<super::charts::Chart<'_>> = hists
+            .iter()
+            .map(|h| super::charts::Chart {
+                key: h.key,
+                title: &h.title,
+                counts_what: counted(h.key),
+                labels: h.bins.iter().map(|b| number_label(b.from)).collect(),
+                counts: h.bins.iter().map(|b| b.count).collect(),
+            })
+            .collect();
+        for p in super::charts::write_charts(dir, &charts)? {
+            eprintln!("wrote chart {}", p.display());
+        }
+    }
     if json {
         let out: serde_json::Map<String, serde_json::Value> = hists
             .iter()
@@ -172,22 +187,41 @@ pub fn inspect_histograms(path: &Path, json: bool) -> Result<()> {
     for h in &hists {
         println!("{}", h.title);
         let most = h.bins.iter().map(|b| b.count).max().unwrap_or(0).max(1);
-        let label = |x: f64| match x {
-            x if x.fract() == 0.0 && x.abs() < 1e15 => format!("{x:.0}"),
-            x if x.abs() < 1e-3 => format!("{x:.1e}"),
-            x => format!("{x:.4}").trim_end_matches('0').to_string(),
-        };
         for b in &h.bins {
-            let range = match b.to {
-                Some(t) => format!("{} – {}", label(b.from), label(t)),
-                None => format!("{} and above", label(b.from)),
-            };
             let bar = "#".repeat(((b.count as f64 / most as f64) * 40.0).ceil() as usize);
-            println!("  {range:>20} {:>12}  {bar}", b.count);
+            println!("  {:>20} {:>12}  {bar}", range_label(b), b.count);
         }
         println!();
     }
     Ok(())
+}
+
+/// What a histogram's bins count.
+fn counted(key: &str) -> &'static str {
+    match key {
+        "link_ends_per_patch" | "hits_over_expected" => "patches",
+        "link_ends_per_direction" => "directions",
+        "delta_records_per_frame" => "frames",
+        _ => "link ends",
+    }
+}
+
+/// A bin bound, short.
+fn number_label(x: f64) -> String {
+    match x {
+        x if x.fract() == 0.0 && x.abs() < 1e15 => format!("{x:.0}"),
+        x if x.abs() < 1e-3 => format!("{x:.1e}"),
+        x => format!("{x:.4}").trim_end_matches('0').to_string(),
+    }
+}
+
+/// A bin's range in words: `A – B`, or `A and above`.
+fn range_label(b: &Bin) -> String {
+    let label = number_label;
+    match b.to {
+        Some(t) => format!("{} – {}", label(b.from), label(t)),
+        None => format!("{} and above", label(b.from)),
+    }
 }
 
 #[cfg(test)]

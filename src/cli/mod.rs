@@ -3,6 +3,7 @@
 //! the [`illumnet::progress::Progress`] trait.
 
 mod camera;
+mod charts;
 mod commands;
 mod exit;
 mod histograms;
@@ -341,6 +342,10 @@ enum Command {
         /// sequence's changes per frame.
         #[arg(long)]
         histograms: bool,
+        /// With --histograms: also draw each as a PNG bar chart in DIR
+        /// (DIR/KEY.png, KEY as in the JSON).
+        #[arg(long, value_name = "DIR", requires = "histograms")]
+        charts: Option<PathBuf>,
     },
     /// Check an archive beyond what opening it checks: every link end
     /// between two patches that face each other along its direction, every
@@ -486,7 +491,9 @@ pub fn main() -> ExitCode {
         Command::Inspect { archive, json, surface: Some(s), .. } => {
             inspect_surface::inspect_surface(&archive, &s, json)
         }
-        Command::Inspect { archive, json, histograms: true, .. } => histograms::inspect_histograms(&archive, json),
+        Command::Inspect { archive, json, histograms: true, charts, .. } => {
+            histograms::inspect_histograms(&archive, json, charts.as_deref())
+        }
         Command::Inspect { archive, json, .. } => commands::inspect(&archive, json),
         Command::Verify { archive, json } => commands::verify(&archive, json),
         Command::Compare { image, reference, heatmap, full_scale, below } => {
