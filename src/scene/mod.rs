@@ -4,7 +4,10 @@
 //! material and an optional emission), a pinhole camera and optional build
 //! settings. The text format is TOML, specified field by field in
 //! `format-spec/scene.md`; `parse` turns text into a [`Scene`] or a
-//! [`SceneError`] naming the file, line, column and field.
+//! [`SceneError`] naming the file, line, column and field. Scenes made in
+//! other tools come in through [`gltf`] (glTF 2.0) and `obj` (Wavefront OBJ
+//! with its MTL), which map what they can and say the rest in
+//! [`Scene::notes`].
 
 pub mod gltf;
 pub mod motion;
@@ -188,6 +191,7 @@ pub struct CameraPath {
 impl CameraPath {
     /// Reads the camera of the TOML file at `path`: errors name the file,
     /// line and field, as for scenes.
+    ///
     /// A glTF file (`.gltf`, `.glb`) gives its first camera and the
     /// frames of its animation.
     pub fn from_file(path: &Path) -> Result<Self, SceneError> {
@@ -241,8 +245,9 @@ pub struct Scene {
 }
 
 impl Scene {
-    /// Reads and parses a scene file: TOML (OBJ paths resolve relative to
-    /// it), or glTF 2.0 (`.gltf`, `.glb`) with default [`GltfOptions`].
+    /// Reads and parses a scene file, by its extension: glTF 2.0 (`.gltf`,
+    /// `.glb`, with default [`GltfOptions`]), Wavefront OBJ with its MTL
+    /// (`.obj`), else TOML (OBJ meshes it names resolve relative to it).
     pub fn from_file(path: &Path) -> Result<Self, SceneError> {
         Self::from_file_with(path, &GltfOptions::default())
     }
