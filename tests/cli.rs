@@ -327,6 +327,14 @@ fn brushed_plate_turns_relights_and_reports_its_reflectance() {
     let json: serde_json::Value = serde_json::from_slice(&illumnet(&["inspect", a, "--json"]).stdout).unwrap();
     assert_eq!((json["format_version"].as_u64(), json["version_read"].as_u64()), (Some(8), Some(7)));
     assert_eq!((json["prototype_tables"].as_u64(), json["nondiffuse_patches"].as_u64()), (Some(1), Some(364)));
+    // Its rays per glossy patch and direction pair: one count for each of
+    // the 364 patches × N/2 pairs, and as many rays as NDHC holds in all.
+    let h: serde_json::Value =
+        serde_json::from_slice(&illumnet(&["inspect", a, "--histograms", "--json"]).stdout).unwrap();
+    let bins = h["histograms"]["rays_per_glossy_patch_direction"]["bins"].as_array().unwrap();
+    let counted: u64 = bins.iter().map(|b| b["count"].as_u64().unwrap()).sum();
+    assert_eq!(counted, 364 * json["directions"].as_u64().unwrap() / 2);
+    assert!(bins.iter().skip(1).any(|b| b["count"].as_u64().unwrap() > 0), "some pairs carry rays");
     // Relighting the specular colour: a dimmer plate, same archive.
     let (bright, dim) = (dir.path().join("bright.exr"), dir.path().join("dim.exr"));
     let png = dir.path().join("p.png");

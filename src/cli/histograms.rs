@@ -147,6 +147,17 @@ pub fn inspect_histograms(path: &Path, json: bool, charts: Option<&Path>) -> Res
                 .collect(),
         });
     }
+    if let Some(r) = v.reflectance {
+        hists.push(Histogram {
+            key: "rays_per_glossy_patch_direction",
+            title: format!(
+                "rays per non-diffuse patch and direction pair ({} patches × {} pairs; NDHC)",
+                r.patches.len(),
+                v.directions.len() / 2
+            ),
+            bins: log2_bins(r.hits.iter().map(|&h| h as u64)),
+        });
+    }
     if let Some(s) = v.sequence {
         hists.push(Histogram {
             key: "delta_records_per_frame",
@@ -201,6 +212,7 @@ fn counted(key: &str) -> &'static str {
     match key {
         "link_ends_per_patch" | "hits_over_expected" => "patches",
         "link_ends_per_direction" => "directions",
+        "rays_per_glossy_patch_direction" => "(patch, direction pair)s",
         "delta_records_per_frame" => "frames",
         _ => "link ends",
     }
