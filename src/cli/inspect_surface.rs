@@ -63,10 +63,14 @@ pub fn facing_nearby(v: &archive::InetView<'_>, names: &[String], patch_size: f3
     if emitters.is_empty() {
         return Ok(Vec::new());
     }
+    let mut is_emitter = vec![false; v.surfaces.len()];
+    for &s in &emitters {
+        is_emitter[s] = true;
+    }
     let mut patches_of: Vec<Vec<u32>> = vec![Vec::new(); v.surfaces.len()];
     for p in 0..v.patch_count() {
         let s = surface_of(p);
-        if emitters.contains(&s) {
+        if is_emitter[s] {
             patches_of[s].push(p as u32);
         }
     }

@@ -17,6 +17,7 @@ use std::path::Path;
 
 use glam::{Vec2, Vec3};
 
+use super::gltf::error;
 use super::gltf::triangles::merge_quads;
 use super::texture::{Texture, Wrap, srgb_to_linear};
 use super::{BuildHints, Material, ReflectanceModel, Scene, SceneError, Surface};
@@ -28,10 +29,6 @@ const DEFAULT_WIDTH: u32 = 640;
 /// Whether `path` names an OBJ file (`.obj`, any case).
 pub(super) fn is_obj_path(path: &Path) -> bool {
     path.extension().and_then(|e| e.to_str()).is_some_and(|e| e.eq_ignore_ascii_case("obj"))
-}
-
-fn error(path: &Path, field: impl Into<String>, message: impl Into<String>) -> SceneError {
-    SceneError { file: path.into(), line: 0, column: 0, field: field.into(), message: message.into() }
 }
 
 /// The reflectance model of an MTL material's `Kd`, `Ks`, `Ns`, and whether
@@ -198,6 +195,7 @@ pub(super) fn import(path: &Path) -> Result<Scene, SceneError> {
                         } else {
                             src.name.clone()
                         };
+                        let name = super::gltf::unique_name(&name, |n| materials.iter().any(|x| x.name == n));
                         materials.push(Material { name, model });
                         let i = (materials.len() - 1) as u32;
                         if !own {

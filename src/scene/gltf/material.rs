@@ -95,12 +95,7 @@ impl<'a> Materials<'a> {
     }
 
     fn push(&mut self, name: String, model: ReflectanceModel) -> u32 {
-        let taken = |n: &str| self.out.iter().any(|m| m.name == n);
-        let name = if taken(&name) {
-            (2..).map(|k| format!("{name}~{k}")).find(|c| !taken(c)).expect("unbounded")
-        } else {
-            name
-        };
+        let name = super::unique_name(&name, |n| self.out.iter().any(|m| m.name == n));
         self.out.push(Material { name, model });
         (self.out.len() - 1) as u32
     }

@@ -59,8 +59,9 @@ const MAX_SURFACES: usize = 1_000_000;
 /// Most triangles one file may make, over all instances.
 const MAX_TRIANGLES: usize = 50_000_000;
 
-/// An error at a JSON pointer of the file.
-pub(super) fn error(file: &Path, pointer: impl Into<String>, message: impl Into<String>) -> SceneError {
+/// An error at a field of an imported file (a JSON pointer for glTF; an
+/// object or material for OBJ): no line or column.
+pub(in crate::scene) fn error(file: &Path, pointer: impl Into<String>, message: impl Into<String>) -> SceneError {
     SceneError { file: file.into(), line: 0, column: 0, field: pointer.into(), message: message.into() }
 }
 
@@ -375,12 +376,17 @@ fn mesh_name(mesh: &gltf::Mesh<'_>) -> String {
 pub(super) fn unique_names(surfaces: &mut [Surface]) {
     let mut taken: std::collections::HashSet<String> = std::collections::HashSet::new();
     for s in surfaces.iter_mut() {
-        if !taken.insert(s.name.clone()) {
-            let name = (2..).map(|n| format!("{}~{n}", s.name)).find(|c| !taken.contains(c)).expect("unbounded");
-            taken.insert(name.clone());
-            s.name = name;
-        }
+        s.name = unique_name(&s.name, |c| taken.contains(c));
+        taken.insert(s.name.clone());
     }
+}
+
+/// `name`, or the first of `name~2`, `name~3`, … that is not `taken`.
+pub(in crate::scene) fn unique_name(name: &str, taken: impl Fn(&str) -> bool) -> String {
+    if !taken(name) {
+        return name.to_string();
+    }
+    (2..).map(|k| format!("{name}~{k}")).find(|c| !taken(c)).expect("unbounded")
 }
 
 /// Keyframes moving a surface from its frame-0 world placement (where its
