@@ -246,7 +246,72 @@ fn brushed_plate_highlight_turns_with_the_grain() {
 fn energy_is_conserved_in_a_closed_glossy_room() {
     // A closed box of broad-specular and rough-conductor walls around a lamp:
     // nothing escapes and emitted = absorbed + residual.
-    let scene = common::scene(&format!(
+    let archive = common::build_archive(&closed_glossy_room(), BuildHints::default());
+    let v = archive.view();
+    let r = v.reflectance.expect("glossy scenes have reflectance sections");
+    assert_eq!(r.prototypes.len(), 2);
+    assert_eq!(r.prototypes[1].bands, 3, "per-band ior makes a three-band table");
+    let sol = common::solve(&archive);
+    let b = sol.balance;
+    let sum = |a: &[f64; 3]| a.iter().sum::<f64>();
+    eprintln!("{b:?}");
+    assert!(b.converged);
+    assert!(b.imbalance().abs() < 1e-6, "imbalance {}", b.imbalance());
+    // Only rays that meet the lamp's back or graze an edge escape.
+    assert!(sum(&b.escaped) < 0.01 * sum(&b.emitted), "escaped {:?} of {:?}", b.escaped, b.emitted);
+    assert!(sol.directional.as_ref().unwrap().radiance.iter().flatten().all(|x| x.is_finite() && *x >= 0.0));
+}
+
+/// Deferred glossy reflection (tables read only when what waits outweighs
+/// the diffuse residual, Anderson between) reaches the balance that
+/// reflecting every step reaches, in fewer table steps: in the glossy
+/// Cornell box (one glossy floor among diffuse walls) and in a closed
+/// room where every patch is glossy.
+#[test]
+fn deferred_glossy_reflection_reaches_the_same_balance_in_fewer_table_steps() {
+    let cornell = scene_file("glossy_floor.toml");
+    for (name, scene) in [("glossy Cornell box", cornell), ("closed glossy room", closed_glossy_room())] {
+        let archive = common::build_archive(&scene, BuildHints::default());
+        let v = archive.view();
+        let solve = |defer_glossy: bool, tolerance: f64| {
+            let opts = DistributeOptions { tolerance, defer_glossy, ..Default::default() };
+            distribute::distribute(&v, &opts, &NoProgress).unwrap()
+        };
+        let (every, deferred) = (solve(false, 1e-7), solve(true, 1e-7));
+        for s in [&every, &deferred] {
+            assert!(s.balance.converged && s.balance.imbalance().abs() < 1e-6, "{name}: {:?}", s.balance);
+        }
+        // Same light: patch radiance and directional radiance, relative to
+        // the largest value of each.
+        let worst = |a: &[[f32; 3]], b: &[[f32; 3]]| {
+            let top = a.iter().flatten().fold(0.0f32, |m, x| m.max(x.abs()));
+            a.iter().flatten().zip(b.iter().flatten()).map(|(x, y)| (x - y).abs() / top).fold(0.0f32, f32::max)
+        };
+        let diffuse = worst(&every.radiance, &deferred.radiance);
+        let (de, dd) = (every.directional.as_ref().unwrap(), deferred.directional.as_ref().unwrap());
+        let directional = worst(&de.radiance, &dd.radiance);
+        let direct = worst(&de.direct, &dd.direct);
+        eprintln!(
+            "{name}: largest difference {diffuse:.2e} (patches), {directional:.2e} (directions), {direct:.2e} (direct)"
+        );
+        assert!(diffuse < 1e-5 && directional < 1e-5, "{name}: {diffuse} {directional}");
+        assert_eq!(direct, 0.0, "{name}: the direct highlights do not depend on the schedule");
+        // At the default tolerance: where most light is diffuse, a table
+        // step for several diffuse ones; where all of it is glossy there
+        // is nothing to defer to, and no more table steps.
+        let (every, deferred) = (solve(false, 1e-4).balance, solve(true, 1e-4).balance);
+        eprintln!(
+            "{name}: every step {} iterations; deferred {} iterations, {} reading tables",
+            every.iterations, deferred.iterations, deferred.table_steps
+        );
+        assert_eq!(every.table_steps, every.iterations);
+        let fewer = if name == "glossy Cornell box" { 3 } else { 1 };
+        assert!(deferred.table_steps * fewer <= every.table_steps, "{name}: {deferred:?} vs {every:?}");
+    }
+}
+
+fn closed_glossy_room() -> Scene {
+    common::scene(&format!(
         "{}
 [[material]]
 name = 'gloss'
@@ -280,21 +345,7 @@ patch_size = 0.1
 ray_spacing = 0.02
 ",
         common::CAMERA
-    ));
-    let archive = common::build_archive(&scene, BuildHints::default());
-    let v = archive.view();
-    let r = v.reflectance.expect("glossy scenes have reflectance sections");
-    assert_eq!(r.prototypes.len(), 2);
-    assert_eq!(r.prototypes[1].bands, 3, "per-band ior makes a three-band table");
-    let sol = common::solve(&archive);
-    let b = sol.balance;
-    let sum = |a: &[f64; 3]| a.iter().sum::<f64>();
-    eprintln!("{b:?}");
-    assert!(b.converged);
-    assert!(b.imbalance().abs() < 1e-6, "imbalance {}", b.imbalance());
-    // Only rays that meet the lamp's back or graze an edge escape.
-    assert!(sum(&b.escaped) < 0.01 * sum(&b.emitted), "escaped {:?} of {:?}", b.escaped, b.emitted);
-    assert!(sol.directional.as_ref().unwrap().radiance.iter().flatten().all(|x| x.is_finite() && *x >= 0.0));
+    ))
 }
 
 fn glossy_square() -> Scene {

@@ -520,6 +520,7 @@ pub fn render(
         anderson_depth: args.anderson,
         split_direct: direct_shading,
         max_iterations: args.max_iterations,
+        defer_glossy: !args.glossy_every_step,
     };
     let (mut t_dist, mut t_render, mut ends, mut t_delta) = (0.0, 0.0, 0.0, 0.0);
     let sum = |a: &[f64; 3]| a.iter().sum::<f64>();
@@ -566,7 +567,7 @@ pub fn render(
             t_dist += t1.elapsed().as_secs_f64();
             ends += b.ends_gathered as f64;
             println!(
-                "{}energy balance: emitted {:.4} W, absorbed {:.4} W, escaped {:.4} W, residual {:.2e} W (imbalance {:.1e}), {} iterations{}",
+                "{}energy balance: emitted {:.4} W, absorbed {:.4} W, escaped {:.4} W, residual {:.2e} W (imbalance {:.1e}), {} iterations{}{}",
                 if sequence_output { format!("frame {f}: ") } else { String::new() },
                 sum(&b.emitted),
                 sum(&b.absorbed),
@@ -574,6 +575,10 @@ pub fn render(
                 sum(&b.residual),
                 b.imbalance(),
                 b.iterations,
+                match b.table_steps {
+                    0 => String::new(),
+                    k => format!(" ({k} reading glossy tables)"),
+                },
                 if b.converged { "" } else { " (NOT converged)" }
             );
         }

@@ -114,6 +114,11 @@ struct RenderArgs {
     /// (0: plain iteration; at most 8; diffuse archives only).
     #[arg(long, default_value_t = 5, value_name = "N")]
     anderson: usize,
+    /// For measurement: glossy patches reflect through their tables every
+    /// iteration, and iteration is plain (the default reflects what has
+    /// waited when it outweighs the diffuse residual, same balance).
+    #[arg(long)]
+    glossy_every_step: bool,
     /// For measurement: drop the H_p/H_u patch-size correction of §3.4.
     #[arg(long)]
     no_patch_size_correction: bool,

@@ -1,4 +1,4 @@
-//! Anderson acceleration of the energy balance (diffuse archives).
+//! Anderson acceleration of the energy balance.
 //!
 //! The distribution is a fixed-point iteration on `x`, the power each patch
 //! sends: `x ← E + K·x`, with `K` the links followed by reflection. In the
@@ -19,7 +19,11 @@
 //! `δ` is `f − δ + K·δ`).
 //!
 //! Non-diffuse patches carry per-direction state that the mixing does not
-//! cover, so archives with them iterate plainly.
+//! cover. With deferred glossy reflection (`step.rs`, the default) that
+//! state changes only in table steps: the diffuse steps between are mixed,
+//! and a step that shoots a table step's directional light records no
+//! secant pair (that light does not come from what was sent). Without it,
+//! archives with non-diffuse patches iterate plainly.
 
 use std::collections::VecDeque;
 

@@ -14,7 +14,10 @@
 //! times the emitted power. (A Jacobi iteration of progressive radiosity.)
 //! With Anderson acceleration (`anderson.rs`) an iteration sends a mix of
 //! the unshot power and earlier steps instead; the unshot power is still
-//! tracked exactly, and still decides when to stop.
+//! tracked exactly, and still decides when to stop. Non-diffuse patches
+//! (§3.6) reflect through their tables, which costs ~100× a diffuse
+//! patch's step; they do so only when the light waiting at them outweighs
+//! the diffuse power still to send ([`DistributeOptions::defer_glossy`]).
 //!
 //! Radiance for display is `L = L_e + ρ·Φ_in/(π·A_eff)` with
 //! `A_eff = A_p·H_p/E[H_p]`, the area the rays "saw".
@@ -71,13 +74,21 @@ pub struct DistributeOptions {
     pub buckets: bool,
     /// Secant pairs kept for Anderson acceleration (`anderson.rs`; default
     /// 5, at most [`MAX_ANDERSON_DEPTH`]); 0 iterates plainly. Archives
-    /// with non-diffuse patches always iterate plainly.
+    /// with non-diffuse patches iterate plainly unless
+    /// [`Self::defer_glossy`].
     pub anderson_depth: usize,
     /// Also find the part of each patch's radiance that is light straight
     /// from the emitters ([`Solution::direct`]; default on): one more
     /// gather, so that a renderer can replace it by direct light computed
     /// per image sample and keep the rest (the indirect light).
     pub split_direct: bool,
+    /// Non-diffuse patches read their tables (Figure 9), the costly part of
+    /// a step, only when the light waiting at them outweighs the diffuse
+    /// light still to send, and the steps between are Anderson-accelerated
+    /// (default on). The same balance is reached (the reflection is linear:
+    /// light that waits is reflected later, not lost), in fewer table
+    /// steps. Off, they reflect every step and iteration is plain.
+    pub defer_glossy: bool,
 }
 
 impl Default for DistributeOptions {
@@ -89,6 +100,7 @@ impl Default for DistributeOptions {
             buckets: true,
             anderson_depth: 5,
             split_direct: true,
+            defer_glossy: true,
         }
     }
 }
@@ -106,6 +118,9 @@ pub struct EnergyBalance {
     pub residual: [f64; 3],
     /// Iterations run.
     pub iterations: u32,
+    /// Of those, the ones in which non-diffuse patches read their tables
+    /// ([`DistributeOptions::defer_glossy`]).
+    pub table_steps: u32,
     /// Link ends gathered over the iterations (a warm start's first step
     /// may gather only the ends two frames' overlays hold).
     pub ends_gathered: u64,

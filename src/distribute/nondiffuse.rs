@@ -34,6 +34,10 @@
 //! receivers through a **correction list**: the link ends whose other patch
 //! is non-diffuse, found once per archive, each adding `w · φ` to the
 //! receiver; the main gather sees those senders' diffuse share only.
+//! When it reflects is the iteration's choice (`step.rs`): the step is
+//! linear in what arrives, so light may wait at a patch over several
+//! diffuse steps and be reflected in one table step.
+//!
 //! A scene that is all diffuse never builds any of this.
 
 use rayon::prelude::*;
@@ -61,6 +65,10 @@ pub(super) struct NonDiffuse<'a> {
     inv_weight: Vec<f32>,
     /// Per table and prototype row, its albedo (the row sum) per band.
     albedo: Vec<Vec<[f32; 3]>>,
+    /// Per non-diffuse patch, `k_s` times the largest albedo of its
+    /// table's rows, per band: what it reflects into directions of a unit
+    /// of arriving power, at most.
+    bound: Vec<[f32; 3]>,
     /// Per non-diffuse patch and actual incoming direction, `c_i` per band
     /// (module docs).
     in_scale: Vec<[f32; 3]>,
@@ -102,7 +110,7 @@ impl<'a> NonDiffuse<'a> {
         }
         let patches: Vec<u32> = r.patches.iter().map(|e| e.patch).collect();
         let surface = |q: u32| v.primitives[v.patch_primitive[q as usize] as usize].surface as usize;
-        let ks = patches.iter().map(|&q| ks_of_surface[surface(q)]).collect();
+        let ks: Vec<[f32; 3]> = patches.iter().map(|&q| ks_of_surface[surface(q)]).collect();
         let mut inverse = vec![0u32; r.orientations.len() * n];
         for o in 0..r.orientations.len() {
             for (a, &p) in r.map(o).iter().enumerate() {
@@ -185,6 +193,16 @@ impl<'a> NonDiffuse<'a> {
             k += len;
         }
         let in_scale = incoming_scales(&r, n, &batches, &inverse, &rays, &inv_weight, &albedo);
+        let bound = r
+            .patches
+            .iter()
+            .zip(&ks)
+            .map(|(rec, ks): (_, &[f32; 3])| {
+                let most =
+                    albedo[rec.prototype as usize].iter().fold([0.0f32; 3], |m, a| [0, 1, 2].map(|c| m[c].max(a[c])));
+                [0, 1, 2].map(|c| ks[c].abs() * most[c])
+            })
+            .collect();
         Ok(Some(Self {
             r,
             n,
@@ -195,6 +213,7 @@ impl<'a> NonDiffuse<'a> {
             rays,
             inv_weight,
             albedo,
+            bound,
             in_scale,
             corr_offsets,
             corr_weight,
@@ -211,6 +230,13 @@ impl<'a> NonDiffuse<'a> {
     #[inline]
     pub fn slot(&self, k: u32, d: u32) -> usize {
         k as usize * self.n + d as usize
+    }
+
+    /// Patch `k`'s bound on the power it reflects into directions per unit
+    /// of arriving power, per band.
+    #[inline]
+    pub fn reflect_bound(&self, k: usize) -> [f32; 3] {
+        self.bound[k]
     }
 
     /// Adds what non-diffuse senders send along their directions to `recv`

@@ -7,8 +7,9 @@
 //! over its link ends (frame 0's CSR, the frame's overlay, the correction
 //! list of non-diffuse senders), spreads bucketed light over rings of
 //! neighbours, and reflects: `ρ` of what arrived becomes new unshot power,
-//! the rest is absorbed. Each of those is one small method below; the
-//! kernels they call are in `kernels.rs`.
+//! the rest is absorbed; non-diffuse patches add what arrived to what waits
+//! for their next table step ([`Glossy`]). Each of those is one small
+//! method below; the kernels they call are in `kernels.rs`.
 
 use rayon::prelude::*;
 
@@ -20,9 +21,28 @@ use super::{DirectionalRadiance, DistributeError, Distributor, EnergyBalance, So
 use crate::archive::Columns;
 
 /// Per-ray state of the non-diffuse patches (`nondiffuse.rs`).
+///
+/// Their tables are read only in *table steps*. Between two, what arrives
+/// at them waits: `shot` sums what patches sent (the diffuse shares of
+/// every step since the last table step) and the next table step reflects
+/// all of it at once; by linearity that is the same light as reflecting
+/// each step's arrivals as they come. With
+/// [`super::DistributeOptions::defer_glossy`] a table step is taken only
+/// when what waits outweighs the diffuse residual, and the diffuse steps
+/// between are Anderson-accelerated; without it, every step is one.
 struct Glossy {
-    /// Per-ray directional power to shoot.
+    /// Per-ray directional power made by the last table step: shot once,
+    /// in the step after it (`unsent` until then), and read again by the
+    /// next table step as what non-diffuse senders delivered.
     phi: Vec<[f32; 4]>,
+    /// Whether `phi` is still to be shot.
+    unsent: bool,
+    /// Per patch, `shoot` summed over the steps since the last table step.
+    shot: Vec<[f32; 4]>,
+    /// A bound on the power the arrivals since the last table step will
+    /// reflect into directions: `k_s` times the largest albedo of the
+    /// patch's table, times what arrived (all bands summed).
+    waiting: f64,
     /// The next step's, swapped in after each step.
     phi_next: Vec<[f32; 4]>,
     /// Its running total (the view-dependent term of §3.5).
@@ -62,7 +82,12 @@ pub(super) struct Iteration<'d, 'f, 's> {
     anderson: Anderson,
     glossy: Option<Glossy>,
     bal: EnergyBalance,
+    /// Power still to send (summed over bands and patches), what waits at
+    /// non-diffuse patches included: what convergence is judged on.
     residual_total: f64,
+    /// Its diffuse part after the last step: what the acceleration's
+    /// progress is judged on.
+    diffuse_residual: f64,
     /// A mixed step leaves a residual shaped by the least-squares fit, not
     /// by the light: converged after one, the loop takes one plain step,
     /// which spreads what is left like plain iteration would (per-patch
@@ -81,12 +106,15 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
         // and its slowest mode is this frame's too.
         let anderson = match start {
             Some(st) if warm.first_send().is_some() && st.history.fits(n, d.opts.anderson_depth) => st.history.clone(),
-            _ => Anderson::new(if d.nd.is_none() { d.opts.anderson_depth } else { 0 }),
+            _ => Anderson::new(if d.nd.is_none() || d.opts.defer_glossy { d.opts.anderson_depth } else { 0 }),
         };
         let glossy = d.nd.as_ref().map(|x| {
             let nn = x.patches.len() * x.n;
             Glossy {
                 phi: vec![[0.0; 4]; nn],
+                unsent: false,
+                shot: vec![[0.0; 4]; n],
+                waiting: 0.0,
                 phi_next: vec![[0.0; 4]; nn],
                 dir_total: vec![[0.0; 4]; nn],
                 pending: vec![[0.0; 3]; x.patches.len()],
@@ -111,6 +139,7 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
             glossy,
             bal: EnergyBalance { emitted: s.emitted, ..Default::default() },
             residual_total: s.emitted_total(),
+            diffuse_residual: s.emitted_total(),
             last_mixed: false,
         }
     }
@@ -132,7 +161,9 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
         let converged = self.converged();
         self.choose_send(warm_jump, converged);
         self.last_mixed = !warm_jump && !converged && self.anderson.pairs() > 0;
-        let previous_residual = self.residual_total;
+        // Directional light shot this step does not come from `send`: the
+        // step's change of the residual is no secant pair of the diffuse map.
+        let injected = self.glossy.as_ref().is_some_and(|g| g.unsent);
         self.shoot();
         self.escape_directional();
         match self.warm.carry() {
@@ -142,10 +173,14 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
         self.spread();
         self.add_to_carry();
         self.residual_total = 0.0;
-        self.reflect_directional();
         self.reflect();
-        if !warm_jump {
-            if self.residual_total < previous_residual {
+        let previous_diffuse = std::mem::replace(&mut self.diffuse_residual, self.residual_total);
+        self.reflect_directional();
+        if let Some(g) = &self.glossy {
+            self.residual_total += g.waiting;
+        }
+        if !warm_jump && !injected {
+            if self.diffuse_residual < previous_diffuse {
                 self.anderson.record(&self.send, &self.residual_change);
             } else {
                 self.anderson.reset();
@@ -203,21 +238,34 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
     /// reach no facing patch lose it.
     fn escape_directional(&mut self) {
         let (Some(x), Some(g)) = (self.d.nd.as_ref(), self.glossy.as_mut()) else { return };
-        let linked_dir = &self.s.linked_dir;
-        for (k, pending) in g.pending.iter_mut().enumerate() {
-            let mut sent = [0.0f64; 3];
-            for o in 0..x.n {
-                let l = linked_dir[k * x.n + o];
-                if l != 0.0 {
-                    for c in 0..3 {
-                        sent[c] += (l * g.phi[k * x.n + o][c]) as f64;
+        if !g.unsent {
+            return;
+        }
+        let (n, linked_dir, phi) = (x.n, &self.s.linked_dir, &g.phi);
+        // Per patch in parallel; the sums are added in patch order.
+        let escaped: Vec<[f64; 3]> = g
+            .pending
+            .par_iter_mut()
+            .enumerate()
+            .map(|(k, pending)| {
+                let mut sent = [0.0f64; 3];
+                for o in 0..n {
+                    let l = linked_dir[k * n + o];
+                    if l != 0.0 {
+                        for c in 0..3 {
+                            sent[c] += (l * phi[k * n + o][c]) as f64;
+                        }
                     }
                 }
-            }
+                let escaped = [0, 1, 2].map(|c| pending[c] - sent[c]);
+                *pending = [0.0; 3];
+                escaped
+            })
+            .collect();
+        for e in &escaped {
             for c in 0..3 {
-                self.bal.escaped[c] += pending[c] - sent[c];
+                self.bal.escaped[c] += e[c];
             }
-            *pending = [0.0; 3];
         }
     }
 
@@ -275,13 +323,18 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
             d.gather_ns.fetch_add(started.elapsed().as_nanos() as u64, Relaxed);
             d.gather_ends.fetch_add(v.link_end_count() as u64, Relaxed);
         }
-        let nd_phi = d.nd.as_ref().zip(self.glossy.as_ref()).map(|(x, g)| (x, &g.phi[..]));
+        // Directional light is shot once, the step after the table step
+        // that made it.
+        let nd_phi = d.nd.as_ref().zip(self.glossy.as_ref()).filter(|(_, g)| g.unsent).map(|(x, g)| (x, &g.phi[..]));
         if let Some(o) = &s.overlay {
             add_ends(&o.gather, nb, &self.shoot, 1.0, nd_phi, &mut self.recv);
         }
         if let Some((x, phi)) = nd_phi {
             x.gather_corrections(nb, d.bucket_runs.is_some(), phi, &mut self.recv);
             silence_absent(present, nb, &mut self.recv);
+        }
+        if let Some(g) = self.glossy.as_mut() {
+            g.unsent = false;
         }
         self.bal.ends_gathered += (v.link_end_count() + s.overlay.as_ref().map_or(0, |o| o.gather.other.len())) as u64;
         Ok(())
@@ -314,13 +367,38 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
         self.received_total.par_chunks_mut(BLOCK * nb).zip(self.recv.par_chunks(BLOCK * nb)).for_each(add);
     }
 
-    /// Non-diffuse patches reflect what arrived along each direction
-    /// through their tables (Figure 9) into the next step's per-ray power.
+    /// Non-diffuse patches add what arrived this step to what waits, and
+    /// when it is time (see [`Glossy`]) reflect all of it along each
+    /// direction through their tables (Figure 9) into the per-ray power the
+    /// next step shoots. Called after [`Self::reflect`], whose residual
+    /// (the diffuse power still to send) it weighs what waits against.
     fn reflect_directional(&mut self) {
         let (Some(x), Some(g)) = (self.d.nd.as_ref(), self.glossy.as_mut()) else { return };
+        let nb = self.d.nb;
+        for (t, s) in g.shot.iter_mut().zip(&self.shoot) {
+            for c in 0..4 {
+                t[c] += s[c];
+            }
+        }
+        for (k, &q) in x.patches.iter().enumerate() {
+            let arrived = &self.recv[q as usize * nb..(q as usize + 1) * nb];
+            let bound = x.reflect_bound(k);
+            for c in 0..3 {
+                let a: f32 = arrived.iter().map(|r| r[c]).sum();
+                g.waiting += (a.abs() * bound[c]) as f64;
+            }
+        }
+        let table_step = !self.d.opts.defer_glossy || g.waiting >= self.residual_total;
+        if !table_step {
+            return;
+        }
+        g.waiting = 0.0;
         let overlay_ends = overlay_ends(self.s);
-        let totals = x.step(&self.shoot, &g.phi, &overlay_ends, &mut g.phi_next);
+        let totals = x.step(&g.shot, &g.phi, &overlay_ends, &mut g.phi_next);
         std::mem::swap(&mut g.phi, &mut g.phi_next);
+        g.shot.fill([0.0; 4]);
+        g.unsent = true;
+        self.bal.table_steps += 1;
         // Absent non-diffuse patches keep nothing to send: `step` walks
         // their frame 0 ends too, and what it finds there is not light of
         // this frame (the senders counted those ends as escaped,
