@@ -65,13 +65,19 @@ pub(super) struct NonDiffuse<'a> {
     inv_weight: Vec<f32>,
     /// Per table and prototype row, its albedo (the row sum) per band.
     albedo: Vec<Vec<[f32; 3]>>,
+    /// Per non-diffuse patch, the radiance one unit of per-ray power stands
+    /// for: a ray carries the étendue `π·A_p/E[H_p]` of its patch (as for
+    /// diffuse radiance).
+    to_radiance: Vec<f32>,
     /// Per non-diffuse patch, `k_s` times the largest albedo of its
     /// table's rows, per band: what it reflects into directions of a unit
     /// of arriving power, at most.
     bound: Vec<[f32; 3]>,
     /// Per non-diffuse patch and actual incoming direction, `c_i` per band
-    /// (module docs).
-    in_scale: Vec<[f32; 3]>,
+    /// (module docs), `scale_bands` values each: 1 when every table has one
+    /// band (its `c_i` is the same in the three), else 3.
+    in_scale: Vec<f32>,
+    scale_bands: usize,
     /// Link ends whose other patch is non-diffuse, CSR by receiving patch.
     corr_offsets: Vec<u64>,
     corr_weight: Vec<f32>,
@@ -192,7 +198,15 @@ impl<'a> NonDiffuse<'a> {
             batches.push((k, len));
             k += len;
         }
-        let in_scale = incoming_scales(&r, n, &batches, &inverse, &rays, &inv_weight, &albedo);
+        let scale_bands = r.prototypes.iter().map(|p| p.bands as usize).max().unwrap_or(1).clamp(1, 3);
+        let in_scale = incoming_scales(&r, n, scale_bands, &batches, &inverse, &rays, &inv_weight, &albedo);
+        let to_radiance = patches
+            .iter()
+            .map(|&q| {
+                let a = v.patch_area[q as usize];
+                if a > 0.0 { v.patch_expected_hits[q as usize] / (std::f32::consts::PI * a) } else { 0.0 }
+            })
+            .collect();
         let bound = r
             .patches
             .iter()
@@ -213,8 +227,10 @@ impl<'a> NonDiffuse<'a> {
             rays,
             inv_weight,
             albedo,
+            to_radiance,
             bound,
             in_scale,
+            scale_bands,
             corr_offsets,
             corr_weight,
             corr_slot,
@@ -230,6 +246,12 @@ impl<'a> NonDiffuse<'a> {
     #[inline]
     pub fn slot(&self, k: u32, d: u32) -> usize {
         k as usize * self.n + d as usize
+    }
+
+    /// Patch `k`'s radiance per unit of per-ray power.
+    #[inline]
+    pub fn ray_to_radiance(&self, k: usize) -> f32 {
+        self.to_radiance[k]
     }
 
     /// Patch `k`'s bound on the power it reflects into directions per unit
@@ -350,21 +372,24 @@ impl<'a> NonDiffuse<'a> {
 
 /// `c_i` of every non-diffuse patch and incoming direction (module docs):
 /// the row's albedo over `Σ_o n_o·T(map[i]→map[o])/w_map[o]`, a batch of patches at a
-/// time (one pass over the table per batch, 8 lanes).
+/// time (one pass over the table per batch, 8 lanes); `bands_out` values
+/// each (those of the first bands: one suffices where every table has one).
+#[allow(clippy::too_many_arguments)]
 fn incoming_scales(
     r: &ReflectanceView<'_>,
     n: usize,
+    bands_out: usize,
     batches: &[(usize, usize)],
     inverse: &[u32],
     rays: &[f32],
     inv_weight: &[f32],
     albedo: &[Vec<[f32; 3]>],
-) -> Vec<[f32; 3]> {
-    let mut out = vec![[0.0f32; 3]; r.patches.len() * n];
-    let mut slices: Vec<(usize, usize, &mut [[f32; 3]])> = Vec::with_capacity(batches.len());
+) -> Vec<f32> {
+    let mut out = vec![0.0f32; r.patches.len() * n * bands_out];
+    let mut slices: Vec<(usize, usize, &mut [f32])> = Vec::with_capacity(batches.len());
     let mut rest = &mut out[..];
     for &(first, len) in batches {
-        let (head, tail) = rest.split_at_mut(len * n);
+        let (head, tail) = rest.split_at_mut(len * n * bands_out);
         slices.push((first, len, head));
         rest = tail;
     }
@@ -397,10 +422,10 @@ fn incoming_scales(
                 }
             }
             for b in 0..len {
-                out[b * n + i] = std::array::from_fn(|c| {
+                for (c, x) in out[(b * n + i) * bands_out..][..bands_out].iter_mut().enumerate() {
                     let s = sent[c.min(bands - 1)][b];
-                    if s > 0.0 { a[c] / s } else { 0.0 }
-                });
+                    *x = if s > 0.0 { a[c] / s } else { 0.0 };
+                }
             }
         }
     });
@@ -421,11 +446,12 @@ impl NonDiffuse<'_> {
             }
             let a = self.albedo[t][map[i] as usize];
             for b in 0..len {
-                let (ks, scale) = (self.ks[first + b], self.in_scale[(first + b) * n + i]);
+                let sb = self.scale_bands;
+                let (ks, scale) = (self.ks[first + b], &self.in_scale[((first + b) * n + i) * sb..][..sb]);
                 for c in 0..3 {
                     let l = &mut light[3 * b + c];
                     reflected[b][c] += (ks[c] * a[c] * *l) as f64;
-                    *l *= scale[c];
+                    *l *= scale[c.min(sb - 1)];
                 }
             }
         }

@@ -45,8 +45,9 @@ struct Glossy {
     waiting: f64,
     /// The next step's, swapped in after each step.
     phi_next: Vec<[f32; 4]>,
-    /// Its running total (the view-dependent term of §3.5).
-    dir_total: Vec<[f32; 4]>,
+    /// The running total of `phi` as radiance (the view-dependent term of
+    /// §3.5), the solution's directional radiance when the loop ends.
+    radiance: Vec<[f32; 3]>,
     /// Per non-diffuse patch, the power its last reflection carries.
     pending: Vec<[f64; 3]>,
 }
@@ -116,7 +117,7 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
                 shot: vec![[0.0; 4]; n],
                 waiting: 0.0,
                 phi_next: vec![[0.0; 4]; nn],
-                dir_total: vec![[0.0; 4]; nn],
+                radiance: vec![[0.0; 3]; nn],
                 pending: vec![[0.0; 3]; x.patches.len()],
             }
         });
@@ -411,11 +412,15 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
                 }
             }
         }
-        for (t, p) in g.dir_total.iter_mut().zip(&g.phi) {
-            for c in 0..4 {
-                t[c] += p[c];
+        let n = x.n;
+        g.radiance.par_chunks_mut(n).zip(g.phi.par_chunks(n)).enumerate().for_each(|(k, (t, p))| {
+            let to_l = x.ray_to_radiance(k);
+            for (t, p) in t.iter_mut().zip(p) {
+                for c in 0..3 {
+                    t[c] += p[c] * to_l;
+                }
             }
-        }
+        });
         for (k, t) in totals.iter().enumerate() {
             if present.is_some_and(|p| !p[x.patches[k] as usize]) {
                 g.pending[k] = [0.0; 3];
@@ -562,27 +567,21 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
             true => Some(self.first_bounce()?),
             false => None,
         };
-        // Per-ray power → radiance: one ray stands for the étendue
-        // π·A_p/E[H_p] of its patch (as for the diffuse radiance above).
-        let directional = d.nd.as_ref().zip(self.glossy.as_ref()).map(|(x, g)| {
-            let to_radiance = |per_ray: &[[f32; 4]]| -> Vec<[f32; 3]> {
-                x.patches
-                    .iter()
-                    .enumerate()
-                    .flat_map(|(k, &q)| {
-                        let q = q as usize;
-                        let a = v.patch_area[q];
-                        let to_l = if a > 0.0 { v.patch_expected_hits[q] / (std::f32::consts::PI * a) } else { 0.0 };
-                        per_ray[k * x.n..(k + 1) * x.n].iter().map(move |t| [t[0] * to_l, t[1] * to_l, t[2] * to_l])
-                    })
-                    .collect()
-            };
+        let directional = d.nd.as_ref().zip(self.glossy.as_mut()).map(|(x, g)| {
             // `first_bounce` left the highlights' per-ray power in phi_next.
-            let direct = if direct.is_some() { to_radiance(&g.phi_next) } else { Vec::new() };
+            let direct = match direct {
+                Some(_) => (0..x.patches.len())
+                    .flat_map(|k| {
+                        let to_l = x.ray_to_radiance(k);
+                        g.phi_next[k * x.n..(k + 1) * x.n].iter().map(move |t| [t[0] * to_l, t[1] * to_l, t[2] * to_l])
+                    })
+                    .collect(),
+                None => Vec::new(),
+            };
             DirectionalRadiance {
                 patches: x.patches.clone(),
                 directions: x.n,
-                radiance: to_radiance(&g.dir_total),
+                radiance: std::mem::take(&mut g.radiance),
                 direct,
             }
         });
