@@ -25,3 +25,23 @@ for s in cornell_box glossy_floor; do
   t "$bin" build -q scenes/$s.toml -o "$out/$s.inet" --prototype-library "$out/lib"
   t "$bin" render "$out/$s.inet" -o "$out/$s.png" | grep -E "rendered|energy"
 done
+# The render command, glossy box against diffuse box (issue 12's bar: 3x),
+# and against the glossy box with every iteration reading the tables (the
+# schedule before deferral), alternating, ROUNDS times (default 5); medians.
+rounds=${ROUNDS:-5}
+declare -A walls
+for ((r = 0; r < rounds; r++)); do
+  for run in diffuse glossy every; do
+    case $run in
+      diffuse) args=("$out/cornell_box.inet") ;;
+      glossy) args=("$out/glossy_floor.inet") ;;
+      every) args=("$out/glossy_floor.inet" --glossy-every-step) ;;
+    esac
+    w=$( { /usr/bin/time -f "%e" "$bin" render -q "${args[@]}" -o "$out/x.png" >/dev/null; } 2>&1 | tail -1)
+    walls[$run]+="$w "
+  done
+done
+median() { tr ' ' '\n' <<<"$1" | grep . | sort -g | awk '{a[NR]=$1} END {print a[int((NR+1)/2)]}'; }
+d=$(median "${walls[diffuse]}"); g=$(median "${walls[glossy]}"); e=$(median "${walls[every]}")
+echo "== render command, median of $rounds: diffuse box $d s, glossy box $g s ($(awk "BEGIN{printf \"%.2f\", $g/$d}")x), glossy box reading tables every iteration $e s ($(awk "BEGIN{printf \"%.2f\", $e/$d}")x)"
+

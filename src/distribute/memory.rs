@@ -21,6 +21,9 @@ pub struct StateShape {
     pub nondiffuse_slots: u64,
     /// Link ends of the non-diffuse patches, copied when streamed.
     pub nondiffuse_ends: u64,
+    /// Bytes of the prototype tables' entries and factors: the distributor
+    /// keeps each table transposed as well.
+    pub table_bytes: u64,
     /// The most delta records a frame of the sequence has.
     pub max_delta_records: u64,
 }
@@ -53,10 +56,11 @@ pub fn state_bytes(s: &StateShape) -> u64 {
     // bucket), twice: the frame's and the one the warm start carries.
     let records = s.max_delta_records;
     let overlay = if s.sequence { 2 * (records * (20 + 2 * 12 + 2 * 12) + p * (4 * nb + 4 + 8)) } else { 0 };
-    // Glossy: per ray slot three [f32; 4] vectors, rays, linked, incoming
-    // scale; the directional radiance of two solutions and its direct
-    // part; the copied ends.
-    let glossy = s.nondiffuse_slots * (3 * 16 + 4 + 4 + 12 + 2 * 2 * 12) + s.nondiffuse_ends * 12;
+    // Glossy: per ray slot two [f32; 4] vectors and the running radiance
+    // (12), rays, linked, incoming scale (at most 12); the directional
+    // radiance of two solutions and its direct part; the copied ends; the
+    // transposed tables.
+    let glossy = s.nondiffuse_slots * (2 * 16 + 12 + 4 + 4 + 12 + 2 * 2 * 12) + s.nondiffuse_ends * 12 + s.table_bytes;
     // A sequence keeps the previous frame's solution while it solves the
     // next (warm starts); a still has one frame, one solution.
     let solutions = if s.sequence { 2 } else { 1 };
@@ -77,6 +81,7 @@ mod tests {
             StateShape { buckets: 4, ..base },
             StateShape { sequence: true, max_delta_records: 10, ..base },
             StateShape { nondiffuse_slots: 100, ..base },
+            StateShape { table_bytes: 100, ..base },
         ] {
             assert!(state_bytes(&more) > b, "{more:?}");
         }

@@ -42,7 +42,7 @@
 
 use rayon::prelude::*;
 
-use super::kernels::{BATCH, BLOCK, LANES, Lanes, scatter_table_rows};
+use super::kernels::{BATCH, BLOCK, LANES, Lanes, TableColumns, gather_table_columns, scatter_table_rows};
 use crate::archive::{ArchiveError, Columns, InetView, LinkRows, ReflectanceView};
 
 /// Per-archive state of the non-diffuse patches.
@@ -88,6 +88,8 @@ pub(super) struct NonDiffuse<'a> {
     pub linked: Vec<f32>,
     /// Frame 0's link ends of each non-diffuse patch, walked every step.
     rows: LinkRows<'a>,
+    /// Each table by outgoing direction.
+    columns: Vec<TableColumns>,
     /// Runs of at most [`BATCH`] consecutive non-diffuse patches with the
     /// same table and orientation: `(first, len)`.
     batches: Vec<(usize, usize)>,
@@ -198,6 +200,9 @@ impl<'a> NonDiffuse<'a> {
             batches.push((k, len));
             k += len;
         }
+        let columns = (0..r.prototypes.len())
+            .map(|t| TableColumns::new(n, r.prototypes[t].bands as usize, &|i| r.row(t, i)))
+            .collect();
         let scale_bands = r.prototypes.iter().map(|p| p.bands as usize).max().unwrap_or(1).clamp(1, 3);
         let in_scale = incoming_scales(&r, n, scale_bands, &batches, &inverse, &rays, &inv_weight, &albedo);
         let to_radiance = patches
@@ -237,6 +242,7 @@ impl<'a> NonDiffuse<'a> {
             corr_bucket,
             linked,
             rows,
+            columns,
             batches,
         }))
     }
@@ -309,8 +315,8 @@ impl<'a> NonDiffuse<'a> {
         let totals: Vec<Vec<StepTotals>> = outs
             .into_par_iter()
             .map_init(
-                || (vec![[0.0f32; LANES]; n], vec![[0.0f32; LANES]; n]),
-                |(inbuf, scratch), (first, out)| {
+                || (vec![[0.0f32; LANES]; n], vec![[0.0f32; LANES]; n], vec![[0.0f32; LANES]; n]),
+                |(inbuf, scratch, proto), (first, out)| {
                     let len = out.len() / n;
                     for lane in inbuf.iter_mut() {
                         *lane = [0.0; LANES];
@@ -338,7 +344,7 @@ impl<'a> NonDiffuse<'a> {
                         extra(q, &mut add);
                     }
                     let reflected = self.scale_incoming(first, len, inbuf);
-                    self.scatter(first, inbuf, scratch);
+                    self.scatter(first, inbuf, proto, scratch);
                     (0..len)
                         .map(|b| {
                             self.emit(first + b, b, scratch, &mut out[b * n..(b + 1) * n]);
@@ -352,16 +358,26 @@ impl<'a> NonDiffuse<'a> {
     }
 
     /// In-buffers of a batch → map → table → scratch (prototype
-    /// directions): each incoming direction with light adds its row of the
-    /// table, times the light, to the scratch area. Directions without light
-    /// are skipped (most of them while only an emitter has shot). Measured
-    /// alternative: gathering by output column over a transposed table, the
-    /// same speed here, without the skipping.
-    fn scatter(&self, first: usize, inbuf: &[Lanes], scratch: &mut [Lanes]) {
+    /// directions). While at most half the incoming directions have light
+    /// (the emitters' first bounce), each adds its row of the table times
+    /// its light to the scratch area and unlit rows are skipped; else each
+    /// output direction gathers its column of the table over the light
+    /// put in prototype order (`proto`): 20-30% faster on the glossy
+    /// floor's table steps, where nearly every row is lit.
+    fn scatter(&self, first: usize, inbuf: &[Lanes], proto: &mut [Lanes], scratch: &mut [Lanes]) {
         let rec = self.r.patches[first];
         let (t, orient) = (rec.prototype as usize, rec.orientation as usize);
         let bands = self.r.prototypes[t].bands as usize;
         let map = self.r.map(orient);
+        let lit = inbuf.iter().filter(|l| l.iter().any(|&x| x != 0.0)).count();
+        if 2 * lit > inbuf.len() {
+            // The map is a bijection (validated when the archive opens).
+            for (i, l) in inbuf.iter().enumerate() {
+                proto[map[i] as usize] = *l;
+            }
+            gather_table_columns(&self.columns[t], proto, scratch);
+            return;
+        }
         for s in scratch.iter_mut() {
             *s = [0.0; LANES];
         }

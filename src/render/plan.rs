@@ -150,6 +150,8 @@ fn distribution_bytes(s: &ArchiveSummary, job: &RenderJob) -> u64 {
         sequence: s.section_count(tag::ANIMATION) > 0,
         nondiffuse_slots: nd * b.direction_count as u64,
         nondiffuse_ends: (e * nd).checked_div(p).unwrap_or(0),
+        // Entries (u32) and factors (f32), as records: the sections may be compressed.
+        table_bytes: 4 * (s.section_count(tag::PROTOTYPE_DIRECTIONS) + s.section_count(tag::PROTOTYPE_FACTORS)),
         max_delta_records: s.max_delta_records,
     })
 }
