@@ -29,7 +29,9 @@ use crate::archive::Columns;
 /// each step's arrivals as they come. With
 /// [`super::DistributeOptions::defer_glossy`] a table step is taken only
 /// when what waits outweighs the diffuse residual, and the diffuse steps
-/// between are Anderson-accelerated; without it, every step is one.
+/// between are Anderson-accelerated; without it, every step is one. What
+/// still waits when the loop stops (within the tolerance, when it
+/// converged) is counted as absorbed.
 struct Glossy {
     /// Per-ray directional power made by the last table step: shot once,
     /// in the step after it (`unsent` until then), and read again by the
@@ -170,6 +172,9 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
         match self.warm.carry() {
             Some(c) if warm_jump => self.gather_sparse(c),
             _ => self.gather_full()?,
+        }
+        if let Some(g) = self.glossy.as_mut() {
+            g.unsent = false;
         }
         self.spread();
         self.add_to_carry();
@@ -333,9 +338,6 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
         if let Some((x, phi)) = nd_phi {
             x.gather_corrections(nb, d.bucket_runs.is_some(), phi, &mut self.recv);
             silence_absent(present, nb, &mut self.recv);
-        }
-        if let Some(g) = self.glossy.as_mut() {
-            g.unsent = false;
         }
         self.bal.ends_gathered += (v.link_end_count() + s.overlay.as_ref().map_or(0, |o| o.gather.other.len())) as u64;
         Ok(())
