@@ -65,6 +65,7 @@
 //!     emission_keys: Vec::new(),
 //!     grain: None,
 //!     moved: false,
+//!     shading: Vec::new(),
 //! };
 //! let scene = Scene {
 //!     name: "floor".into(),
@@ -85,6 +86,7 @@
 //!     animation: None,
 //!     camera_keys: Vec::new(),
 //!     notes: Vec::new(),
+//!     textures: Vec::new(),
 //! };
 //! let settings = build::BuildSettings::resolve(&scene, scene.build);
 //! let (contents, _) = build::build(&scene, &settings, &NoProgress)?;

@@ -60,7 +60,7 @@ fn build_inspect_render_with_json() {
     illumnet(&["build", "-q", scene.to_str().unwrap(), "-o", a, "--frequency", "6", "--patch-size", "0.05"]);
     let out = illumnet(&["inspect", a, "--json"]);
     let json: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
-    assert_eq!(json["format_version"], 8);
+    assert_eq!(json["format_version"], 9);
     assert_eq!(json["version_read"], 7);
     assert_eq!(json["directions"], 362);
     assert!(json["patches"].as_u64().unwrap() > 500);
@@ -325,7 +325,7 @@ fn brushed_plate_turns_relights_and_reports_its_reflectance() {
     let out = illumnet(&["build", "-q", s, "-o", a, "--turn", "plate=45", "--prototype-library", l]);
     assert!(String::from_utf8_lossy(&out.stdout).contains("(1 from the library)"));
     let json: serde_json::Value = serde_json::from_slice(&illumnet(&["inspect", a, "--json"]).stdout).unwrap();
-    assert_eq!((json["format_version"].as_u64(), json["version_read"].as_u64()), (Some(8), Some(7)));
+    assert_eq!((json["format_version"].as_u64(), json["version_read"].as_u64()), (Some(9), Some(7)));
     assert_eq!((json["prototype_tables"].as_u64(), json["nondiffuse_patches"].as_u64()), (Some(1), Some(364)));
     // Its rays per glossy patch and direction pair: one count for each of
     // the 364 patches × N/2 pairs, and as many rays as NDHC holds in all.
@@ -403,9 +403,15 @@ fn a_new_users_mistakes_get_plain_answers() {
         [[surface]]\nname = 'floor'\nmaterial = 'grey'\nquad = [[-1, 0, -1], [-1, 0, 1], [1, 0, 1], [1, 0, -1]]\n";
     let lamp_up = "[[surface]]\nname = 'lamp'\nmaterial = 'grey'\nemission = [5, 5, 5]\n\
         quad = [[-0.2, 1, 0.2], [0.2, 1, 0.2], [0.2, 1, -0.2], [-0.2, 1, -0.2]]\n";
-    for (name, text, needle) in
-        [("dark", base.to_string(), "emits no light"), ("away", format!("{base}{lamp_up}"), "face away")]
-    {
+    // A lamp under a ceiling turned the wrong way: its light goes into the
+    // ceiling's black back, which absorbs it (not "escapes").
+    let wrong_ceiling = "[[surface]]\nname = 'ceiling'\nmaterial = 'grey'\n\
+        quad = [[-2, 1.1, 2], [2, 1.1, 2], [2, 1.1, -2], [-2, 1.1, -2]]\n";
+    for (name, text, needle) in [
+        ("dark", base.to_string(), "emits no light"),
+        ("away", format!("{base}{lamp_up}"), "face away"),
+        ("behind", format!("{base}{lamp_up}{wrong_ceiling}"), "into the back faces"),
+    ] {
         std::fs::write(path(&format!("{name}.toml")), text).unwrap();
         let archive = path(&format!("{name}.inet"));
         illumnet(&["build", "-q", &path(&format!("{name}.toml")), "-o", &archive, "--frequency", "4"]);

@@ -101,13 +101,37 @@ fn bumps(dir: &std::path::Path) -> Scene {
 
 fn mesh_contents() -> ArchiveContents {
     let dir = tempfile::tempdir().unwrap();
-    let scene = bumps(dir.path());
+    let mut scene = bumps(dir.path());
+    // Mesh detail (§5.15) on the bumps, so that PSHD, TXHD and TXPX are
+    // damaged too: a 2 × 2 texture and normals leaning with the bumps.
+    scene.textures.push(illumnet::scene::texture::TextureImage {
+        width: 2,
+        height: 2,
+        wrap: [illumnet::scene::texture::Wrap::Repeat; 2],
+        nearest: true,
+        srgb: vec![200, 40, 40, 40, 200, 40, 40, 40, 200, 200, 200, 200],
+    });
+    let bumps = scene.surfaces.iter_mut().find(|s| s.name == "bumps").unwrap();
+    bumps.shading = bumps
+        .primitives
+        .iter()
+        .map(|p| illumnet::scene::texture::Shading {
+            uv: p.p.map(|c| glam::Vec2::new(c.x, c.z)),
+            normal: illumnet::scene::texture::Shading::to_local(
+                p,
+                p.p.map(|c| glam::Vec3::new(c.x - 1.0, 2.0, c.z - 1.0)),
+            ),
+            texture: 0,
+            tint: [1.5, 1.6, 1.7],
+        })
+        .collect();
     let mut settings = BuildSettings::resolve(&scene, hints());
     settings.prototype_library = None;
     let c = build::build_sequence(&scene, &settings, &NoProgress).unwrap().contents;
     let mut groups: Vec<u32> = c.primitives.iter().filter(|r| r.kind == 2).map(|r| r.first_patch).collect();
     groups.dedup();
     assert!(c.grouped_triangles.len() == 128 && groups.len() < 64, "{} groups", groups.len());
+    assert!(c.shading.as_ref().is_some_and(|s| s.textures.len() == 1));
     c
 }
 

@@ -150,6 +150,19 @@ fn features_import_with_their_geometry_materials_lights_and_animation() {
     // band) times the factor 0.8.
     let ReflectanceModel::Diffuse { reflectance } = material("floor").model else { panic!() };
     assert!(reflectance.iter().all(|r| (r - 0.4).abs() < 0.01), "{reflectance:?}");
+    // And kept for the render: its texels as sRGB bytes, the floor's
+    // coordinates, and a tint of one over that mean.
+    assert_eq!(s.textures.len(), 1);
+    let t = &s.textures[0];
+    assert_eq!((t.width, t.height, &t.srgb[..]), (2, 2, &[255, 0, 0, 0, 255, 0, 0, 0, 255, 255, 255, 255][..]));
+    let floor = by_name("floor");
+    assert_eq!(floor.shading.len(), floor.primitives.len());
+    for sh in &floor.shading {
+        assert_eq!(sh.texture, 0);
+        assert!(sh.tint.iter().all(|t| (t - 2.0).abs() < 0.05), "{:?}", sh.tint);
+    }
+    // Untextured meshes without NORMALs carry no detail.
+    assert!(by_name("box_a").shading.is_empty());
 
     // Emission: factor (1, .5, .25) × strength 8.
     assert_eq!(by_name("panel").emission, [8.0, 4.0, 2.0]);
@@ -416,7 +429,11 @@ fn mtl_textures_specular_and_emission() {
     assert_eq!(specular, [0.9; 3]);
     assert!((lobe.alpha_u - 0.2).abs() < 1e-6);
     assert_eq!(get("lamp").emission, [5.0; 3]);
-    assert!(s.notes.iter().any(|n| n.contains("map_Kd enters as each surface's mean albedo")), "{:?}", s.notes);
+    // The map is kept for the render: per-texel detail around that mean.
+    assert_eq!((s.textures.len(), s.textures[0].width, s.textures[0].height), (1, 2, 2));
+    let floor = get("floor");
+    assert_eq!(floor.shading.len(), floor.primitives.len());
+    assert!(floor.shading.iter().all(|sh| sh.texture == 0 && (sh.tint[0] - 2.0).abs() < 1e-3));
     // No light: an error that says how to add one.
     let dir = tempfile::tempdir().unwrap();
     let p = dir.path().join("dark.obj");

@@ -70,7 +70,7 @@ fn version_6_archives_upgrade_to_the_same_sections_and_light() {
         let new = std::fs::read(&out).unwrap();
         assert_eq!(done.bytes_after, new.len() as u64);
         let a = Archive::open(&out).unwrap();
-        assert_eq!((a.header().version_write, a.header().version_read), (8, 7));
+        assert_eq!((a.header().version_write, a.header().version_read), (9, 7));
         // Every section but the weights byte for byte; the weights exact.
         let (old_s, new_s) = (sections(&old), sections(&new));
         for (e, bytes) in &old_s {
@@ -143,7 +143,7 @@ fn the_cli_says_to_upgrade_and_upgrades() {
     assert!(err.contains("format version 6") && err.contains("illumnet upgrade"), "{err}");
     let out = std::process::Command::new(bin).args(["upgrade", path.to_str().unwrap()]).output().unwrap();
     let text = String::from_utf8_lossy(&out.stdout);
-    assert!(out.status.success() && text.contains("to format version 8"), "{text}");
+    assert!(out.status.success() && text.contains("to format version 9"), "{text}");
     let out = render();
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     assert!(dir.path().join("f_3.png").exists());

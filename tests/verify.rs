@@ -58,6 +58,19 @@ fn cli(dir: &Path, bytes: &[u8], json: bool) -> (Option<i32>, String) {
     (out.status.code(), String::from_utf8_lossy(&out.stdout).into_owned() + &String::from_utf8_lossy(&out.stderr))
 }
 
+/// `illumnet inspect --json` (with `extra` arguments) on `bytes` written
+/// to a file: exit code and the JSON it answers on stdout.
+fn inspect_json(dir: &Path, bytes: &[u8], extra: &[&str]) -> (Option<i32>, serde_json::Value) {
+    let path = dir.join("i.inet");
+    std::fs::write(&path, bytes).unwrap();
+    let mut args = vec!["inspect", path.to_str().unwrap(), "--json"];
+    args.extend_from_slice(extra);
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_illumnet")).args(&args).output().unwrap();
+    let json = serde_json::from_slice(&out.stdout)
+        .unwrap_or_else(|e| panic!("inspect --json answered no JSON ({e}): {}", String::from_utf8_lossy(&out.stdout)));
+    (out.status.code(), json)
+}
+
 /// The findings `verify` makes of `bytes`, as "SECTION[record]: what".
 fn findings(dir: &Path, bytes: &[u8]) -> Vec<String> {
     let path = dir.join("f.inet");
@@ -86,6 +99,11 @@ fn sound_archives_of_every_kind_verify_clean() {
         assert_eq!(code, Some(0), "{name}: {out}");
         let json: serde_json::Value = serde_json::from_str(&out).unwrap();
         assert_eq!(json["sound"], true, "{name}");
+        // inspect --json answers with the archive's summary.
+        let (code, summary) = inspect_json(dir.path(), &bytes, &[]);
+        assert_eq!(code, Some(0), "{name}: {summary}");
+        assert_eq!(summary["format_version"], 9, "{name}");
+        assert!(summary["patches"].as_u64().unwrap() > 0, "{name}");
         assert_eq!(json["frames"], if name == "sequence" { 4 } else { 1 }, "{name}");
         assert!(json["link_ends"].as_u64().unwrap() > 1000 && json["gb_per_s"].as_f64().unwrap() > 0.0, "{name}");
     }
@@ -107,6 +125,14 @@ fn each_class_of_damage_gives_its_precise_finding() {
     let (code, out) = cli(d, &flipped, false);
     assert_eq!(code, Some(4), "{out}");
     assert!(out.contains("1 finding") && out.contains("checksum"), "{out}");
+    // inspect --json refuses it in JSON, naming the section.
+    let refused = |bytes: &[u8], needle: &str| {
+        let (code, json) = inspect_json(d, bytes, &[]);
+        let message = json["error"]["message"].as_str().unwrap_or_default().to_string();
+        assert_eq!((code, json["error"]["exit_code"].as_i64()), (Some(4), Some(4)), "{json}");
+        assert!(message.contains("LOTH") && message.contains(needle), "{message}");
+    };
+    refused(&flipped, "checksum");
 
     // A wrong index under a valid checksum: refused at open, naming it.
     let mut index = good.clone();
@@ -115,6 +141,7 @@ fn each_class_of_damage_gives_its_precise_finding() {
     archive::reseal(&mut index);
     let f = findings(d, &index);
     assert!(f.len() == 1 && f[0].contains("does not open") && f[0].contains("LOTH"), "{f:?}");
+    refused(&index, "out of range");
 
     // A link end between patches that do not face each other along its
     // direction: its own direction reversed.
@@ -130,6 +157,10 @@ fn each_class_of_damage_gives_its_precise_finding() {
     );
     // …and the link no longer pairs up with its other end.
     assert!(f.iter().any(|x| x.starts_with("LOTH[-]: link ends do not pair up")), "{f:?}");
+    // Every index is in range, so the archive opens: inspect describes it
+    // (it is no verifier), and only verify finds the turned link.
+    let (code, summary) = inspect_json(d, &turned, &[]);
+    assert!(code == Some(0) && summary["error"].is_null(), "{summary}");
     let (code, out) = cli(d, &turned, true);
     assert_eq!(code, Some(4));
     let json: serde_json::Value =
@@ -161,8 +192,20 @@ fn each_class_of_damage_gives_its_precise_finding() {
     frames[2][0].count = -(1 << 20);
     let mut forged = seq.clone();
     forged.sequence.as_mut().unwrap().deltas = archive::deltas::EncodedDeltas::from_frames(&frames).unwrap();
-    let f = findings(d, &archive::write_to_vec(&forged).unwrap());
+    let forged = archive::write_to_vec(&forged).unwrap();
+    let f = findings(d, &forged);
     assert!(f.len() == 1 && f[0].starts_with("DELT[2]: frame 2:") && f[0].contains("record 0: count"), "{f:?}");
+    // inspect --histograms --json counts every frame's changes; it does
+    // not apply them (verify and the distribution do), so it answers.
+    let (code, json) = inspect_json(d, &forged, &["--histograms"]);
+    assert_eq!(code, Some(0), "{json}");
+    let frames: u64 = json["histograms"]["delta_records_per_frame"]["bins"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|b| b["count"].as_u64().unwrap())
+        .sum();
+    assert_eq!(frames, 4, "{json}");
 
     // A truncated frame: frame 1's stored bytes one short (DIDX resealed).
     let mut cut = archive::write_to_vec(&seq).unwrap();
@@ -178,6 +221,10 @@ fn each_class_of_damage_gives_its_precise_finding() {
     // frame 1 finds it cut.
     let f = findings(d, &cut);
     assert!(f.len() == 1 && f[0].starts_with("DELT[1]: frame 1:") && f[0].contains("whole zstd frames"), "{f:?}");
+    // inspect takes each frame's record count from DIDX and decodes none:
+    // it answers, and only verify finds the frame cut.
+    let (code, json) = inspect_json(d, &cut, &["--histograms"]);
+    assert!(code == Some(0) && json["error"].is_null(), "{json}");
 }
 
 #[test]

@@ -1,4 +1,4 @@
-//! On-disk records of the archive format (version 8).
+//! On-disk records of the archive format (version 9).
 //!
 //! Every type here is `#[repr(C)]`, made of little-endian `u32`/`u64`/`f32`
 //! fields with no implicit padding, and is read zero-copy with `bytemuck`
@@ -10,7 +10,7 @@ use bytemuck::{Pod, Zeroable};
 /// File magic, bytes 0..8 (§3).
 pub const MAGIC: [u8; 8] = *b"ILLUMNET";
 /// The format version this code writes (§3, `version_write`).
-pub const VERSION_WRITE: u32 = 8;
+pub const VERSION_WRITE: u32 = 9;
 /// `version_read` of the archives this code writes without grouped
 /// triangles: version 7 stores link-end weights as one byte (`LCNT`, with
 /// `LCNX` for the rest) where older readers expect `LWGT`, and numbers a
@@ -168,6 +168,17 @@ pub mod tag {
     pub const NONDIFFUSE_PATCHES: Tag = *b"NDPA";
     /// Rays crossing each non-diffuse patch per direction pair (§5.14).
     pub const NONDIFFUSE_HITS: Tag = *b"NDHC";
+    /// Per patch, its rays whose light meets a back face (§5.7, since version 9).
+    pub const PATCH_BACK_HITS: Tag = *b"PBAK";
+    /// Per non-diffuse patch and direction pair, likewise (§5.14, since version 9).
+    pub const NONDIFFUSE_BACK_HITS: Tag = *b"NDBK";
+    /// Per primitive, texture coordinates, shading normals and texture
+    /// (§5.15, since version 9).
+    pub const SHADING: Tag = *b"PSHD";
+    /// Texture headers (§5.15, since version 9).
+    pub const TEXTURES: Tag = *b"TXHD";
+    /// Texels, 8-bit sRGB (§5.15, since version 9).
+    pub const TEXELS: Tag = *b"TXPX";
 }
 
 /// The file header at offset 0 (§3).
@@ -507,7 +518,55 @@ pub struct NonDiffusePatchRecord {
     pub reserved: u32,
 }
 
+/// A primitive's shading detail (§5.15): what an image sample on it needs
+/// beyond its patches' light.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Default, Pod, Zeroable)]
+pub struct ShadingRecord {
+    /// Bit 0: `normals` hold shading normals; bit 1: `texture` is a texture.
+    pub flags: u32,
+    /// Index into `TXHD` (`u32::MAX`: none).
+    pub texture: u32,
+    /// Multiplies the texel's linear RGB.
+    pub tint: [f32; 3],
+    /// Reserved, zero.
+    pub reserved: u32,
+    /// Shading normals at corners 0..4 in the primitive's own frame (x
+    /// along `p1 − p0`, z the face normal, y = z × x).
+    pub normals: [[f32; 3]; 4],
+    /// Texture coordinates at corners 0..4.
+    pub uvs: [[f32; 2]; 4],
+}
+
+/// [`ShadingRecord::flags`] bits.
+pub mod shading_flags {
+    /// The record's normals are used.
+    pub const NORMALS: u32 = 1;
+    /// The record's texture is used.
+    pub const TEXTURE: u32 = 2;
+}
+
+/// A texture's header (§5.15).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Default, Pod, Zeroable)]
+pub struct TextureRecord {
+    /// Width in texels.
+    pub width: u32,
+    /// Height in texels.
+    pub height: u32,
+    /// Wrap along u and v: 0 = clamp, 1 = repeat, 2 = mirrored repeat.
+    pub wrap: [u32; 2],
+    /// Offset of its first texel's byte in `TXPX`.
+    pub first_byte: u64,
+    /// Magnification filter: 0 = bilinear, 1 = nearest texel.
+    pub filter: u32,
+    /// Reserved, zero.
+    pub reserved: u32,
+}
+
 const _: () = {
+    assert!(size_of::<ShadingRecord>() == 104);
+    assert!(size_of::<TextureRecord>() == 32);
     assert!(size_of::<PrototypeRecord>() == 64);
     assert!(size_of::<OrientationRecord>() == 32);
     assert!(size_of::<NonDiffusePatchRecord>() == 16);

@@ -33,7 +33,7 @@ use std::fmt;
 use std::path::PathBuf;
 
 pub use links::{Columns, LinkRows, LinkSlices, LinkWindow, Links, PatchIds};
-pub use read::{Archive, ArchiveSummary, DeltaBytes, InetView, OnDisk, ReflectanceView, SequenceView};
+pub use read::{Archive, ArchiveSummary, DeltaBytes, InetView, OnDisk, ReflectanceView, SequenceView, ShadingView};
 pub use stream::{CHUNK_ENDS, LinkStream, bytes_per_end};
 pub use weights::Weights;
 pub use write::{LinkEndSink, LinkEndSource, reseal, write, write_to_vec, write_to_vec_with_links, write_with_links};
@@ -84,6 +84,9 @@ pub struct ArchiveContents {
     pub patch_hits: Vec<u32>,
     /// `PEXP`.
     pub patch_expected_hits: Vec<f32>,
+    /// `PBAK`: per patch, of its `PHIT` rays those whose light meets a back
+    /// face; empty (and the section left out) when not counted.
+    pub patch_back_hits: Vec<u32>,
     /// `VPOS`.
     pub vertex_position: Vec<[f32; 3]>,
     /// `TVTX`: per grouped triangle (`PRIM.kind` 2), its corners' vertex
@@ -109,6 +112,21 @@ pub struct ArchiveContents {
     pub sequence: Option<SequenceContents>,
     /// `PTAB` … `NDHC`: present when some material is not diffuse.
     pub reflectance: Option<ReflectanceContents>,
+    /// `PSHD`, `TXHD`, `TXPX`: present when some primitive has shading
+    /// normals or a texture.
+    pub shading: Option<ShadingContents>,
+}
+
+/// The shading sections (§5.15): per primitive, texture coordinates and
+/// shading normals, and the textures they refer to.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct ShadingContents {
+    /// `PSHD`: one record per primitive.
+    pub primitives: Vec<layout::ShadingRecord>,
+    /// `TXHD`.
+    pub textures: Vec<layout::TextureRecord>,
+    /// `TXPX`: every texture's texels, 3 bytes each.
+    pub texels: Vec<u8>,
 }
 
 /// The reflectance sections (§5.14): prototype tables, orientations with
@@ -131,6 +149,9 @@ pub struct ReflectanceContents {
     pub patches: Vec<layout::NonDiffusePatchRecord>,
     /// `NDHC`: per non-diffuse patch, N/2 ray counts (one per direction pair).
     pub hits: Vec<u32>,
+    /// `NDBK`: of those, the rays whose light meets a back face; empty (and
+    /// the section left out) when not counted.
+    pub back_hits: Vec<u32>,
 }
 
 /// The animation sections of a sequence archive (§5.13).

@@ -171,6 +171,9 @@ pub struct InetView<'a> {
     pub patch_hits: &'a [u32],
     /// `PEXP`.
     pub patch_expected_hits: &'a [f32],
+    /// `PBAK`: per patch, of its `PHIT` rays those whose light meets a back
+    /// face (`None` in files written before version 9).
+    pub patch_back_hits: Option<&'a [u32]>,
     /// `VPOS`.
     pub vertex_position: &'a [[f32; 3]],
     /// Corner vertex ids of each grouped triangle (`TVTX`; empty when
@@ -190,6 +193,20 @@ pub struct InetView<'a> {
     pub sequence: Option<SequenceView<'a>>,
     /// The reflectance sections, when some material is not diffuse.
     pub reflectance: Option<ReflectanceView<'a>>,
+    /// The shading sections, when some primitive has shading normals or a
+    /// texture (§5.15).
+    pub shading: Option<ShadingView<'a>>,
+}
+
+/// Zero-copy views of the shading sections (§5.15).
+#[derive(Clone, Copy)]
+pub struct ShadingView<'a> {
+    /// `PSHD`: one record per primitive.
+    pub primitives: &'a [layout::ShadingRecord],
+    /// `TXHD`.
+    pub textures: &'a [layout::TextureRecord],
+    /// `TXPX`.
+    pub texels: &'a [u8],
 }
 
 /// Zero-copy views of the reflectance sections (§5.14).
@@ -211,6 +228,8 @@ pub struct ReflectanceView<'a> {
     pub patches: &'a [NonDiffusePatchRecord],
     /// `NDHC`.
     pub hits: &'a [u32],
+    /// `NDBK` (`None` in files written before version 9).
+    pub back_hits: Option<&'a [u32]>,
     direction_count: usize,
 }
 
@@ -432,8 +451,13 @@ const REQUIRED: [(Tag, u32, u32); 22] = [
 ];
 
 /// Optional sections, when present: tag, record size, compression.
-const OPTIONAL: [(Tag, u32, u32); 16] = [
+const OPTIONAL: [(Tag, u32, u32); 21] = [
     (tag::GROUPED_TRIANGLE_VERTICES, 12, compression::NONE),
+    (tag::SHADING, size_of::<layout::ShadingRecord>() as u32, compression::NONE),
+    (tag::TEXTURES, size_of::<layout::TextureRecord>() as u32, compression::NONE),
+    (tag::TEXELS, 1, compression::NONE),
+    (tag::PATCH_BACK_HITS, 4, compression::NONE),
+    (tag::NONDIFFUSE_BACK_HITS, 4, compression::NONE),
     (tag::PROTOTYPES, size_of::<PrototypeRecord>() as u32, compression::NONE),
     (tag::PROTOTYPE_ROWS, 4, compression::NONE),
     (tag::PROTOTYPE_DIRECTIONS, 4, compression::NONE),
@@ -668,6 +692,14 @@ impl Archive {
         bytemuck::try_cast_slice(self.stored(e)).map_err(|err| bad(format!("section {}: {err:?}", tag_name(t))))
     }
 
+    /// An optional section's records, `None` when the file lacks it.
+    fn optional_column<T: Pod>(&self, t: Tag) -> Result<Option<&[T]>, ArchiveError> {
+        match self.entries.iter().any(|e| e.tag == t) {
+            true => self.column(t).map(Some),
+            false => Ok(None),
+        }
+    }
+
     fn one<T: Pod>(&self, t: Tag) -> Result<&T, ArchiveError> {
         self.column::<T>(t)?.first().ok_or_else(|| bad(format!("section {} is empty", tag_name(t))))
     }
@@ -704,6 +736,7 @@ impl Archive {
             patch_corners: self.column(tag::PATCH_CORNERS)?,
             patch_hits: self.column(tag::PATCH_HITS)?,
             patch_expected_hits: self.column(tag::PATCH_EXPECTED_HITS)?,
+            patch_back_hits: self.optional_column(tag::PATCH_BACK_HITS)?,
             vertex_position: self.column(tag::VERTEX_POSITION)?,
             grouped_triangles: match self.entries.iter().any(|e| e.tag == tag::GROUPED_TRIANGLE_VERTICES) {
                 true => self.column(tag::GROUPED_TRIANGLE_VERTICES)?,
@@ -770,7 +803,16 @@ impl Archive {
                     maps: self.column(tag::ORIENTATION_MAPS)?,
                     patches: self.column(tag::NONDIFFUSE_PATCHES)?,
                     hits: self.column(tag::NONDIFFUSE_HITS)?,
+                    back_hits: self.optional_column(tag::NONDIFFUSE_BACK_HITS)?,
                     direction_count: self.one::<BuildRecord>(tag::BUILD)?.direction_count as usize,
+                }),
+            },
+            shading: match self.optional_column(tag::SHADING)? {
+                None => None,
+                Some(primitives) => Some(ShadingView {
+                    primitives,
+                    textures: self.column(tag::TEXTURES)?,
+                    texels: self.column(tag::TEXELS)?,
                 }),
             },
         })
@@ -999,6 +1041,10 @@ fn check_entries(
         tag::NONDIFFUSE_HITS,
     ]
     .map(has);
+    let shading = [tag::SHADING, tag::TEXTURES, tag::TEXELS].map(has);
+    if shading.iter().any(|&x| x) && !shading.iter().all(|&x| x) {
+        return Err(bad("shading sections PSHD, TXHD and TXPX must appear together"));
+    }
     if reflectance.iter().any(|&x| x) && !reflectance.iter().all(|&x| x) {
         return Err(bad("reflectance sections PTAB, PROW, PODR, PFAC, ORNT, OMAP, NDPA and NDHC must appear together"));
     }
@@ -1072,6 +1118,15 @@ fn validate_contents(v: &InetView<'_>, meta: &ArchiveMeta) -> Result<(), Archive
         ("PEXP", v.patch_expected_hits.len()),
     ] {
         count(name, n, p)?;
+    }
+    if let Some(back) = v.patch_back_hits {
+        count("PBAK", back.len(), p)?;
+        if let Some(i) = back.iter().zip(v.patch_hits).position(|(b, h)| b > h) {
+            return Err(bad(format!(
+                "PBAK[{i}]: {} back-face rays, more than its {} PHIT rays",
+                back[i], v.patch_hits[i]
+            )));
+        }
     }
     count("VPOS", v.vertex_position.len(), nv)?;
     count("ADJO", v.adjacency_offsets.len(), p + 1)?;
@@ -1261,6 +1316,9 @@ fn validate_contents(v: &InetView<'_>, meta: &ArchiveMeta) -> Result<(), Archive
     if let Some(r) = &v.reflectance {
         validate_reflectance(v, r)?;
     }
+    if let Some(sh) = &v.shading {
+        validate_shading(v, sh)?;
+    }
     if let Some(s) = &v.sequence {
         let frames = s.record.frames;
         check(frames >= 1, || "ANIM: no frames".into())?;
@@ -1310,6 +1368,45 @@ fn validate_contents(v: &InetView<'_>, meta: &ArchiveMeta) -> Result<(), Archive
 
 /// §5.14: tables well formed and energy-conserving, maps bijections,
 /// exactly the non-diffuse patches listed.
+/// Largest texture side (texels) and coordinate magnitude (§5.15).
+const MAX_TEXTURE_SIDE: u32 = 16384;
+const MAX_UV: f32 = 1e6;
+const MAX_TINT: f32 = 1e6;
+
+/// §5.15: one `PSHD` record per primitive, flags and textures in range,
+/// every float finite; each texture's texels inside `TXPX`.
+fn validate_shading(v: &InetView<'_>, sh: &ShadingView<'_>) -> Result<(), ArchiveError> {
+    check(sh.primitives.len() == v.primitives.len(), || {
+        format!("PSHD: {} records, expected {} (one per primitive)", sh.primitives.len(), v.primitives.len())
+    })?;
+    for (i, t) in sh.textures.iter().enumerate() {
+        let side = 1..=MAX_TEXTURE_SIDE;
+        check(side.contains(&t.width) && side.contains(&t.height), || format!("TXHD[{i}]: size out of range"))?;
+        check(t.wrap.iter().all(|&w| w <= 2) && t.filter <= 1, || format!("TXHD[{i}]: unknown wrap or filter"))?;
+        let bytes = 3 * t.width as u64 * t.height as u64;
+        check(t.first_byte.checked_add(bytes).is_some_and(|end| end <= sh.texels.len() as u64), || {
+            format!("TXHD[{i}]: texels beyond TXPX's {} bytes", sh.texels.len())
+        })?;
+    }
+    for (i, r) in sh.primitives.iter().enumerate() {
+        use layout::shading_flags::{NORMALS, TEXTURE};
+        check(r.flags & !(NORMALS | TEXTURE) == 0, || format!("PSHD[{i}]: unknown flags {:#x}", r.flags))?;
+        check(r.flags & TEXTURE == 0 || (r.texture as usize) < sh.textures.len(), || {
+            format!("PSHD[{i}]: texture {} out of range", r.texture)
+        })?;
+        check(r.tint.iter().all(|t| t.is_finite() && (0.0..=MAX_TINT).contains(t)), || {
+            format!("PSHD[{i}]: tint negative, non-finite or above {MAX_TINT:e}")
+        })?;
+        check(r.normals.iter().flatten().all(|x| x.is_finite() && x.abs() <= 1.0 + 1e-3), || {
+            format!("PSHD[{i}]: a normal is not a finite direction")
+        })?;
+        check(r.uvs.iter().flatten().all(|x| x.is_finite() && x.abs() <= MAX_UV), || {
+            format!("PSHD[{i}]: a texture coordinate is non-finite or beyond ±{MAX_UV:e}")
+        })?;
+    }
+    Ok(())
+}
+
 fn validate_reflectance(v: &InetView<'_>, r: &ReflectanceView<'_>) -> Result<(), ArchiveError> {
     let n = v.directions.len();
     let (mut row, mut entry, mut factor) = (0u64, 0u64, 0u64);
@@ -1394,6 +1491,10 @@ fn validate_reflectance(v: &InetView<'_>, r: &ReflectanceView<'_>) -> Result<(),
     let listed = (0..v.patch_centre.len()).filter(|&q| nd_patch(q)).count();
     check(listed == r.patches.len(), || format!("NDPA: {} patches listed, {listed} are non-diffuse", r.patches.len()))?;
     check(r.hits.len() == r.patches.len() * (n / 2), || "NDHC: not N/2 counts per non-diffuse patch".into())?;
+    if let Some(back) = r.back_hits {
+        check(back.len() == r.hits.len(), || format!("NDBK: {} records, expected {}", back.len(), r.hits.len()))?;
+        check(back.iter().zip(r.hits).all(|(b, h)| b <= h), || "NDBK: more back-face rays than NDHC rays".into())?;
+    }
     Ok(())
 }
 

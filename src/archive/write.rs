@@ -270,6 +270,9 @@ fn write_all<W: Write + Seek>(
         w.column(tag::PATCH_HITS, &c.patch_hits)?;
         w.column(tag::PATCH_EXPECTED_HITS, &c.patch_expected_hits)?;
         w.column(tag::VERTEX_POSITION, &c.vertex_position)?;
+        if !c.patch_back_hits.is_empty() {
+            w.column(tag::PATCH_BACK_HITS, &c.patch_back_hits)?;
+        }
         if !c.grouped_triangles.is_empty() {
             // Version 7 readers would take kind 2 for a grid of their own.
             w.version_read = w.version_read.max(layout::VERSION_READ_GROUPED);
@@ -300,6 +303,14 @@ fn write_all<W: Write + Seek>(
             w.column(tag::ORIENTATION_MAPS, &r.maps)?;
             w.column(tag::NONDIFFUSE_PATCHES, &r.patches)?;
             w.column(tag::NONDIFFUSE_HITS, &r.hits)?;
+            if !r.back_hits.is_empty() {
+                w.column(tag::NONDIFFUSE_BACK_HITS, &r.back_hits)?;
+            }
+        }
+        if let Some(sh) = &c.shading {
+            w.column(tag::SHADING, &sh.primitives)?;
+            w.column(tag::TEXTURES, &sh.textures)?;
+            w.column(tag::TEXELS, &sh.texels)?;
         }
         if let Some(seq) = &c.sequence {
             w.column(tag::ANIMATION, std::slice::from_ref(&seq.record))?;

@@ -37,6 +37,7 @@ use crate::geometry::Primitive;
 use crate::geometry::grid::CellOrder;
 use crate::patch::Patches;
 use crate::progress::Progress;
+use crate::scene::texture::Shading;
 use crate::scene::{ReflectanceModel, Scene};
 
 /// What a build measured.
@@ -99,6 +100,56 @@ pub struct Instance {
     pub primitives: Vec<Primitive>,
     /// The surface's grain placed for those frames.
     pub grain: Option<glam::Vec3>,
+}
+
+/// The shading sections (§5.15) for the archive's primitives, instance by
+/// instance: each primitive's surface's shading detail (texture
+/// coordinates, normals in the primitive's own frame and texture, which
+/// rigid motion leaves as they are), and the scene's textures; `None` when
+/// no surface has any.
+fn shading_contents(scene: &Scene, instances: &[Instance]) -> Option<crate::archive::ShadingContents> {
+    use crate::archive::layout::{ShadingRecord, TextureRecord, shading_flags};
+    use crate::scene::texture::Wrap;
+    if scene.surfaces.iter().all(|s| s.shading.is_empty()) {
+        return None;
+    }
+    let mut primitives = Vec::with_capacity(instances.iter().map(|i| i.primitives.len()).sum());
+    for inst in instances {
+        let shading = &scene.surfaces[inst.surface as usize].shading;
+        for i in 0..inst.primitives.len() {
+            let sh = if shading.len() == inst.primitives.len() { shading[i] } else { Shading::FLAT };
+            let has_normals = sh.normal.iter().any(|n| *n != glam::Vec3::ZERO);
+            let has_texture = (sh.texture as usize) < scene.textures.len();
+            primitives.push(ShadingRecord {
+                flags: if has_normals { shading_flags::NORMALS } else { 0 }
+                    | if has_texture { shading_flags::TEXTURE } else { 0 },
+                texture: if has_texture { sh.texture } else { u32::MAX },
+                tint: if has_texture { sh.tint } else { [1.0; 3] },
+                reserved: 0,
+                normals: sh.normal.map(|n| n.to_array()),
+                uvs: sh.uv.map(|u| u.to_array()),
+            });
+        }
+    }
+    let mut textures = Vec::with_capacity(scene.textures.len());
+    let mut texels = Vec::with_capacity(scene.textures.iter().map(|t| t.srgb.len()).sum());
+    for t in &scene.textures {
+        let wrap = t.wrap.map(|w| match w {
+            Wrap::Clamp => 0,
+            Wrap::Repeat => 1,
+            Wrap::Mirror => 2,
+        });
+        textures.push(TextureRecord {
+            width: t.width,
+            height: t.height,
+            wrap,
+            first_byte: texels.len() as u64,
+            filter: u32::from(t.nearest),
+            reserved: 0,
+        });
+        texels.extend_from_slice(&t.srgb);
+    }
+    Some(crate::archive::ShadingContents { primitives, textures, texels })
 }
 
 /// One merged link of frame 0.
@@ -540,7 +591,15 @@ fn build_impl(
     let trace_s = t1.elapsed().as_secs_f64();
 
     let t2 = Instant::now();
-    let trace::Traced { bundles, hits: traced_hits, nd_hits, deltas: traced_deltas, stats: traced_stats } = traced;
+    let trace::Traced {
+        bundles,
+        hits: traced_hits,
+        nd_hits,
+        backs,
+        nd_backs,
+        deltas: traced_deltas,
+        stats: traced_stats,
+    } = traced;
     let spilled_any = spill.as_ref().is_some_and(|s| s.run_count() > 0);
     let (table, spilled, bundles) = match spill {
         Some(sp) if spilled_any => {
@@ -595,6 +654,7 @@ fn build_impl(
             lobes: &lobes,
             patches: &patches,
             nd_hits,
+            nd_backs,
             library: library.as_ref(),
             map_method: settings.map_method,
             threshold: settings.table_threshold,
@@ -741,6 +801,7 @@ fn build_impl(
         patch_corners: patches.corners,
         patch_hits: traced_hits,
         patch_expected_hits: expected,
+        patch_back_hits: backs,
         vertex_position: patches.vertex_position,
         grouped_triangles: patches.mesh_triangles,
         adjacency_offsets: patches.adjacency_offsets,
@@ -758,6 +819,7 @@ fn build_impl(
         },
         sequence: sequence_sections(scene, &instances, traced_deltas),
         reflectance: reflectance_contents,
+        shading: shading_contents(scene, &instances),
     };
     let mut patch_identity = Vec::with_capacity(prims.len());
     for (pi, pp) in seq_primitives.iter().enumerate() {

@@ -73,6 +73,8 @@ pub struct Input<'a> {
     pub patches: &'a Patches,
     /// Per non-diffuse patch and pair, rays crossing it (from tracing).
     pub nd_hits: Vec<u32>,
+    /// Of those, rays whose light meets a back face.
+    pub nd_backs: Vec<u32>,
     /// Library to read and store tables in.
     pub library: Option<&'a Library>,
     /// How maps are made.
@@ -216,5 +218,6 @@ pub fn assemble(
         }
     }
     out.hits = input.nd_hits;
+    out.back_hits = input.nd_backs;
     Ok((Some(out), stats))
 }

@@ -273,7 +273,7 @@ struct Scratch {
     /// Per frame, the chunk's changes relative to frame 0, in pair order.
     chunk: Vec<Vec<DeltaRecord>>,
     compressor: Option<BlockCompressor>,
-    counts: LocalCounts,
+    counts: HitCounts,
     /// Per temporal ray: indices of its permanent hits, of its temporal hits
     /// by first frame, of the temporal hits present at the current change
     /// frame, and of all hits present there (each ascending in ray order
@@ -309,6 +309,21 @@ impl LocalCounts {
             totals[p as usize].fetch_add(std::mem::take(&mut self.count[p as usize]), Ordering::Relaxed);
         }
         self.touched.clear();
+    }
+}
+
+/// A worker's per-patch counts: hits (`H_p`) and, of those, rays whose
+/// light meets a back face.
+#[derive(Default)]
+struct HitCounts {
+    hits: LocalCounts,
+    backs: LocalCounts,
+}
+
+impl HitCounts {
+    fn resize(&mut self, patches: usize) {
+        self.hits.count.resize(patches, 0);
+        self.backs.count.resize(patches, 0);
     }
 }
 
@@ -364,6 +379,9 @@ struct Walk<'a> {
     nd_index: &'a [u32],
     /// Per non-diffuse patch and pair, rays crossing it.
     nd_hits: &'a [AtomicU32],
+    /// Per non-diffuse patch and pair, of those rays the ones whose light
+    /// meets a back face.
+    nd_backs: &'a [AtomicU32],
     /// Per patch, the frames it is present in.
     patch_active: &'a [FrameSpan],
 }
@@ -383,15 +401,22 @@ impl Walk<'_> {
     /// hits facing each other become links (appended to `links`). Hits count
     /// towards `H_p` in the first frame they are present in. Returns hits
     /// counted.
+    ///
+    /// A counted hit whose light along its facing direction next meets a
+    /// back face (the next hit down the ray faces the same way) also counts
+    /// towards the patch's back-face rays (`PBAK`, `NDBK`), so that the
+    /// energy balance can tell light absorbed by back faces from light that
+    /// left the scene.
     fn frame<'h>(
         &self,
         hits: impl Iterator<Item = &'h RayHitRecord>,
         frame: u32,
         links: &mut Vec<LinkKey>,
-        counts: &mut LocalCounts,
+        counts: &mut HitCounts,
     ) -> u64 {
         let mut counted = 0;
         let mut prev: Option<(u32, f32, u32, bool, f32)> = None; // (patch, t, primitive, faces +d, cos)
+        let mut prev_counted = false;
         for h in hits {
             let lo = h.active.first;
             let cos = h.cos;
@@ -411,13 +436,26 @@ impl Walk<'_> {
                 }
             }
             let patch = h.patch;
-            if frame == lo {
-                counts.add(patch);
+            let counts_here = frame == lo;
+            if counts_here {
+                counts.hits.add(patch);
                 counted += 1;
                 let nd = self.nd_index[patch as usize];
                 if nd != u32::MAX {
                     self.nd_hits[nd as usize * self.pairs as usize + self.pair as usize]
                         .fetch_add(1, Ordering::Relaxed);
+                }
+            }
+            // Back faces: a hit facing down the ray followed by another
+            // facing down it sends its light into that one's back; a hit
+            // facing back up the ray after one facing back up it likewise.
+            if let Some((prev_patch, _, _, prev_forward, _)) = prev
+                && prev_forward == forward
+            {
+                if forward && prev_counted {
+                    self.add_back(prev_patch, counts);
+                } else if !forward && counts_here {
+                    self.add_back(patch, counts);
                 }
             }
             // A link: the previous hit faces down the ray, this one faces back.
@@ -435,8 +473,19 @@ impl Walk<'_> {
                 links.push((((prev_patch as u64) << 32) | patch as u64, ba, bb));
             }
             prev = Some((patch, h.t, h.primitive, forward, cos));
+            prev_counted = counts_here;
         }
         counted
+    }
+
+    /// Counts one ray of `patch` (counted in this frame) that meets a back face.
+    #[inline]
+    fn add_back(&self, patch: u32, counts: &mut HitCounts) {
+        counts.backs.add(patch);
+        let nd = self.nd_index[patch as usize];
+        if nd != u32::MAX {
+            self.nd_backs[nd as usize * self.pairs as usize + self.pair as usize].fetch_add(1, Ordering::Relaxed);
+        }
     }
 
     /// One ray: frame 0's links go to `s.keys`; for rays that meet temporal
@@ -568,6 +617,11 @@ pub struct Traced {
     pub hits: Vec<u32>,
     /// Per non-diffuse patch and direction pair, rays crossing it.
     pub nd_hits: Vec<u32>,
+    /// Per patch, of its `H_p` rays those whose light meets a back face
+    /// (in the frame the patch first appears in).
+    pub backs: Vec<u32>,
+    /// Per non-diffuse patch and direction pair, likewise.
+    pub nd_backs: Vec<u32>,
     /// Per chunk of direction pairs (in pair order), per frame, the changes
     /// of the link multiset relative to frame 0, compressed
     /// (`archive::deltas::EncodedDeltas::from_blocks` assembles them); frame
@@ -646,6 +700,8 @@ pub fn trace_all(
     let hit_counts: Vec<AtomicU64> = (0..patches.len()).map(|_| AtomicU64::new(0)).collect();
     let nd_count = nd_index.iter().filter(|&&i| i != u32::MAX).count();
     let nd_hits: Vec<AtomicU32> = (0..nd_count * pairs as usize).map(|_| AtomicU32::new(0)).collect();
+    let back_counts: Vec<AtomicU64> = (0..patches.len()).map(|_| AtomicU64::new(0)).collect();
+    let nd_backs: Vec<AtomicU32> = (0..nd_count * pairs as usize).map(|_| AtomicU32::new(0)).collect();
     let eps_t = (hi - lo).length() * 1e-6;
     let frames = input.frames as usize;
     // Frames each patch is present in: links touching a patch absent from a
@@ -670,6 +726,7 @@ pub fn trace_all(
             pairs,
             nd_index,
             nd_hits: &nd_hits,
+            nd_backs: &nd_backs,
             patch_active: &patch_active,
         };
         let mut stats = BundleStats { rays: g.nu * g.nv, ..Default::default() };
@@ -738,7 +795,7 @@ pub fn trace_all(
             let s = &mut *s;
             s.changes.resize_with(frames, Vec::new);
             s.chunk.resize_with(frames, Vec::new);
-            s.counts.count.resize(patches.len(), 0);
+            s.counts.resize(patches.len());
             let mut stats = BundleStats::default();
             let mut bundles = Vec::new();
             for k in c * per_chunk..((c + 1) * per_chunk).min(pairs) {
@@ -754,7 +811,8 @@ pub fn trace_all(
             if let Some(spill) = spill {
                 spill.end_chunk(&mut bundles)?;
             }
-            s.counts.flush(&hit_counts);
+            s.counts.hits.flush(&hit_counts);
+            s.counts.backs.flush(&back_counts);
             let compress = |s: &mut Scratch| -> std::io::Result<Vec<Block>> {
                 if s.compressor.is_none() {
                     s.compressor = Some(BlockCompressor::new()?);
@@ -791,7 +849,10 @@ pub fn trace_all(
             "a patch is hit by more than 2³² rays: use smaller patches or a larger ray spacing".to_string()
         })?;
     let nd_hits = nd_hits.into_iter().map(AtomicU32::into_inner).collect();
-    Ok(Traced { bundles, hits, nd_hits, deltas, stats })
+    // At most H_p each, which fits.
+    let backs = back_counts.into_iter().map(|b| b.into_inner().min(u32::MAX as u64) as u32).collect();
+    let nd_backs = nd_backs.into_iter().map(AtomicU32::into_inner).collect();
+    Ok(Traced { bundles, hits, nd_hits, backs, nd_backs, deltas, stats })
 }
 
 /// Turns the current pair's per-ray changes (`s.changes`, per frame) into

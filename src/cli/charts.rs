@@ -23,6 +23,8 @@ pub struct Chart<'a> {
     pub title: &'a str,
     /// What the bars count (y axis).
     pub counts_what: &'a str,
+    /// What the bins measure (x axis).
+    pub bins_what: &'a str,
     /// Bin labels (x axis): each bin's lower bound.
     pub labels: Vec<String>,
     /// Bar heights.
@@ -67,7 +69,7 @@ fn draw(c: &Chart<'_>, buf: &mut [u8]) -> Result<(), Box<dyn std::error::Error>>
             SegmentValue::CenterOf(i) => labels.get(*i as usize).cloned().unwrap_or_default(),
             _ => String::new(),
         })
-        .x_desc("bins, by their lower bound")
+        .x_desc(format!("{}: bins by their lower bound", c.bins_what))
         .y_desc(c.counts_what)
         .label_style(("sans-serif", 12))
         .draw()?;

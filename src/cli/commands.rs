@@ -567,11 +567,16 @@ pub fn render(
             t_dist += t1.elapsed().as_secs_f64();
             ends += b.ends_gathered as f64;
             println!(
-                "{}energy balance: emitted {:.4} W, absorbed {:.4} W, escaped {:.4} W, residual {:.2e} W (imbalance {:.1e}), {} iterations{}{}",
+                "{}energy balance: emitted {:.4} W, absorbed {:.4} W, {}, residual {:.2e} W (imbalance {:.1e}), {} iterations{}{}",
                 if sequence_output { format!("frame {f}: ") } else { String::new() },
                 sum(&b.emitted),
                 sum(&b.absorbed),
-                sum(&b.escaped),
+                match view.patch_back_hits {
+                    Some(_) =>
+                        format!("absorbed by back faces {:.4} W, escaped {:.4} W", sum(&b.back_faces), sum(&b.escaped)),
+                    // Written before version 9: the two are not told apart.
+                    None => format!("escaped or met back faces {:.4} W", sum(&b.escaped)),
+                },
                 sum(&b.residual),
                 b.imbalance(),
                 b.iterations,
@@ -600,13 +605,23 @@ pub fn render(
                 "illumnet: warning: frame {f} emits no light (0 W), so only emitters seen directly will show: \
                  the scene has no surface with `emission`, or --set made them black"
             );
-        } else if emitted > 0.0 && sum(&b.escaped) > 0.999 * emitted && !warned_dark {
+        } else if emitted > 0.0 && sum(&b.escaped) + sum(&b.back_faces) > 0.999 * emitted && !warned_dark {
             warned_dark = true;
-            eprintln!(
-                "illumnet: warning: frame {f}: {:.1}% of the {emitted:.4} W emitted escapes the scene without \
-                 reaching a surface that absorbs it: does an emitter face away from the scene?",
-                100.0 * sum(&b.escaped) / emitted
-            );
+            let (escaped, back) = (sum(&b.escaped), sum(&b.back_faces));
+            if back > escaped {
+                eprintln!(
+                    "illumnet: warning: frame {f}: {:.1}% of the {emitted:.4} W emitted goes into the back faces of \
+                     one-sided surfaces, which absorb it: does an emitter face a wall from behind it, or is a \
+                     surface's front (the right-hand rule's normal) turned away from the room?",
+                    100.0 * back / emitted
+                );
+            } else {
+                eprintln!(
+                    "illumnet: warning: frame {f}: {:.1}% of the {emitted:.4} W emitted escapes the scene without \
+                     reaching a surface that absorbs it: does an emitter face away from the scene?",
+                    100.0 * (escaped + back) / emitted
+                );
+            }
         }
         let t2 = Instant::now();
         let (image, direct) = if direct_shading {
@@ -1121,6 +1136,7 @@ pub fn inspect_patch(path: &Path, p: u32, json: bool) -> Result<()> {
     directions.dedup();
     let surface_of = |q: u32| v.primitives[v.patch_primitive[q as usize] as usize].surface as usize;
     let (hits, expected) = (v.patch_hits[i], v.patch_expected_hits[i]);
+    let back = v.patch_back_hits.map(|b| b[i]);
     if json {
         let top: Vec<serde_json::Value> = ranked
             .iter()
@@ -1141,6 +1157,7 @@ pub fn inspect_patch(path: &Path, p: u32, json: bool) -> Result<()> {
             "area_m2": v.patch_area[i],
             "hits": hits,
             "expected_hits": expected,
+            "back_face_rays": back,
             "adjacent": adjacent,
             "link_ends": other.len(),
             "rays": total,
@@ -1167,6 +1184,12 @@ pub fn inspect_patch(path: &Path, p: u32, json: bool) -> Result<()> {
         "  crossed by {hits} rays (H_p), {expected:.1} expected from its area and orientation ({:.0}%)",
         if expected > 0.0 { 100.0 * hits as f64 / expected as f64 } else { 0.0 }
     );
+    if let Some(back) = back {
+        println!(
+            "  of them, {total:.0} link, {back} meet a back face (absorbed there) and {:.0} leave the scene",
+            (hits as f64 - total - back as f64).max(0.0)
+        );
+    }
     println!("  {} adjacent patches: {adjacent:?}", adjacent.len());
     println!(
         "  {} link ends carrying {total:.0} rays, along {} of {} directions, to {} patches; heaviest:",

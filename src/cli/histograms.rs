@@ -172,6 +172,7 @@ pub fn inspect_histograms(path: &Path, json: bool, charts: Option<&Path>) -> Res
                 key: h.key,
                 title: &h.title,
                 counts_what: counted(h.key),
+                bins_what: binned(h.key),
                 labels: h.bins.iter().map(|b| number_label(b.from)).collect(),
                 counts: h.bins.iter().map(|b| b.count).collect(),
             })
@@ -208,6 +209,20 @@ pub fn inspect_histograms(path: &Path, json: bool, charts: Option<&Path>) -> Res
 }
 
 /// What a histogram's bins count.
+/// What a histogram's bins measure (the chart's x axis).
+fn binned(key: &str) -> &'static str {
+    match key {
+        "link_ends_per_patch" => "link ends of a patch",
+        "hits_over_expected" => "hits H_p over their expected number",
+        "link_length_m" => "link length between patch centres (m)",
+        "link_ends_per_direction" => "link ends along a direction",
+        "link_ends_per_bucket" => "bucket",
+        "rays_per_glossy_patch_direction" => "rays of a glossy patch along a direction pair",
+        "delta_records_per_frame" => "link changes in a frame",
+        _ => "value",
+    }
+}
+
 fn counted(key: &str) -> &'static str {
     match key {
         "link_ends_per_patch" | "hits_over_expected" => "patches",

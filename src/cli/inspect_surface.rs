@@ -113,6 +113,7 @@ pub fn inspect_surface(path: &Path, name: &str, json: bool) -> Result<()> {
     let area: f64 = patches.iter().map(|&p| v.patch_area[p as usize] as f64).sum();
     let hits: u64 = patches.iter().map(|&p| v.patch_hits[p as usize] as u64).sum();
     let expected: f64 = patches.iter().map(|&p| v.patch_expected_hits[p as usize] as f64).sum();
+    let back: Option<u64> = v.patch_back_hits.map(|b| patches.iter().map(|&p| b[p as usize] as u64).sum());
     let (mut lo, mut hi) = ([f32::MAX; 3], [f32::MIN; 3]);
     for &p in &patches {
         for (k, &c) in v.patch_centre[p as usize].iter().enumerate() {
@@ -148,6 +149,7 @@ pub fn inspect_surface(path: &Path, name: &str, json: bool) -> Result<()> {
             "patches_without_links": unlinked,
             "link_ends": ends,
             "rays": rays,
+            "back_face_rays": back,
             "exchanges_with": top,
         });
         println!("{}", serde_json::to_string_pretty(&out)?);
@@ -172,6 +174,12 @@ pub fn inspect_surface(path: &Path, name: &str, json: bool) -> Result<()> {
     );
     if unlinked > 0 {
         println!("  {unlinked} of its patches have no link end: no ray joined them to another patch");
+    }
+    if let Some(back) = back {
+        println!(
+            "  of its rays, {rays:.0} link, {back} meet a back face (absorbed there) and {:.0} leave the scene",
+            (hits as f64 - rays - back as f64).max(0.0)
+        );
     }
     println!("  {ends} link ends carrying {rays:.0} rays; light exchanged with:");
     for &(k, w) in partners.iter().take(PARTNERS) {

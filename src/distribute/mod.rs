@@ -112,8 +112,16 @@ pub struct EnergyBalance {
     pub emitted: [f64; 3],
     /// Power absorbed by surfaces.
     pub absorbed: [f64; 3],
-    /// Power that left the scene (rays that met nothing or a back face).
+    /// Power that left the scene: carried by rays that met nothing (and,
+    /// in archives written before version 9, which do not count back-face
+    /// rays, by rays that met a back face too).
     pub escaped: [f64; 3],
+    /// Power absorbed by the back faces of one-sided surfaces: carried by
+    /// rays whose next surface faced away (`PBAK`, `NDBK`). In a sequence,
+    /// each patch splits what leaves it unlinked by its counts in the first
+    /// frame it is in, so moving geometry makes this split (not the sum
+    /// with `escaped`) approximate.
+    pub back_faces: [f64; 3],
     /// Power still unshot when iteration stopped.
     pub residual: [f64; 3],
     /// Iterations run.
@@ -129,12 +137,14 @@ pub struct EnergyBalance {
 }
 
 impl EnergyBalance {
-    /// `emitted − absorbed − escaped − residual` relative to emitted, summed
-    /// over bands: zero up to rounding when energy is conserved.
+    /// `emitted − absorbed − back_faces − escaped − residual` relative to
+    /// emitted, summed over bands: zero up to rounding when energy is
+    /// conserved.
     pub fn imbalance(&self) -> f64 {
         let s = |a: &[f64; 3]| a.iter().sum::<f64>();
         let e = s(&self.emitted);
-        if e == 0.0 { 0.0 } else { (e - s(&self.absorbed) - s(&self.escaped) - s(&self.residual)) / e }
+        let out = s(&self.absorbed) + s(&self.back_faces) + s(&self.escaped) + s(&self.residual);
+        if e == 0.0 { 0.0 } else { (e - out) / e }
     }
 }
 
@@ -323,6 +333,9 @@ pub struct Distributor<'a> {
     rho: Vec<[f32; 3]>,
     emit: Vec<[f32; 3]>,
     share: Vec<f32>,
+    /// Per patch, the share of its power that meets back faces
+    /// (`PBAK · share`; empty for files without `PBAK`).
+    back_share: Vec<f32>,
     area_eff: Vec<f32>,
     linked: Vec<f64>,
     bucket_runs: Option<BucketRuns>,
@@ -440,6 +453,10 @@ impl<'a> Distributor<'a> {
             opts: *opts,
             rho,
             emit,
+            back_share: match v.patch_back_hits {
+                Some(b) => b.iter().zip(&share).map(|(&b, &s)| b as f32 * s).collect(),
+                None => Vec::new(),
+            },
             share,
             area_eff,
             linked,

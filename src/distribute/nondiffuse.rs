@@ -86,6 +86,9 @@ pub(super) struct NonDiffuse<'a> {
     /// Rays of each direction leaving each non-diffuse patch that reach a
     /// facing patch (frame 0's links).
     pub linked: Vec<f32>,
+    /// Rays of each direction leaving each non-diffuse patch whose light
+    /// meets a back face (`NDBK`; empty for files without it).
+    pub back_rays: Vec<f32>,
     /// Frame 0's link ends of each non-diffuse patch, walked every step.
     rows: LinkRows<'a>,
     /// Each table by outgoing direction.
@@ -126,13 +129,18 @@ impl<'a> NonDiffuse<'a> {
             }
         }
         let mut rays = vec![-1.0f32; patches.len() * n];
+        let mut back_rays = vec![0.0f32; if r.back_hits.is_some() { patches.len() * n } else { 0 }];
         for (k, &q) in patches.iter().enumerate() {
             let nq = v.patch_normal[q as usize];
             let hits = r.pair_hits(k);
+            let backs = r.back_hits.map(|b| &b[k * (n / 2)..(k + 1) * (n / 2)]);
             for (o, d) in v.directions.iter().enumerate() {
                 let cos = nq[0] * d.direction[0] + nq[1] * d.direction[1] + nq[2] * d.direction[2];
                 if cos > 0.0 {
                     rays[k * n + o] = hits[o / 2] as f32;
+                    if let Some(b) = backs {
+                        back_rays[k * n + o] = b[o / 2] as f32;
+                    }
                 }
             }
         }
@@ -241,6 +249,7 @@ impl<'a> NonDiffuse<'a> {
             corr_slot,
             corr_bucket,
             linked,
+            back_rays,
             rows,
             columns,
             batches,

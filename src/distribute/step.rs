@@ -215,27 +215,32 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
     /// threads.
     fn shoot(&mut self) {
         let (share, linked, send) = (&self.d.share, &self.s.linked, &self.send);
-        let escaped: Vec<[f64; 3]> = self
+        let back_share = &self.d.back_share;
+        let lost: Vec<[[f64; 3]; 2]> = self
             .shoot
             .par_chunks_mut(BLOCK)
             .enumerate()
             .map(|(block, out)| {
-                let mut sum = [0.0f64; 3];
+                // [escaped, into back faces]
+                let mut sum = [[0.0f64; 3]; 2];
                 for (i, sh) in out.iter_mut().enumerate() {
                     let p = block * BLOCK + i;
                     let s = share[p];
-                    let escape = 1.0 - linked[p] * s as f64;
+                    let unlinked = 1.0 - linked[p] * s as f64;
+                    let back = back_share.get(p).map_or(0.0, |&b| (b as f64).min(unlinked).max(0.0));
                     for c in 0..3 {
                         sh[c] = send[p][c] * s;
-                        sum[c] += send[p][c] as f64 * escape;
+                        sum[0][c] += send[p][c] as f64 * (unlinked - back);
+                        sum[1][c] += send[p][c] as f64 * back;
                     }
                 }
                 sum
             })
             .collect();
-        for e in &escaped {
+        for [e, b] in &lost {
             for c in 0..3 {
                 self.bal.escaped[c] += e[c];
+                self.bal.back_faces[c] += b[c];
             }
         }
     }
@@ -247,14 +252,14 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
         if !g.unsent {
             return;
         }
-        let (n, linked_dir, phi) = (x.n, &self.s.linked_dir, &g.phi);
+        let (n, linked_dir, phi, back_rays) = (x.n, &self.s.linked_dir, &g.phi, &x.back_rays);
         // Per patch in parallel; the sums are added in patch order.
-        let escaped: Vec<[f64; 3]> = g
+        let lost: Vec<[[f64; 3]; 2]> = g
             .pending
             .par_iter_mut()
             .enumerate()
             .map(|(k, pending)| {
-                let mut sent = [0.0f64; 3];
+                let (mut sent, mut back) = ([0.0f64; 3], [0.0f64; 3]);
                 for o in 0..n {
                     let l = linked_dir[k * n + o];
                     if l != 0.0 {
@@ -262,15 +267,24 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
                             sent[c] += (l * phi[k * n + o][c]) as f64;
                         }
                     }
+                    if let Some(&b) = back_rays.get(k * n + o)
+                        && b != 0.0
+                    {
+                        for c in 0..3 {
+                            back[c] += (b * phi[k * n + o][c]) as f64;
+                        }
+                    }
                 }
-                let escaped = [0, 1, 2].map(|c| pending[c] - sent[c]);
+                let unlinked = [0, 1, 2].map(|c| pending[c] - sent[c]);
+                let back = [0, 1, 2].map(|c| back[c].min(unlinked[c]).max(0.0));
                 *pending = [0.0; 3];
-                escaped
+                [[0, 1, 2].map(|c| unlinked[c] - back[c]), back]
             })
             .collect();
-        for e in &escaped {
+        for [e, b] in &lost {
             for c in 0..3 {
                 self.bal.escaped[c] += e[c];
+                self.bal.back_faces[c] += b[c];
             }
         }
     }
@@ -654,11 +668,11 @@ fn check_finite(
     if let Some(k) = directional.and_then(|d| first_bad(&d.radiance).or_else(|| first_bad(&d.direct))) {
         return fail(format!("directional radiance entry {k}"));
     }
-    let totals = [bal.emitted, bal.absorbed, bal.escaped, bal.residual];
+    let totals = [bal.emitted, bal.absorbed, bal.back_faces, bal.escaped, bal.residual];
     if !totals.iter().flatten().all(|x| x.is_finite()) {
         return fail(format!(
-            "energy balance: emitted {:?} W, absorbed {:?} W, escaped {:?} W",
-            bal.emitted, bal.absorbed, bal.escaped
+            "energy balance: emitted {:?} W, absorbed {:?} W, back faces {:?} W, escaped {:?} W",
+            bal.emitted, bal.absorbed, bal.back_faces, bal.escaped
         ));
     }
     Ok(())

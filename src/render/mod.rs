@@ -9,6 +9,7 @@
 //! directly show their own radiance; back faces and misses are black.
 
 mod camera;
+mod detail;
 pub mod direct;
 pub mod false_colour;
 pub mod image_io;
@@ -27,6 +28,7 @@ use crate::archive::layout::{self, PrimitiveRecord, cell_order};
 use crate::geometry::accel::PrimitiveBvh;
 use crate::geometry::grid::{CellOrder, NO_VERTEX, PatchGrid};
 use crate::geometry::{Primitive, PrimitiveKind};
+use detail::SurfaceDetail;
 
 /// A linear-RGB floating-point image, rows top to bottom.
 #[derive(Debug, Clone, PartialEq)]
@@ -202,6 +204,8 @@ struct SampleHit {
     vertices: [u32; 4],
     /// Their interpolation weights.
     weights: [f32; 4],
+    /// Surface coordinates of the hit on its primitive.
+    uv: [f32; 2],
 }
 
 /// Largest sample cache a [`Renderer`] keeps (1 GiB: 1920×1080 at 4×4
@@ -226,11 +230,13 @@ impl SampleHit {
 type SamplePoint<'f> = dyn Fn(u32, u32, u32, &SampleHit) -> Option<Vec3> + Sync + 'f;
 
 /// What the direct light of a pixel needs: the frame's emitters, its
-/// shadow-ray BVH, the primitives' normals and the samples' positions.
+/// shadow-ray BVH, the primitives' normals and detail, and the samples'
+/// positions.
 struct PixelLight<'f> {
     light: &'f DirectLight,
     bvh: &'f PrimitiveBvh,
     normals: &'f [Vec3],
+    detail: &'f SurfaceDetail<'f>,
     point: &'f SamplePoint<'f>,
     /// Where the camera is (glossy highlights depend on it).
     eye: Vec3,
@@ -241,7 +247,7 @@ struct PixelLight<'f> {
 /// points, and the emitters in front of them.
 #[derive(Default)]
 struct PixelScratch {
-    lit: Vec<(u32, Vec3)>,
+    lit: Vec<(u32, Vec3, Vec2)>,
     points: Vec<Vec3>,
     emitters: Vec<(u32, f32)>,
 }
@@ -267,6 +273,7 @@ fn shade_image(
     (w, h): (u32, u32),
     hits_of: &PixelHits<'_>,
     vrad: &[[f32; 3]],
+    detail: &SurfaceDetail<'_>,
     direct: Option<&PixelLight<'_>>,
 ) -> (Image, Option<Image>, usize) {
     let back_faces = std::sync::atomic::AtomicUsize::new(0);
@@ -286,7 +293,14 @@ fn shade_image(
             let mut acc = Vec3::ZERO;
             let mut back = 0;
             for hit in &hits {
-                hit.add_radiance(vrad, &mut acc);
+                if detail.any() && hit.primitive != u32::MAX {
+                    // A texture multiplies what the sample's surface reflects.
+                    let mut l = Vec3::ZERO;
+                    hit.add_radiance(vrad, &mut l);
+                    acc += l * detail.albedo_scale(hit.primitive, Vec2::from(hit.uv));
+                } else {
+                    hit.add_radiance(vrad, &mut acc);
+                }
                 back += usize::from(hit.primitive != u32::MAX && hit.vertices == [NO_VERTEX; 4]);
             }
             if back > 0 {
@@ -350,11 +364,11 @@ fn pixel_direct(
         if hit.primitive != u32::MAX
             && let Some(p) = (pl.point)(x, y, k as u32, hit)
         {
-            scratch.lit.push((hit.primitive, p));
+            scratch.lit.push((hit.primitive, p, Vec2::from(hit.uv)));
         }
     }
     // Stable: each primitive's samples stay in sample order.
-    scratch.lit.sort_by_key(|&(prim, _)| prim);
+    scratch.lit.sort_by_key(|&(prim, _, _)| prim);
     let pixel = direct::pixel_key(pl.frame, x, y);
     let (mut light, mut highlights, mut blocked) = (Vec3::ZERO, Vec3::ZERO, false);
     for run in scratch.lit.chunk_by(|a, b| a.0 == b.0) {
@@ -362,15 +376,24 @@ fn pixel_direct(
         scratch.points.clear();
         scratch.points.extend(run.iter().map(|r| r.1));
         let key = pixel ^ (prim as u64 + 1).wrapping_mul(0xa076_1d64_78bd_642f);
-        let (n, points) = (pl.normals[prim as usize], &scratch.points);
+        let (face, points) = (pl.normals[prim as usize], &scratch.points);
+        // Mesh detail: the samples' mean shading normal and texture scale
+        // (to first order in the pixel's footprint, as the points' mean).
+        let (n, scale) = if pl.detail.any() {
+            let normal: Vec3 = run.iter().map(|r| pl.detail.normal(prim, r.2, face)).sum();
+            let scale: Vec3 = run.iter().map(|r| pl.detail.albedo_scale(prim, r.2)).sum();
+            (normal.try_normalize().unwrap_or(face), scale / run.len() as f32)
+        } else {
+            (face, Vec3::ONE)
+        };
         let rays = if refined { pl.light.refined_rays() } else { direct::FIRST_RAYS };
         // The refined estimate's rays are drawn afresh (another key).
         let key = if refined { !key } else { key };
         let (l, b) = pl.light.estimate(points, n, prim, pl.bvh, key, rays, &mut scratch.emitters);
         blocked |= b;
-        light += l * run.len() as f32;
+        light += l * scale * run.len() as f32;
         if !refined && pl.light.is_glossy(prim) {
-            highlights += pl.light.glossy_estimate(points, n, pl.eye, prim, pl.bvh, key, &mut scratch.emitters);
+            highlights += pl.light.glossy_estimate(points, face, pl.eye, prim, pl.bvh, key, &mut scratch.emitters);
         }
     }
     (light, highlights, blocked)
@@ -387,10 +410,10 @@ struct FrameRays {
 }
 
 const NO_HIT: SampleHit =
-    SampleHit { t: f32::INFINITY, primitive: u32::MAX, vertices: [NO_VERTEX; 4], weights: [0.0; 4] };
+    SampleHit { t: f32::INFINITY, primitive: u32::MAX, vertices: [NO_VERTEX; 4], weights: [0.0; 4], uv: [0.0; 2] };
 
 /// Renders the frames of one archive, keeping what every image sample saw
-/// (40 bytes per sample: 49 MB at 320×240 with 16 samples per pixel; up to
+/// (48 bytes per sample: 59 MB at 320×240 with 16 samples per pixel; up to
 /// 1 GiB, larger images are shaded without the cache) so that
 /// later frames with the same camera re-trace only the samples that moving
 /// geometry may change: those that saw a temporal instance, and those whose
@@ -402,6 +425,8 @@ pub struct Renderer<'a> {
     all_prims: Vec<Primitive>,
     grids: Vec<PatchGrid>,
     normals: Vec<Vec3>,
+    /// Textures and shading normals of imported meshes.
+    detail: SurfaceDetail<'a>,
     /// Primitives of temporal instances (present in only some frames).
     temporal: Vec<bool>,
     cache: Option<(crate::archive::layout::CameraRecord, Vec<SampleHit>)>,
@@ -421,12 +446,14 @@ impl<'a> Renderer<'a> {
         let (all_prims, grids): (Vec<Primitive>, Vec<PatchGrid>) = v.primitives.iter().map(primitive_of).unzip();
         let normals = all_prims.iter().map(|p| p.normal()).collect();
         let temporal = v.temporal_primitives();
+        let detail = SurfaceDetail::new(v, &all_prims);
         Self {
             v: *v,
             opts,
             all_prims,
             grids,
             normals,
+            detail,
             temporal,
             cache: None,
             cache_budget: CACHE_BUDGET,
@@ -561,7 +588,7 @@ impl<'a> Renderer<'a> {
                     weights[k] = loc.weights[k];
                 }
             }
-            SampleHit { t: hit.hit.t, primitive: pi as u32, vertices, weights }
+            SampleHit { t: hit.hit.t, primitive: pi as u32, vertices, weights, uv: hit.hit.uv.to_array() }
         };
         // Where sample k of pixel (x, y), which saw `hit`, lies.
         let sample_point = |x: u32, y: u32, k: u32, hit: &SampleHit| -> Option<Vec3> {
@@ -572,6 +599,7 @@ impl<'a> Renderer<'a> {
             light,
             bvh: &bvh,
             normals: &self.normals,
+            detail: &self.detail,
             point: &sample_point as &SamplePoint<'_>,
             eye: Vec3::from(record.position),
             frame,
@@ -591,7 +619,7 @@ impl<'a> Renderer<'a> {
                 buf.clear();
                 buf.extend((0..per_pixel as u32).map(|k| trace(x, y, k % n, k / n)));
             };
-            let (image, direct, back) = shade_image((w, h), &hits_of, &vrad, pixel_light.as_ref());
+            let (image, direct, back) = shade_image((w, h), &hits_of, &vrad, &self.detail, pixel_light.as_ref());
             self.back_faces = back;
             return (image, direct);
         }
@@ -675,7 +703,7 @@ impl<'a> Renderer<'a> {
             buf.clear();
             buf.extend_from_slice(&samples[at..at + per_pixel]);
         };
-        let (image, direct_image, back) = shade_image((w, h), &hits_of, &vrad, pixel_light.as_ref());
+        let (image, direct_image, back) = shade_image((w, h), &hits_of, &vrad, &self.detail, pixel_light.as_ref());
         self.back_faces = back;
         let images = (image, direct_image);
         self.cache = Some((record, samples));

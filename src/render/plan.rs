@@ -28,7 +28,7 @@ const MIN_WINDOW_ENDS: u64 = CHUNK_ENDS as u64;
 /// The buffer a streamed open reads its columns through (16 chunks of `LOTH`).
 const OPEN_BUFFER: u64 = 16 * CHUNK_ENDS as u64 * 4;
 /// Bytes a sample of the sample cache takes.
-const SAMPLE_BYTES: u64 = 40;
+const SAMPLE_BYTES: u64 = std::mem::size_of::<super::SampleHit>() as u64;
 /// The largest sample cache kept (as without a budget).
 const MAX_CACHE: u64 = 1 << 30;
 

@@ -105,6 +105,9 @@ pub struct Surface {
     /// the sequence does (its small triangles each a patch, not grouped:
     /// `patch::mesh`), so that its links equal the sequence's at that frame.
     pub moved: bool,
+    /// Per primitive, texture coordinates, shading normals and texture
+    /// (imported meshes); empty: every primitive shades as its face.
+    pub shading: Vec<texture::Shading>,
 }
 
 impl Surface {
@@ -242,6 +245,8 @@ pub struct Scene {
     /// lights, ignored textures, …), each said once, by name: printed as
     /// warnings, never dropped silently. Empty for TOML scenes.
     pub notes: Vec<String>,
+    /// Base-colour textures the surfaces' [`Surface::shading`] refers to.
+    pub textures: Vec<texture::TextureImage>,
 }
 
 impl Scene {

@@ -3,7 +3,8 @@
 //! materials mapped as `format-spec/scene.md` ("OBJ + MTL scenes") states:
 //!
 //! * `Kd` → diffuse reflectance (0.8 grey without), times the mean albedo
-//!   of `map_Kd`;
+//!   of `map_Kd`, whose texels are kept for the render;
+//! * `vn` → shading normals;
 //! * `Ks` with `Ns` → a GGX lobe of `α = √(2 / (Ns + 2))` (the Phong exponent
 //!   whose lobe has the same width, Walter et al. 2007), at least 0.01:
 //!   `rough_conductor` without `Kd`, else `broad_specular` (both scaled down
@@ -18,8 +19,8 @@ use std::path::Path;
 use glam::{Vec2, Vec3};
 
 use super::gltf::error;
-use super::gltf::triangles::merge_quads;
-use super::texture::{Texture, Wrap, srgb_to_linear};
+use super::gltf::triangles::merge_quads_indexed;
+use super::texture::{MAX_TEXEL_BYTES, Shading, Texture, TextureImage, Wrap, srgb_to_linear};
 use super::{BuildHints, Material, ReflectanceModel, Scene, SceneError, Surface};
 use crate::reflectance::Lobe;
 
@@ -75,6 +76,7 @@ pub(super) fn import(path: &Path) -> Result<Scene, SceneError> {
     let mut by_mtl: Vec<Option<u32>> = vec![None; mtl.len()];
     let mut surfaces: Vec<Surface> = Vec::new();
     let mut textured = 0u32;
+    let (mut textures, mut kept_textures, mut texel_bytes) = (Vec::new(), Vec::<std::path::PathBuf>::new(), 0usize);
     for (k, model) in models.iter().enumerate() {
         let mesh = &model.mesh;
         let field = format!("object `{}`", model.name);
@@ -104,6 +106,8 @@ pub(super) fn import(path: &Path) -> Result<Scene, SceneError> {
             continue;
         }
         let source = mesh.material_id.filter(|&m| m < mtl.len());
+        // The texture the render applies, and one over its mean.
+        let mut kept: Option<(u32, [f32; 3])> = None;
         let (material, emission) = match source {
             None => {
                 notes.add("a face group has no material: a diffuse grey of 0.8 is used");
@@ -173,10 +177,32 @@ pub(super) fn import(path: &Path) -> Result<Scene, SceneError> {
                             kd[c] *= mean[c];
                         }
                         own = true;
-                        notes.add(format!(
-                            "material `{}`: map_Kd enters as each surface's mean albedo (no per-texel detail yet)",
-                            src.name
-                        ));
+                        let tint = mean.map(|m| if m > 0.0 { 1.0 / m } else { 0.0 });
+                        let key = dir.join(file);
+                        let id = match kept_textures.iter().position(|k| *k == key) {
+                            Some(i) => Some(i as u32),
+                            None if texel_bytes + raw.len() <= MAX_TEXEL_BYTES => {
+                                texel_bytes += raw.len();
+                                kept_textures.push(key);
+                                textures.push(TextureImage {
+                                    width: rgb.width(),
+                                    height: rgb.height(),
+                                    wrap: [Wrap::Repeat, Wrap::Repeat],
+                                    nearest: false,
+                                    srgb: raw.clone(),
+                                });
+                                Some((textures.len() - 1) as u32)
+                            }
+                            None => {
+                                notes.add(format!(
+                                    "material `{}`: the scene's textures exceed {} MiB; map_Kd enters as its mean",
+                                    src.name,
+                                    MAX_TEXEL_BYTES >> 20
+                                ));
+                                None
+                            }
+                        };
+                        kept = id.map(|i| (i, tint));
                     }
                 }
                 let (model, scaled) = mtl_model(kd, src.specular.unwrap_or([0.0; 3]), src.shininess.unwrap_or(0.0));
@@ -208,15 +234,42 @@ pub(super) fn import(path: &Path) -> Result<Scene, SceneError> {
             }
         };
         let name = if model.name.is_empty() { format!("object{k}") } else { model.name.clone() };
+        let (primitives, corners) = merge_quads_indexed(&positions, &tri);
+        // Emitters show their own radiance: a texture would not change it.
+        let texture = kept.filter(|_| emission.iter().all(|&e| e <= 0.0));
+        let normals = (mesh.normals.len() == 3 * positions.len())
+            .then(|| mesh.normals.chunks_exact(3).map(|n| Vec3::new(n[0], n[1], n[2])).collect::<Vec<_>>());
+        let uv = |i: u32| {
+            let i = i as usize * 2;
+            mesh.texcoords.get(i..i + 2).map_or(Vec2::ZERO, |t| Vec2::new(t[0], 1.0 - t[1]))
+        };
+        let shading = if normals.is_some() || texture.is_some() {
+            primitives
+                .iter()
+                .zip(&corners)
+                .map(|(p, c)| Shading {
+                    uv: c.map(uv),
+                    normal: Shading::to_local(
+                        p,
+                        normals.as_ref().map_or([Vec3::ZERO; 4], |n| c.map(|i| n[i as usize])),
+                    ),
+                    texture: texture.map_or(u32::MAX, |t| t.0),
+                    tint: texture.map_or([1.0; 3], |t| t.1),
+                })
+                .collect()
+        } else {
+            Vec::new()
+        };
         surfaces.push(Surface {
             name,
             material,
             emission,
-            primitives: merge_quads(&positions, &tri),
+            primitives,
             motion: None,
             emission_keys: Vec::new(),
             grain: None,
             moved: false,
+            shading,
         });
     }
     super::gltf::unique_names(&mut surfaces);
@@ -242,6 +295,7 @@ pub(super) fn import(path: &Path) -> Result<Scene, SceneError> {
         animation: None,
         camera_keys: Vec::new(),
         notes: notes.into_vec(),
+        textures,
     })
 }
 

@@ -799,6 +799,7 @@ pub(super) fn parse(text: &str, file: &Path, base_dir: &Path, name: String) -> R
             emission_keys,
             grain,
             moved: false,
+            shading: Vec::new(),
         });
     }
     if surfaces.is_empty() {
@@ -818,8 +819,8 @@ pub(super) fn parse(text: &str, file: &Path, base_dir: &Path, name: String) -> R
         }
         None => None,
     };
-    let notes = imported.map_or_else(Vec::new, |g| g.notes);
-    let scene = Scene { name, materials, surfaces, camera, build, animation, camera_keys, notes };
+    let (notes, textures) = imported.map_or_else(Default::default, |g| (g.notes, g.textures));
+    let scene = Scene { name, materials, surfaces, camera, build, animation, camera_keys, notes, textures };
     Ok(scene)
 }
 

@@ -1,10 +1,14 @@
-//! Base-colour textures of imported scenes (glTF, OBJ + MTL), reduced to
-//! what the I-net uses: a surface's mean albedo.
+//! Base-colour textures of imported scenes (glTF, OBJ + MTL): their mean
+//! albedo over a surface, which is what the I-net uses, and the texels and
+//! per-primitive coordinates the render multiplies each image sample's
+//! reflected light by ([`TextureImage`], [`Shading`]).
 
-use glam::Vec2;
+use glam::{Vec2, Vec3};
+
+use crate::geometry::Primitive;
 
 /// How texture coordinates outside `[0, 1]` are brought back in.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum Wrap {
     /// The edge texel repeats.
     Clamp,
@@ -12,6 +16,80 @@ pub enum Wrap {
     Repeat,
     /// The texture tiles, every other copy mirrored.
     Mirror,
+}
+
+/// A base-colour texture as the archive keeps it for the render: 8-bit
+/// sRGB texels, `width × height`, RGB, row-major from the top row.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TextureImage {
+    /// Width in texels.
+    pub width: u32,
+    /// Height in texels.
+    pub height: u32,
+    /// How coordinates outside `[0, 1]` wrap, along u and v.
+    pub wrap: [Wrap; 2],
+    /// Whether a sample takes the nearest texel (else bilinear between
+    /// texel centres).
+    pub nearest: bool,
+    /// `3 × width × height` bytes.
+    pub srgb: Vec<u8>,
+}
+
+/// Per-primitive shading detail of an imported mesh, for the render:
+/// texture coordinates and shading normals at the corners, and a texture
+/// whose texel, times `tint`, multiplies the light a sample reflects
+/// diffusely. (The distribution uses each surface's mean albedo; `tint` is
+/// one over the texture's mean over the surface, so the multiplier averages
+/// 1 and the surface reflects as much light as the I-net gave it.)
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Shading {
+    /// Texture coordinates at corners 0..4 (a triangle repeats corner 2).
+    pub uv: [Vec2; 4],
+    /// Unit shading normals at the corners, in the primitive's own frame
+    /// ([`Shading::local_frame`]: x along its first edge, z its face
+    /// normal), so that they follow the primitive through rigid motion;
+    /// zero where the mesh gives none (the face normal is used).
+    pub normal: [Vec3; 4],
+    /// Index into [`crate::scene::Scene::textures`] (`u32::MAX`: none).
+    pub texture: u32,
+    /// Multiplies the texel (linear RGB).
+    pub tint: [f32; 3],
+}
+
+impl Shading {
+    /// No texture, no normals: shades as the face.
+    pub const FLAT: Shading =
+        Shading { uv: [Vec2::ZERO; 4], normal: [Vec3::ZERO; 4], texture: u32::MAX, tint: [1.0; 3] };
+
+    /// The frame shading normals are stored in: x along `p1 − p0`, z the
+    /// face normal, y = z × x.
+    pub fn local_frame(p: &Primitive) -> [Vec3; 3] {
+        let z = p.normal();
+        let x = (p.p[1] - p.p[0]).normalize_or_zero();
+        let x = (x - z * x.dot(z)).normalize_or_zero();
+        [x, z.cross(x), z]
+    }
+
+    /// `world` normals at `p`'s corners in its own frame, each of unit
+    /// length (a zero or non-finite one stays zero).
+    pub fn to_local(p: &Primitive, world: [Vec3; 4]) -> [Vec3; 4] {
+        let [x, y, z] = Self::local_frame(p);
+        world.map(|n| {
+            let n = n.normalize_or_zero();
+            if n == Vec3::ZERO { n } else { Vec3::new(n.dot(x), n.dot(y), n.dot(z)) }
+        })
+    }
+}
+
+/// Most texel bytes a scene keeps for the render (1 GiB): beyond it,
+/// further textures enter as their surfaces' mean albedo only (said).
+pub const MAX_TEXEL_BYTES: usize = 1 << 30;
+
+/// Linear value → sRGB-encoded byte (rounded).
+pub fn linear_to_srgb_byte(v: f32) -> u8 {
+    let v = if v.is_finite() { v.clamp(0.0, 1.0) } else { 0.0 };
+    let e = if v <= 0.003_130_8 { 12.92 * v } else { 1.055 * v.powf(1.0 / 2.4) - 0.055 };
+    (e * 255.0).round().clamp(0.0, 255.0) as u8
 }
 
 /// sRGB-encoded value in `[0, 1]` → linear.

@@ -10,7 +10,8 @@
 //!   `α + (1−α)·s²` (the extension's rule), that direction the grain;
 //! * emissive factor × `KHR_materials_emissive_strength` → emitted radiance;
 //! * a base-colour texture multiplies the factor by its mean (linear) albedo
-//!   over the surface's triangles.
+//!   over the surface's triangles, and its texels are kept for the render
+//!   (`TextureUse`: per-texel detail around that mean).
 
 use std::collections::HashMap;
 use std::path::Path;
@@ -20,7 +21,7 @@ use glam::Vec3;
 use super::triangles::Triangles;
 use super::{Notes, error};
 use crate::reflectance::Lobe;
-use crate::scene::texture::{Texture, Wrap, srgb_to_linear};
+use crate::scene::texture::{MAX_TEXEL_BYTES, Texture, TextureImage, Wrap, linear_to_srgb_byte, srgb_to_linear};
 use crate::scene::{Material, ReflectanceModel, SceneError};
 
 /// Roughness at or above which a non-metal without anisotropy is taken as
@@ -67,6 +68,21 @@ pub(super) struct Materials<'a> {
     by_source: HashMap<Option<usize>, u32>,
     lamp: Option<u32>,
     textured: u32,
+    /// Textures kept for the render, and their index by (image, wraps).
+    textures: Vec<TextureImage>,
+    texture_ids: HashMap<(usize, [Wrap; 2], bool), u32>,
+    texel_bytes: usize,
+}
+
+/// A surface's base-colour texture as the render applies it.
+pub(super) struct TextureUse {
+    /// Index into the scene's textures.
+    pub(super) texture: u32,
+    /// Its `TEXCOORD_n` set.
+    pub(super) set: usize,
+    /// One over the texture's mean over the surface (per band; 0 where the
+    /// mean is 0).
+    pub(super) tint: [f32; 3],
 }
 
 impl<'a> Materials<'a> {
@@ -86,12 +102,47 @@ impl<'a> Materials<'a> {
             by_source: HashMap::new(),
             lamp: None,
             textured: 0,
+            textures: Vec::new(),
+            texture_ids: HashMap::new(),
+            texel_bytes: 0,
         }
     }
 
-    /// The materials, in index order.
-    pub(super) fn into_materials(self) -> Vec<Material> {
-        self.out
+    /// The materials, in index order, and the textures kept for the render.
+    pub(super) fn into_materials(self) -> (Vec<Material>, Vec<TextureImage>) {
+        (self.out, self.textures)
+    }
+
+    /// Our texture of glTF image `index` with `wrap`, its texels kept as
+    /// 8-bit sRGB; `None` once [`MAX_TEXEL_BYTES`] are kept.
+    fn keep_texture(
+        &mut self,
+        index: usize,
+        wrap: [Wrap; 2],
+        nearest: bool,
+        notes: &mut Notes,
+    ) -> Result<Option<u32>, SceneError> {
+        if let Some(&i) = self.texture_ids.get(&(index, wrap, nearest)) {
+            return Ok(Some(i));
+        }
+        let image = self.images.get(self.path, self.doc, self.buffers, index)?;
+        let n = image.width as usize * image.height as usize;
+        if self.texel_bytes + 3 * n > MAX_TEXEL_BYTES {
+            notes.add(format!(
+                "image {index}: the scene's textures exceed {} MiB; it enters as its surfaces' mean albedo only",
+                MAX_TEXEL_BYTES >> 20
+            ));
+            return Ok(None);
+        }
+        let mut srgb = Vec::with_capacity(3 * n);
+        for i in 0..n {
+            srgb.extend(texel(image, i).map(linear_to_srgb_byte));
+        }
+        self.texel_bytes += srgb.len();
+        self.textures.push(TextureImage { width: image.width, height: image.height, wrap, nearest, srgb });
+        let id = (self.textures.len() - 1) as u32;
+        self.texture_ids.insert((index, wrap, nearest), id);
+        Ok(Some(id))
     }
 
     fn push(&mut self, name: String, model: ReflectanceModel) -> u32 {
@@ -123,24 +174,25 @@ impl<'a> Materials<'a> {
     }
 
     /// Our material for a surface made of `tri` (a textured material gets
-    /// one per surface: its mean albedo is the surface's) and the surface's
-    /// grain for an anisotropic one.
+    /// one per surface: its mean albedo is the surface's), the surface's
+    /// grain for an anisotropic one, and its base-colour texture as the
+    /// render applies it (for models with a diffuse part).
     pub(super) fn surface_material(
         &mut self,
         prim: &gltf::Primitive<'_>,
         key: (usize, usize),
         tri: &Triangles,
         notes: &mut Notes,
-    ) -> Result<(u32, Option<Vec3>), SceneError> {
+    ) -> Result<(u32, Option<Vec3>, Option<TextureUse>), SceneError> {
         let m = prim.material();
         let Some(index) = m.index() else {
             notes.add("a primitive has no material: a diffuse grey of 0.8 is used");
             if let Some(&i) = self.by_source.get(&None) {
-                return Ok((i, None));
+                return Ok((i, None, None));
             }
             let i = self.push("default".into(), ReflectanceModel::Diffuse { reflectance: [0.8; 3] });
             self.by_source.insert(None, i);
-            return Ok((i, None));
+            return Ok((i, None, None));
         };
         let at = format!("/materials/{index}");
         let name = m.name().map_or_else(|| format!("material{index}"), str::to_string);
@@ -166,8 +218,9 @@ impl<'a> Materials<'a> {
             && strength == 0.0
             && let Some(&i) = self.by_source.get(&Some(index))
         {
-            return Ok((i, None));
+            return Ok((i, None, None));
         }
+        let mut kept: Option<(usize, [Wrap; 2], bool, [f32; 3])> = None;
         if let Some(info) = &texture {
             let set = info.tex_coord() as usize;
             let Some(Some(uvs)) = tri.uvs.get(set) else {
@@ -177,21 +230,22 @@ impl<'a> Materials<'a> {
                     format!("the mesh has no TEXCOORD_{set} for the base-colour texture"),
                 ));
             };
+            let tex = info.texture();
+            let sampler = tex.sampler();
+            let wrap = |m: gltf::texture::WrappingMode| match m {
+                gltf::texture::WrappingMode::ClampToEdge => Wrap::Clamp,
+                gltf::texture::WrappingMode::Repeat => Wrap::Repeat,
+                gltf::texture::WrappingMode::MirroredRepeat => Wrap::Mirror,
+            };
+            let wraps = [wrap(sampler.wrap_s()), wrap(sampler.wrap_t())];
+            let nearest = sampler.mag_filter() == Some(gltf::texture::MagFilter::Nearest);
             let mean = match self.means.get(&key) {
                 Some(m) => *m,
                 None => {
-                    let tex = info.texture();
                     let image = self.images.get(self.path, self.doc, self.buffers, tex.source().index())?;
-                    let sampler = tex.sampler();
-                    let wrap = |m: gltf::texture::WrappingMode| match m {
-                        gltf::texture::WrappingMode::ClampToEdge => Wrap::Clamp,
-                        gltf::texture::WrappingMode::Repeat => Wrap::Repeat,
-                        gltf::texture::WrappingMode::MirroredRepeat => Wrap::Mirror,
-                    };
                     let fetch = |i: usize| texel(image, i);
                     let texture = Texture { width: image.width, height: image.height, texel: &fetch };
-                    let wraps = (wrap(sampler.wrap_s()), wrap(sampler.wrap_t()));
-                    let m = texture.mean_albedo(wraps, uvs, tri.corners.iter().map(|c| c.area));
+                    let m = texture.mean_albedo((wraps[0], wraps[1]), uvs, tri.corners.iter().map(|c| c.area));
                     self.means.insert(key, m);
                     m
                 }
@@ -199,11 +253,27 @@ impl<'a> Materials<'a> {
             for (c, m) in base.iter_mut().zip(mean) {
                 *c *= m;
             }
-            notes.add(format!(
-                "material `{name}`: the base-colour texture enters as each surface's mean albedo (no per-texel detail yet)"
-            ));
+            kept = Some((tex.source().index(), wraps, nearest, mean));
         }
         let (model, clamped) = model_of(base, pbr.metallic_factor(), pbr.roughness_factor(), strength);
+        // The render applies the texels to diffuse reflection; a metal's
+        // base colour is its specular colour, which keeps the mean.
+        let texture_use = match (kept, &model) {
+            (Some(_), ReflectanceModel::RoughConductor { .. }) => {
+                notes.add(format!(
+                    "material `{name}`: a metal's base-colour texture enters as its mean colour (no per-texel detail)"
+                ));
+                None
+            }
+            (Some((image, wraps, nearest, mean)), _) => {
+                self.keep_texture(image, wraps, nearest, notes)?.map(|texture| TextureUse {
+                    texture,
+                    set: tex_coord_set(&pbr),
+                    tint: mean.map(|m| if m > 0.0 { 1.0 / m } else { 0.0 }),
+                })
+            }
+            (None, _) => None,
+        };
         if clamped {
             notes.add(format!("material `{name}`: roughness below 0.1 is taken as 0.1 (GGX α ≥ 0.01)"));
         }
@@ -243,8 +313,13 @@ impl<'a> Materials<'a> {
             self.by_source.insert(Some(index), i);
             i
         };
-        Ok((i, grain))
+        Ok((i, grain, texture_use))
     }
+}
+
+/// The `TEXCOORD_n` set of a base-colour texture.
+fn tex_coord_set(pbr: &gltf::material::PbrMetallicRoughness<'_>) -> usize {
+    pbr.base_color_texture().map_or(0, |t| t.tex_coord() as usize)
 }
 
 /// `KHR_materials_anisotropy`'s strength and rotation (0, 0 without it).

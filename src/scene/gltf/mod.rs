@@ -7,7 +7,8 @@
 //! * `triangles`: a mesh primitive's triangles in world space, pairs that
 //!   make a planar convex quad merged back into quads;
 //! * `material`: metallic-roughness, emission and anisotropy onto our
-//!   reflectance models; base-colour textures averaged;
+//!   reflectance models; base-colour textures (their mean for the
+//!   distribution, their texels kept for the render);
 //! * `light`: `KHR_lights_punctual` lamps as small area emitters;
 //! * `animation`: node channels sampled at the frame rate.
 //!
@@ -25,6 +26,7 @@ use std::path::Path;
 use glam::{Mat4, Vec3};
 
 use super::motion::{Animation, CameraKey, Interpolation, Keyframe, Motion};
+use super::texture::Shading;
 use super::{BuildHints, Camera, Scene, SceneError, Surface};
 use crate::geometry::Primitive;
 
@@ -284,11 +286,31 @@ fn convert(
             if triangle_count > MAX_TRIANGLES {
                 return Err(error(path, at, format!("the scene has more than {MAX_TRIANGLES} triangles")));
             }
-            let (material_index, grain) = materials.surface_material(&prim, (mesh.index(), k), &tri, notes)?;
+            let (material_index, grain, texture) = materials.surface_material(&prim, (mesh.index(), k), &tri, notes)?;
             let emission = materials.emission(&prim, notes);
+            // Emitters show their own radiance: a texture would not change it.
+            let texture = texture.filter(|_| emission.iter().all(|&e| e <= 0.0));
+            let mut shading = shading_of(&tri, texture.as_ref());
             let mut primitives = tri.primitives;
             if prim.material().double_sided() && !tri.closed {
                 let back: Vec<Primitive> = primitives.iter().map(triangles::flipped).collect();
+                if !shading.is_empty() {
+                    let flipped: Vec<Shading> = primitives
+                        .iter()
+                        .zip(&back)
+                        .zip(&shading)
+                        .map(|((front, back), s)| {
+                            let [x, y, z] = Shading::local_frame(front);
+                            let world = s.normal.map(|n| -(x * n.x + y * n.y + z * n.z));
+                            Shading {
+                                uv: triangles::flipped_corners(front.kind, s.uv),
+                                normal: Shading::to_local(back, triangles::flipped_corners(front.kind, world)),
+                                ..*s
+                            }
+                        })
+                        .collect();
+                    shading.extend(flipped);
+                }
                 primitives.extend(back);
             }
             let base = node_name(node);
@@ -302,6 +324,7 @@ fn convert(
                 emission_keys: Vec::new(),
                 grain,
                 moved: false,
+                shading,
             });
             if surfaces.len() > MAX_SURFACES {
                 return Err(error(path, "/nodes", format!("more than {MAX_SURFACES} mesh instances")));
@@ -339,6 +362,7 @@ fn convert(
             emission_keys: Vec::new(),
             grain: None,
             moved: false,
+            shading: Vec::new(),
         });
     }
     unique_names(&mut surfaces);
@@ -355,16 +379,49 @@ fn convert(
     };
     let name = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
     let animation = (anim.frames > 1).then_some(Animation { frames: anim.frames, fps: anim.fps });
+    let (materials, textures) = materials.into_materials();
     Ok(Scene {
         name,
-        materials: materials.into_materials(),
+        materials,
         surfaces,
         camera: camera.0,
         build: BuildHints::default(),
         animation,
         camera_keys: camera.1,
         notes: Vec::new(),
+        textures,
     })
+}
+
+/// Per primitive of `tri`, its shading detail: the mesh's vertex normals
+/// and `texture`'s coordinates; empty when it has neither.
+fn shading_of(tri: &triangles::Triangles, texture: Option<&material::TextureUse>) -> Vec<Shading> {
+    let uvs = texture.and_then(|t| tri.vertex_uv.get(t.set).and_then(|u| u.as_ref()));
+    if tri.vertex_normal.is_none() && uvs.is_none() {
+        return Vec::new();
+    }
+    tri.primitives
+        .iter()
+        .zip(&tri.vertices)
+        .map(|(p, v)| {
+            let world = match &tri.vertex_normal {
+                Some(n) => v.map(|i| n[i as usize]),
+                None => [Vec3::ZERO; 4],
+            };
+            Shading {
+                uv: match uvs {
+                    Some(u) => v.map(|i| u[i as usize]),
+                    None => [glam::Vec2::ZERO; 4],
+                },
+                normal: Shading::to_local(p, world),
+                texture: match (texture, uvs) {
+                    (Some(t), Some(_)) => t.texture,
+                    _ => u32::MAX,
+                },
+                tint: texture.map_or([1.0; 3], |t| t.tint),
+            }
+        })
+        .collect()
 }
 
 fn mesh_name(mesh: &gltf::Mesh<'_>) -> String {

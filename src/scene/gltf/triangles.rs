@@ -35,6 +35,12 @@ pub(super) struct Triangles {
     pub(super) corners: Vec<Corner>,
     /// Per source triangle, texture coordinates of sets 0 and 1 (when present).
     pub(super) uvs: [Option<Vec<[Vec2; 3]>>; 2],
+    /// Per primitive, its corners' vertex indices (a triangle repeats corner 2).
+    pub(super) vertices: Vec<[u32; 4]>,
+    /// Per vertex, texture coordinates of sets 0 and 1 (when present).
+    pub(super) vertex_uv: [Option<Vec<Vec2>>; 2],
+    /// Per vertex, its unit world-space normal (`NORMAL`, when present).
+    pub(super) vertex_normal: Option<Vec<Vec3>>,
     /// Every edge is shared by exactly two triangles: no back face can be seen.
     pub(super) closed: bool,
     /// Zero-area or non-finite triangles left out.
@@ -63,8 +69,16 @@ pub(super) fn read(
     use gltf::accessor::{DataType::*, Dimensions};
     let check = super::load::check_accessor;
     let reader = prim.reader(|b| buffers.get(b.index()).map(|d| &d.0[..]));
-    let empty =
-        || Triangles { primitives: Vec::new(), corners: Vec::new(), uvs: [None, None], closed: true, degenerate: 0 };
+    let empty = || Triangles {
+        primitives: Vec::new(),
+        corners: Vec::new(),
+        uvs: [None, None],
+        vertices: Vec::new(),
+        vertex_uv: [None, None],
+        vertex_normal: None,
+        closed: true,
+        degenerate: 0,
+    };
     match prim.mode() {
         Mode::Triangles | Mode::TriangleStrip | Mode::TriangleFan => {}
         other => {
@@ -85,6 +99,9 @@ pub(super) fn read(
     }
     if let Some(a) = prim.get(&Semantic::Tangents) {
         check(path, &a, &[F32], Dimensions::Vec4, "TANGENT")?;
+    }
+    if let Some(a) = prim.get(&Semantic::Normals) {
+        check(path, &a, &[F32], Dimensions::Vec3, "NORMAL")?;
     }
     let positions: Vec<Vec3> = reader
         .read_positions()
@@ -121,6 +138,14 @@ pub(super) fn read(
         if uv.as_ref().is_some_and(|u| u.len() != positions.len()) {
             return Err(error(path, format!("{at}/attributes/TEXCOORD_{set}"), "not one coordinate per vertex"));
         }
+    }
+    // Normals transform by the inverse transpose (which also keeps them
+    // on the front of a mirrored, re-wound triangle).
+    let normal_matrix = glam::Mat3::from_mat4(world).inverse().transpose();
+    let vertex_normal: Option<Vec<Vec3>> =
+        reader.read_normals().map(|n| n.map(|n| (normal_matrix * Vec3::from(n)).normalize_or_zero()).collect());
+    if vertex_normal.as_ref().is_some_and(|n| n.len() != positions.len()) {
+        return Err(error(path, format!("{at}/attributes/NORMAL"), "not one normal per vertex"));
     }
     let tangents: Option<Vec<[f32; 4]>> = reader.read_tangents().map(|t| t.collect());
     if tangents.as_ref().is_some_and(|t| t.len() != positions.len()) {
@@ -164,9 +189,10 @@ pub(super) fn read(
             Corner { area, tangent, bitangent }
         })
         .collect();
-    let uvs = uv_sets.map(|u| u.map(|uv| kept.iter().map(|t| t.map(|i| uv[i as usize])).collect()));
+    let uvs = uv_sets.clone().map(|u| u.map(|uv| kept.iter().map(|t| t.map(|i| uv[i as usize])).collect()));
     let closed = prim.material().double_sided() && is_closed(&positions, &kept);
-    Ok(Triangles { primitives: merge_quads(&positions, &kept), corners, uvs, closed, degenerate })
+    let (primitives, vertices) = merge_quads_indexed(&positions, &kept);
+    Ok(Triangles { primitives, corners, uvs, vertices, vertex_uv: uv_sets, vertex_normal, closed, degenerate })
 }
 
 /// Whether every edge of `tri` is shared by exactly two triangles, vertices
@@ -191,25 +217,38 @@ fn is_closed(pos: &[Vec3], tri: &[[u32; 3]]) -> bool {
 
 /// Consecutive triangles `(a, b, c)`, `(c, d, a)` (in any rotation) that make
 /// a planar convex quad, as that quad; the rest as triangles.
-pub(in crate::scene) fn merge_quads(pos: &[Vec3], tri: &[[u32; 3]]) -> Vec<Primitive> {
+/// Also returns each primitive's corners as vertex indices (a triangle
+/// repeats its corner 2).
+pub(in crate::scene) fn merge_quads_indexed(pos: &[Vec3], tri: &[[u32; 3]]) -> (Vec<Primitive>, Vec<[u32; 4]>) {
     let mut out = Vec::with_capacity(tri.len());
+    let mut corners = Vec::with_capacity(tri.len());
     let mut i = 0;
     while i < tri.len() {
         if i + 1 < tri.len()
-            && let Some(q) = quad_of(pos, tri[i], tri[i + 1])
+            && let Some((q, c)) = quad_of(pos, tri[i], tri[i + 1])
         {
             out.push(q);
+            corners.push(c);
             i += 2;
             continue;
         }
         let t = tri[i].map(|k| pos[k as usize]);
         out.push(Primitive::triangle(t[0], t[1], t[2]));
+        corners.push([tri[i][0], tri[i][1], tri[i][2], tri[i][2]]);
         i += 1;
     }
-    out
+    (out, corners)
 }
 
-fn quad_of(pos: &[Vec3], t1: [u32; 3], t2: [u32; 3]) -> Option<Primitive> {
+/// The corners of `p` flipped by [`flipped`], in its order.
+pub(super) fn flipped_corners<T: Copy>(kind: PrimitiveKind, c: [T; 4]) -> [T; 4] {
+    match kind {
+        PrimitiveKind::Quad => [c[3], c[2], c[1], c[0]],
+        PrimitiveKind::Triangle => [c[0], c[2], c[1], c[1]],
+    }
+}
+
+fn quad_of(pos: &[Vec3], t1: [u32; 3], t2: [u32; 3]) -> Option<(Primitive, [u32; 4])> {
     for r1 in 0..3 {
         let (a, b, c) = (t1[r1], t1[(r1 + 1) % 3], t1[(r1 + 2) % 3]);
         for r2 in 0..3 {
@@ -220,7 +259,7 @@ fn quad_of(pos: &[Vec3], t1: [u32; 3], t2: [u32; 3]) -> Option<Primitive> {
                 let n = q.normal();
                 let off = (q.p[3] - q.p[0]).dot(n).abs().max((q.p[1] - q.p[0]).dot(n).abs());
                 if off <= 1e-6 * size && crate::scene::parse::check_primitive(&q).is_ok() {
-                    return Some(q);
+                    return Some((q, [a, b, c, d]));
                 }
                 return None;
             }
@@ -238,18 +277,22 @@ mod tests {
         let pos = [Vec3::ZERO, Vec3::X, Vec3::new(1.0, 1.0, 0.0), Vec3::Y, Vec3::new(1.0, 1.0, 0.5)];
         // (0,1,2),(0,2,3): the usual split; any rotation of either triangle.
         for (t1, t2) in [([0, 1, 2], [0, 2, 3]), ([1, 2, 0], [2, 3, 0]), ([2, 0, 1], [3, 0, 2])] {
-            let out = merge_quads(&pos, &[t1, t2]);
+            let (out, corners) = merge_quads_indexed(&pos, &[t1, t2]);
             assert_eq!(out.len(), 1);
+            // The corners' vertices, in the quad's order.
+            assert_eq!(corners[0].map(|i| pos[i as usize]), out[0].p);
             assert_eq!(out[0].kind, PrimitiveKind::Quad);
             assert!((out[0].area() - 1.0).abs() < 1e-6);
         }
         // Not planar: the fourth corner is lifted.
-        assert_eq!(merge_quads(&pos, &[[0, 1, 4], [0, 4, 3]]).len(), 2);
+        let (out, corners) = merge_quads_indexed(&pos, &[[0, 1, 4], [0, 4, 3]]);
+        assert_eq!(out.len(), 2);
+        assert_eq!(corners, vec![[0, 1, 4, 4], [0, 4, 3, 3]]);
         // Not sharing a reversed diagonal (opposite windings).
-        assert_eq!(merge_quads(&pos, &[[0, 1, 2], [0, 3, 2]]).len(), 2);
+        assert_eq!(merge_quads_indexed(&pos, &[[0, 1, 2], [0, 3, 2]]).0.len(), 2);
         // Not convex: a dart.
         let dart = [Vec3::ZERO, Vec3::new(2.0, 0.0, 0.0), Vec3::new(0.5, 0.5, 0.0), Vec3::new(0.0, 2.0, 0.0)];
-        assert_eq!(merge_quads(&dart, &[[0, 1, 2], [0, 2, 3]]).len(), 2);
+        assert_eq!(merge_quads_indexed(&dart, &[[0, 1, 2], [0, 2, 3]]).0.len(), 2);
     }
 
     #[test]
