@@ -194,3 +194,53 @@ fn an_archive_without_detail_renders_as_before() {
         .fold(0.0f32, f32::max);
     assert!(worst < 1e-5, "face normals given as vertex normals change pixels by {worst}");
 }
+
+#[test]
+fn a_gltf_drum_with_vertex_normals_shades_smoothly_across_its_facets() {
+    // tests/data/gltf/smooth.glb (tools/make_gltf.py): six flat facets
+    // over 120° of a 1 m drum, each vertex's NORMAL pointing radially.
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/gltf/smooth.glb");
+    let smooth = Scene::from_file(&path).unwrap();
+    let drum = smooth.surfaces.iter().find(|s| s.name == "drum").unwrap();
+    assert_eq!((drum.primitives.len(), drum.shading.len()), (6, 6));
+    for (p, sh) in drum.primitives.iter().zip(&drum.shading) {
+        let [x, y, z] = Shading::local_frame(p);
+        for k in 0..4 {
+            let n = sh.normal[k];
+            let world = x * n.x + y * n.y + z * n.z;
+            let radial = Vec3::new(p.p[k].x, 0.0, p.p[k].z).normalize();
+            assert!((world - radial).length() < 1e-5, "corner {k}: {world} vs radial {radial}");
+        }
+    }
+    // The same drum without its normals: flat facets.
+    let mut flat = smooth.clone();
+    flat.surfaces.iter_mut().for_each(|s| s.shading.clear());
+    let hints = BuildHints { frequency: Some(8), ..Default::default() };
+    let jumps = |scene: &Scene| -> (f32, f32) {
+        let a = common::build_archive(scene, hints);
+        let v = a.view();
+        let sol = distribute::distribute(&v, &DistributeOptions::default(), &NoProgress).unwrap();
+        let light = DirectLight::new(&v, &sol, render::direct::DEFAULT_LIGHT_SAMPLES);
+        let (_, d) = Renderer::new(&v, RenderOptions::default()).frame_direct(
+            0,
+            &render::indirect_frame_radiance(&v, 0, &sol),
+            &light,
+        );
+        // Along the middle row, over the drum: the largest step between
+        // neighbouring pixels, and the row's largest radiance.
+        let y = d.height / 2;
+        let row: Vec<f32> = (0..d.width).map(|x| d.at(x, y)[1]).collect();
+        let inside: Vec<f32> = row.iter().copied().filter(|&l| l > 0.0).collect();
+        let step = inside.windows(2).skip(2).take(inside.len().saturating_sub(5)).map(|w| (w[1] - w[0]).abs());
+        (step.fold(0.0f32, f32::max), inside.iter().copied().fold(0.0f32, f32::max))
+    };
+    let (flat_step, flat_peak) = jumps(&flat);
+    let (smooth_step, smooth_peak) = jumps(&smooth);
+    eprintln!(
+        "drum: largest step between neighbouring pixels {:.2}% of the peak flat, {:.2}% smooth",
+        100.0 * flat_step / flat_peak,
+        100.0 * smooth_step / smooth_peak
+    );
+    assert!(flat_step > 0.05 * flat_peak, "the flat facets should show: {flat_step} of {flat_peak}");
+    assert!(smooth_step < 0.25 * flat_step, "steps {smooth_step} with normals vs {flat_step} without");
+}

@@ -180,3 +180,46 @@ fn light_absorbed_by_back_faces_is_not_reported_as_escaped() {
     assert!(rel.abs() < 0.02, "back faces {back} W, black backing {absorbed_by_backing} W");
     assert!(s(&with_backing.balance.back_faces) < 0.1 * back);
 }
+
+/// Power a 1 m sheet receives from a lamp 1 m above it: one-sided facing
+/// the lamp, or two-sided (a second copy facing down at the same place,
+/// in the same surface, as glTF's `doubleSided` imports).
+fn sheet_power(two_sided: bool) -> (f64, Archive) {
+    let dir = tempfile::tempdir().unwrap();
+    let mut obj = String::from("v 0 0 0\nv 1 0 0\nv 1 0 1\nv 0 0 1\nf 1 4 3\nf 1 3 2\n");
+    if two_sided {
+        obj += "f 1 2 3\nf 1 3 4\n";
+    }
+    std::fs::write(dir.path().join("sheet.obj"), obj).unwrap();
+    let toml = format!(
+        "{CAMERA}[[material]]\nname = 'grey'\ntype = 'diffuse'\nreflectance = [0.5, 0.5, 0.5]\n\
+         [[material]]\nname = 'black'\ntype = 'diffuse'\nreflectance = [0, 0, 0]\n\
+         [[surface]]\nname = 'sheet'\nmaterial = 'grey'\nmesh = 'sheet.obj'\n\
+         [[surface]]\nname = 'lamp'\nmaterial = 'black'\nemission = [1, 1, 1]\n\
+         quad = [[0, 1, 0], [1, 1, 0], [1, 1, 1], [0, 1, 1]]\n"
+    );
+    let scene = illumnet::scene::Scene::from_toml(&toml, &dir.path().join("s.toml"), dir.path()).unwrap();
+    let archive = build_archive(&scene, BuildHints::default());
+    let sol = solve(&archive);
+    (surface_total(&archive.view(), &sol.received, 0), archive)
+}
+
+#[test]
+fn a_two_sided_sheet_receives_what_its_lit_side_would() {
+    // Coincident copies facing apart: the lamp's rays must link to the
+    // copy that faces them, never to the back of the other one, and the
+    // copies must not link to each other.
+    let (one, _) = sheet_power(false);
+    let (two, archive) = sheet_power(true);
+    let v = archive.view();
+    let surface = patch_surface(&v);
+    let mut self_links = 0;
+    for p in 0..v.patch_count() {
+        let ends = v.link_offsets[p] as usize..v.link_offsets[p + 1] as usize;
+        let links = v.links.resident().unwrap();
+        self_links += ends.filter(|&e| surface[links.other.ids()[e] as usize] == surface[p]).count();
+    }
+    eprintln!("sheet: one-sided receives {one:.5} W, two-sided {two:.5} W; {self_links} ends between its copies");
+    assert_eq!(self_links, 0);
+    assert!((two / one - 1.0).abs() < 0.005, "two-sided {two} W vs one-sided {one} W");
+}

@@ -20,6 +20,10 @@ Files:
   directional lights; an anisotropic metal plate with TANGENTs; a node
   animated with STEP translation and CUBICSPLINE rotation; a mesh with a
   morph target. tests/gltf.rs states what each must import as.
+* smooth.glb: a faceted half-cylinder (6 facets over 120°, radius 1 m)
+  with per-vertex NORMALs pointing radially, below and before an emissive
+  panel facing down: the
+  shading normals turn direct light smoothly across the facets.
 * ../obj/cornell_box.obj (+ .mtl): the Cornell box as Wavefront OBJ, one
   object per surface, quads as `f` of four corners, Kd and the lamp's Ke in
   the MTL; ../obj/textured.obj: a floor with map_Kd (checker.png) and Ks/Ns
@@ -342,6 +346,33 @@ def features(out_path):
     w.save(out_path, binary=False)
 
 
+def smooth(out_path):
+    w = Writer()
+    w.camera_node("main", [0.0, 0.5, 4.0], [0.0, 0.5, 0.0], [0.0, 1.0, 0.0], 40.0, 1.0)
+    n = 6
+    pos, nrm, idx = [], [], []
+    for i in range(n + 1):
+        t = math.radians(-60.0 + 120.0 * i / n)
+        for y in (0.0, 1.0):
+            pos.append([math.sin(t), y, math.cos(t)])
+            nrm.append([math.sin(t), 0.0, math.cos(t)])
+    for i in range(n):
+        a, d, b, c = 2 * i, 2 * i + 1, 2 * i + 2, 2 * i + 3
+        idx += [a, b, c, a, c, d]
+    grey = w.material("grey", [0.6, 0.6, 0.6])
+    attrs = g.Attributes(
+        POSITION=w.accessor(pos, "VEC3", target=g.ARRAY_BUFFER, bounds=True),
+        NORMAL=w.accessor(nrm, "VEC3", target=g.ARRAY_BUFFER),
+    )
+    prim = g.Primitive(attributes=attrs, indices=w.accessor(idx, "SCALAR", g.UNSIGNED_INT, g.ELEMENT_ARRAY_BUFFER), material=grey)
+    w.doc.meshes.append(g.Mesh(name="drum", primitives=[prim]))
+    w.node(name="drum", mesh=len(w.doc.meshes) - 1)
+    lamp = w.material("panel", [0.0, 0.0, 0.0], emission=[20.0, 20.0, 20.0])
+    panel = [[[-0.5, 2.0, 0.5], [0.5, 2.0, 0.5], [0.5, 2.0, 1.5], [-0.5, 2.0, 1.5]]]
+    w.node(name="panel", mesh=w.mesh("panel", panel, lamp))
+    w.save(out_path)
+
+
 def obj_from_toml(scene_path, out_path):
     scene = tomllib.loads(scene_path.read_text())
     lines, mtl, v = ["mtllib %s" % out_path.with_suffix(".mtl").name], [], 0
@@ -390,5 +421,6 @@ if __name__ == "__main__":
     from_toml(ROOT / "scenes" / "cornell_box.toml", OUT / "cornell_box.glb")
     from_toml(ROOT / "scenes" / "fan_room.toml", OUT / "fan_room.glb")
     features(OUT / "features.gltf")
+    smooth(OUT / "smooth.glb")
     for p in sorted(OUT.iterdir()):
         print(p.relative_to(ROOT), p.stat().st_size, "bytes")

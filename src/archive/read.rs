@@ -1041,6 +1041,9 @@ fn check_entries(
         tag::NONDIFFUSE_HITS,
     ]
     .map(has);
+    if has(tag::NONDIFFUSE_BACK_HITS) && !has(tag::NONDIFFUSE_HITS) {
+        return Err(bad("NDBK without the reflectance sections it counts rays of (NDHC)"));
+    }
     let shading = [tag::SHADING, tag::TEXTURES, tag::TEXELS].map(has);
     if shading.iter().any(|&x| x) && !shading.iter().all(|&x| x) {
         return Err(bad("shading sections PSHD, TXHD and TXPX must appear together"));
@@ -1366,8 +1369,6 @@ fn validate_contents(v: &InetView<'_>, meta: &ArchiveMeta) -> Result<(), Archive
     Ok(())
 }
 
-/// §5.14: tables well formed and energy-conserving, maps bijections,
-/// exactly the non-diffuse patches listed.
 /// Largest texture side (texels) and coordinate magnitude (§5.15).
 const MAX_TEXTURE_SIDE: u32 = 16384;
 const MAX_UV: f32 = 1e6;
@@ -1407,6 +1408,8 @@ fn validate_shading(v: &InetView<'_>, sh: &ShadingView<'_>) -> Result<(), Archiv
     Ok(())
 }
 
+/// §5.14: tables well formed and energy-conserving, maps bijections,
+/// exactly the non-diffuse patches listed.
 fn validate_reflectance(v: &InetView<'_>, r: &ReflectanceView<'_>) -> Result<(), ArchiveError> {
     let n = v.directions.len();
     let (mut row, mut entry, mut factor) = (0u64, 0u64, 0u64);

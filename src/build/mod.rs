@@ -100,6 +100,9 @@ pub struct Instance {
     pub primitives: Vec<Primitive>,
     /// The surface's grain placed for those frames.
     pub grain: Option<glam::Vec3>,
+    /// The surface's shading detail placed with the primitives (empty for
+    /// none).
+    pub shading: Vec<Shading>,
 }
 
 /// The shading sections (§5.15) for the archive's primitives, instance by
@@ -114,20 +117,22 @@ fn shading_contents(scene: &Scene, instances: &[Instance]) -> Option<crate::arch
         return None;
     }
     let mut primitives = Vec::with_capacity(instances.iter().map(|i| i.primitives.len()).sum());
+    // What the format allows (§5.15): finite coordinates within ±10⁶, a
+    // tint in [0, 10⁶], normal components within ±1.
+    let clean = |x: f32, bound: f32| if x.is_finite() { x.clamp(-bound, bound) } else { 0.0 };
     for inst in instances {
-        let shading = &scene.surfaces[inst.surface as usize].shading;
         for i in 0..inst.primitives.len() {
-            let sh = if shading.len() == inst.primitives.len() { shading[i] } else { Shading::FLAT };
+            let sh = if inst.shading.len() == inst.primitives.len() { inst.shading[i] } else { Shading::FLAT };
             let has_normals = sh.normal.iter().any(|n| *n != glam::Vec3::ZERO);
             let has_texture = (sh.texture as usize) < scene.textures.len();
             primitives.push(ShadingRecord {
                 flags: if has_normals { shading_flags::NORMALS } else { 0 }
                     | if has_texture { shading_flags::TEXTURE } else { 0 },
                 texture: if has_texture { sh.texture } else { u32::MAX },
-                tint: if has_texture { sh.tint } else { [1.0; 3] },
+                tint: if has_texture { sh.tint.map(|t| clean(t, 1e6).max(0.0)) } else { [1.0; 3] },
                 reserved: 0,
-                normals: sh.normal.map(|n| n.to_array()),
-                uvs: sh.uv.map(|u| u.to_array()),
+                normals: sh.normal.map(|n| n.to_array().map(|c| clean(c, 1.0))),
+                uvs: sh.uv.map(|u| u.to_array().map(|c| clean(c, 1e6))),
             });
         }
     }
@@ -308,15 +313,18 @@ pub fn instances(scene: &Scene) -> Vec<Instance> {
                 frames: FrameSpan { first: 0, last },
                 primitives: surf.primitives.clone(),
                 grain: surf.grain,
+                shading: surf.shading.clone(),
             }),
             Some(m) => {
                 let mut f0 = 0;
                 for f in 1..=last + 1 {
                     if f == last + 1 || !m.same_transform(f0, f) {
+                        let primitives = m.apply(f0, &surf.primitives);
                         out.push(Instance {
                             surface: s as u32,
                             frames: FrameSpan { first: f0, last: f - 1 },
-                            primitives: m.apply(f0, &surf.primitives),
+                            shading: m.apply_shading(f0, &surf.primitives, &primitives, &surf.shading),
+                            primitives,
                             grain: surf.grain.map(|g| m.apply_direction(f0, g)),
                         });
                         f0 = f;
@@ -513,6 +521,9 @@ fn build_impl(
         if settings.group_triangles && surface.motion.is_none() && !surface.moved && diffuse {
             let g = crate::patch::mesh::group_triangles(&inst.primitives, settings.patch_size);
             inst.primitives = g.order.iter().map(|&i| inst.primitives[i as usize]).collect();
+            if inst.shading.len() == g.order.len() {
+                inst.shading = g.order.iter().map(|&i| inst.shading[i as usize]).collect();
+            }
             triangle_group.extend_from_slice(&g.group);
         } else {
             triangle_group.extend(std::iter::repeat_n(crate::patch::mesh::UNGROUPED, inst.primitives.len()));

@@ -397,6 +397,28 @@ impl Walk<'_> {
         }
     }
 
+    /// Orders two copies of one surface that meet the ray at one place
+    /// facing apart (a two-sided sheet: glTF `doubleSided`) so that the one
+    /// facing back up the ray comes first: each side then links to what
+    /// faces it, and the copies never link to each other (the tie-break by
+    /// primitive would otherwise put either first).
+    fn order_sheets(&self, hits: &mut [RayHitRecord]) {
+        let surface = |h: &RayHitRecord| self.input.sort_key[h.primitive as usize] >> 32;
+        let normal = |h: &RayHitRecord| self.normals[h.primitive as usize];
+        for i in 1..hits.len() {
+            let (a, b) = (&hits[i - 1], &hits[i]);
+            // Opposite normals: not two faces meeting at an edge the ray grazes.
+            if a.cos > 0.0
+                && b.cos < 0.0
+                && b.t - a.t <= self.eps_t
+                && surface(a) == surface(b)
+                && normal(a).dot(normal(b)) < -0.999
+            {
+                hits.swap(i - 1, i);
+            }
+        }
+    }
+
     /// Walks `hits`, the hits present in `frame` in ray order: consecutive
     /// hits facing each other become links (appended to `links`). Hits count
     /// towards `H_p` in the first frame they are present in. Returns hits
@@ -493,6 +515,7 @@ impl Walk<'_> {
     fn ray(&self, pair: u32, s: &mut Scratch) -> u64 {
         let last = self.input.frames - 1;
         self.prepare(&mut s.hits);
+        self.order_sheets(&mut s.hits);
         let all = FrameSpan::all(self.input.frames);
         let present_at = |f: u32| move |h: &&RayHitRecord| h.active.contains(f);
         let temporal = s.hits.iter().any(|h| h.active != all);

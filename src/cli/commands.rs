@@ -574,8 +574,9 @@ pub fn render(
                 match view.patch_back_hits {
                     Some(_) =>
                         format!("absorbed by back faces {:.4} W, escaped {:.4} W", sum(&b.back_faces), sum(&b.escaped)),
-                    // Written before version 9: the two are not told apart.
-                    None => format!("escaped or met back faces {:.4} W", sum(&b.escaped)),
+                    // Without PBAK (built before version 9, or upgraded):
+                    // the two are not told apart.
+                    None => format!("escaped or met back faces {:.4} W (rebuild to tell them apart)", sum(&b.escaped)),
                 },
                 sum(&b.residual),
                 b.imbalance(),

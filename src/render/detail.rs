@@ -1,10 +1,12 @@
 //! Surface detail the I-net does not carry, applied per image sample: the
-//! base-colour texture that multiplies what a textured surface reflects
-//! diffusely, and the shading normal interpolated from a mesh's vertex
-//! normals that direct light is computed with (the archive's shading
-//! sections, §5.15 of the format). The distribution gave each surface its
-//! mean albedo; the texel times the record's tint (one over that mean)
-//! redistributes the same light across the surface.
+//! base-colour texture that multiplies the light a textured surface
+//! reflects (its interpolated I-net radiance and its diffuse direct light;
+//! not emission, nor the per-sample glossy highlights), and the shading
+//! normal interpolated from a mesh's vertex normals that direct light is
+//! computed with (the archive's shading sections, §5.15 of the format).
+//! The distribution gave each surface its mean albedo; the texel times the
+//! record's tint (one over that mean) redistributes the same light across
+//! the surface.
 
 use glam::{Vec2, Vec3};
 
@@ -16,8 +18,9 @@ use crate::geometry::{Primitive, PrimitiveKind};
 pub(crate) struct SurfaceDetail<'a> {
     shading: Option<ShadingView<'a>>,
     /// Per primitive, its own frame (x, y, z = face normal) in world space,
-    /// and whether it is a quad or a triangle.
-    frames: Vec<([Vec3; 3], PrimitiveKind)>,
+    /// whether it is a quad or a triangle, and whether its texture applies
+    /// (not on emitters, which show their own radiance).
+    frames: Vec<([Vec3; 3], PrimitiveKind, bool)>,
     /// sRGB byte → linear.
     linear: [f32; 256],
 }
@@ -28,7 +31,14 @@ impl<'a> SurfaceDetail<'a> {
     pub(crate) fn new(v: &InetView<'a>, prims: &[Primitive]) -> Self {
         let shading = v.shading;
         let frames = match shading {
-            Some(_) => prims.iter().map(|p| (local_frame(p), p.kind)).collect(),
+            Some(_) => prims
+                .iter()
+                .zip(v.primitives)
+                .map(|(p, r)| {
+                    let emits = v.surfaces.get(r.surface as usize).is_some_and(|s| s.emission.iter().any(|&e| e > 0.0));
+                    (local_frame(p), p.kind, !emits)
+                })
+                .collect(),
             None => Vec::new(),
         };
         let mut linear = [0.0f32; 256];
@@ -52,7 +62,8 @@ impl<'a> SurfaceDetail<'a> {
         if r.flags & shading_flags::TEXTURE == 0 {
             return Vec3::ONE;
         }
-        let (Some(t), Some(&(_, kind))) = (s.textures.get(r.texture as usize), self.frames.get(prim as usize)) else {
+        let (Some(t), Some(&(_, kind, true))) = (s.textures.get(r.texture as usize), self.frames.get(prim as usize))
+        else {
             return Vec3::ONE;
         };
         let w = corner_weights(kind, uv);
@@ -72,7 +83,7 @@ impl<'a> SurfaceDetail<'a> {
         if r.flags & shading_flags::NORMALS == 0 {
             return face;
         }
-        let Some(&([x, y, z], kind)) = self.frames.get(prim as usize) else { return face };
+        let Some(&([x, y, z], kind, _)) = self.frames.get(prim as usize) else { return face };
         let w = corner_weights(kind, uv);
         let mut n = Vec3::ZERO;
         for k in 0..4 {

@@ -133,7 +133,11 @@ impl DirectLight {
     /// The closed form at the mean stands for the average (exact to second
     /// order) unless the points spread over more than [`SPREAD`] of their
     /// distance to the emitter.
-    fn lit_by(&self, points: &[Vec3], mean: Vec3, n: Vec3, lit: &mut Vec<(u32, f32)>) {
+    ///
+    /// With a shading normal `n` other than the face normal `face`, only
+    /// the part of each emitter above the face's plane counts: light from
+    /// behind the surface cannot reach it, however the normal leans.
+    fn lit_by(&self, points: &[Vec3], mean: Vec3, (n, face): (Vec3, Vec3), lit: &mut Vec<(u32, f32)>) {
         lit.clear();
         let spread = points.iter().map(|p| p.distance_squared(mean)).fold(0.0f32, f32::max).sqrt();
         for (e, em) in self.emitters.iter().enumerate() {
@@ -144,9 +148,9 @@ impl DirectLight {
             let poly = &em.prim.p[..em.prim.corner_count()];
             let near = mean.distance(em.centre) - em.radius;
             let unoccluded = if points.len() > 1 && spread > SPREAD * near {
-                points.iter().map(|&p| polygon_irradiance(p, n, poly)).sum::<f32>() / points.len() as f32
+                points.iter().map(|&p| shaded_irradiance(p, n, face, poly)).sum::<f32>() / points.len() as f32
             } else {
-                polygon_irradiance(mean, n, poly)
+                shaded_irradiance(mean, n, face, poly)
             };
             if unoccluded > 0.0 {
                 lit.push((e as u32, unoccluded));
@@ -155,7 +159,8 @@ impl DirectLight {
     }
 
     /// An estimate of the mean radiance that the diffuse points `points`
-    /// (one pixel's image samples on primitive `prim`, front normal `n`)
+    /// (one pixel's image samples on primitive `prim`, shading normal `n`
+    /// and face normal `face`, equal but for meshes with vertex normals)
     /// reflect of the emitters' direct light, from `rays` shadow rays
     /// through `bvh` (the frame's present primitives) seeded by `key`
     /// ([`pixel_key`]); and whether any ray was blocked. `lit` is scratch
@@ -174,7 +179,7 @@ impl DirectLight {
     pub(crate) fn estimate(
         &self,
         points: &[Vec3],
-        n: Vec3,
+        (n, face): (Vec3, Vec3),
         prim: u32,
         bvh: &PrimitiveBvh,
         key: u64,
@@ -186,7 +191,7 @@ impl DirectLight {
             return (Vec3::ZERO, false);
         }
         let mean = points.iter().copied().sum::<Vec3>() / points.len() as f32;
-        self.lit_by(points, mean, n, lit);
+        self.lit_by(points, mean, (n, face), lit);
         let weight_of = |&(e, u): &(u32, f32)| self.emitters[e as usize].radiance.element_sum() * u;
         let weight: f32 = lit.iter().map(weight_of).sum();
         if weight <= 0.0 {
@@ -214,7 +219,7 @@ impl DirectLight {
             let uv = r2_point(within, shift + Vec2::splat(lit[next].0 as f32 * 0.618_034));
             within += 1;
             let x = points[order.apply(q % count) as usize];
-            if let Some((f, true)) = self.shadow_ray(x, n, em, uv, bvh) {
+            if let Some((f, true)) = self.shadow_ray(x, (n, face), em, uv, bvh) {
                 // f over the chance of this emitter (its share of the weight).
                 shadowed += em.radiance * (f * weight / weight_of(&lit[next]));
                 blocked = true;
@@ -225,12 +230,20 @@ impl DirectLight {
     }
 
     /// The unshadowed integrand (over uv) of the shadow ray from `x`
-    /// (normal `n`) to the point `uv` of `em`, and whether the ray is
-    /// blocked; `None` when that point is below `x`'s horizon or `x` behind
-    /// the emitter.
+    /// (shading normal `n`, face normal `face`) to the point `uv` of `em`,
+    /// and whether the ray is blocked; `None` when that point is below
+    /// either horizon of `x` (as in [`Self::lit_by`]) or `x` behind the
+    /// emitter.
     #[inline]
-    fn shadow_ray(&self, x: Vec3, n: Vec3, em: &Emitter, uv: Vec2, bvh: &PrimitiveBvh) -> Option<(f32, bool)> {
-        let origin = x + n * self.epsilon;
+    fn shadow_ray(
+        &self,
+        x: Vec3,
+        (n, face): (Vec3, Vec3),
+        em: &Emitter,
+        uv: Vec2,
+        bvh: &PrimitiveBvh,
+    ) -> Option<(f32, bool)> {
+        let origin = x + face * self.epsilon;
         let (y, jacobian) = sample_point(&em.prim, uv);
         let to = y - origin;
         let r2 = to.length_squared();
@@ -239,7 +252,7 @@ impl DirectLight {
         }
         let d = to / r2.sqrt();
         let (cos_x, cos_y) = (n.dot(d), -em.normal.dot(d));
-        if cos_x <= 0.0 || cos_y <= 0.0 {
+        if cos_x <= 0.0 || cos_y <= 0.0 || (face != n && face.dot(y - x) <= 0.0) {
             return None;
         }
         let f = cos_x * cos_y / r2 * jacobian;
@@ -309,6 +322,32 @@ fn sample_point(p: &Primitive, uv: Vec2) -> (Vec3, f32) {
             (y, p.area())
         }
     }
+}
+
+/// [`polygon_irradiance`] with shading normal `n` over the part of `poly`
+/// above the plane of `x` with normal `face` (the geometry's), which a
+/// shading normal leaning past it would otherwise see; `poly` as it is
+/// when the two are equal.
+fn shaded_irradiance(x: Vec3, n: Vec3, face: Vec3, poly: &[Vec3]) -> f32 {
+    if n == face {
+        return polygon_irradiance(x, n, poly);
+    }
+    let mut clipped = [Vec3::ZERO; 8];
+    let mut m = 0;
+    let k = poly.len();
+    for i in 0..k {
+        let (a, b) = (poly[i], poly[(i + 1) % k]);
+        let (da, db) = (face.dot(a - x), face.dot(b - x));
+        if da > 0.0 && m < clipped.len() {
+            clipped[m] = a;
+            m += 1;
+        }
+        if (da > 0.0) != (db > 0.0) && m < clipped.len() {
+            clipped[m] = a + (b - a) * (da / (da - db));
+            m += 1;
+        }
+    }
+    if m < 3 { 0.0 } else { polygon_irradiance(x, n, &clipped[..m]) }
 }
 
 /// Irradiance at `x` (normal `n`) from the planar polygon `poly` of unit

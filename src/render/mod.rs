@@ -389,7 +389,7 @@ fn pixel_direct(
         let rays = if refined { pl.light.refined_rays() } else { direct::FIRST_RAYS };
         // The refined estimate's rays are drawn afresh (another key).
         let key = if refined { !key } else { key };
-        let (l, b) = pl.light.estimate(points, n, prim, pl.bvh, key, rays, &mut scratch.emitters);
+        let (l, b) = pl.light.estimate(points, (n, face), prim, pl.bvh, key, rays, &mut scratch.emitters);
         blocked |= b;
         light += l * scale * run.len() as f32;
         if !refined && pl.light.is_glossy(prim) {

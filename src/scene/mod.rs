@@ -307,7 +307,9 @@ impl Scene {
         for surf in &mut s.surfaces {
             if let Some(m) = surf.motion.take() {
                 surf.moved = true;
-                surf.primitives = m.apply(frame, &surf.primitives);
+                let moved = m.apply(frame, &surf.primitives);
+                surf.shading = m.apply_shading(frame, &surf.primitives, &moved, &surf.shading);
+                surf.primitives = moved;
                 surf.grain = surf.grain.map(|g| m.apply_direction(frame, g));
             }
             surf.emission = surf.emission_at(frame);

@@ -8,8 +8,9 @@
 //! keyframes' quaternions), or hold the earlier keyframe; before the first
 //! and after the last keyframe the nearest one holds.
 
-use glam::{Quat, Vec3};
+use glam::{Mat3, Quat, Vec3};
 
+use super::texture::Shading;
 use crate::geometry::{Primitive, PrimitiveKind};
 
 /// How values between keyframes are found.
@@ -93,6 +94,45 @@ impl Motion {
                     (PrimitiveKind::Triangle, false) => Primitive::triangle(q[0], q[1], q[2]),
                     (PrimitiveKind::Triangle, true) => Primitive::triangle(q[0], q[2], q[1]),
                 }
+            })
+            .collect()
+    }
+
+    /// The shading detail of `primitives` (`moved`: them placed by
+    /// [`Self::apply`] at `frame`) moved with them: corners in the order
+    /// `apply` gives them, normals by the transform's inverse transpose
+    /// and expressed in each moved primitive's own frame. Empty for none.
+    pub fn apply_shading(
+        &self,
+        frame: u32,
+        primitives: &[Primitive],
+        moved: &[Primitive],
+        shading: &[Shading],
+    ) -> Vec<Shading> {
+        if shading.len() != primitives.len() {
+            return Vec::new();
+        }
+        let (r, s, _) = self.at(frame);
+        let normal_map = (Mat3::from_quat(r) * Mat3::from_diagonal(s)).inverse().transpose();
+        let mirrored = s.x * s.y * s.z < 0.0;
+        primitives
+            .iter()
+            .zip(moved)
+            .zip(shading)
+            .map(|((p, q), sh)| {
+                let [x, y, z] = Shading::local_frame(p);
+                let world = sh.normal.map(|n| match n == Vec3::ZERO {
+                    true => n,
+                    // A zero scale has no inverse: the face normal then.
+                    false => (normal_map * (x * n.x + y * n.y + z * n.z)).normalize_or_zero(),
+                });
+                let order = |c: [Vec3; 4]| match (p.kind, mirrored) {
+                    (PrimitiveKind::Quad, true) => [c[3], c[2], c[1], c[0]],
+                    (PrimitiveKind::Triangle, true) => [c[0], c[2], c[1], c[1]],
+                    _ => c,
+                };
+                let uv = order(sh.uv.map(|u| u.extend(0.0))).map(|u| u.truncate());
+                Shading { uv, normal: Shading::to_local(q, order(world)), ..*sh }
             })
             .collect()
     }

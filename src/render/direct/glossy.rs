@@ -180,7 +180,7 @@ impl DirectLight {
             return Vec3::ZERO;
         }
         let mean = points.iter().copied().sum::<Vec3>() / points.len() as f32;
-        self.lit_by(points, mean, n, lit);
+        self.lit_by(points, mean, (n, n), lit);
         let weight: f32 = lit.iter().map(|l| self.weight_of(l)).sum();
         if weight <= 0.0 {
             return Vec3::ZERO;
