@@ -131,7 +131,21 @@ fn mesh_contents() -> ArchiveContents {
     let mut groups: Vec<u32> = c.primitives.iter().filter(|r| r.kind == 2).map(|r| r.first_patch).collect();
     groups.dedup();
     assert!(c.grouped_triangles.len() == 128 && groups.len() < 64, "{} groups", groups.len());
-    assert!(c.shading.as_ref().is_some_and(|s| s.textures.len() == 1));
+    // Each primitive's detail is its own, after grouping reordered them:
+    // its uvs are its corners' (x, z).
+    let sh = c.shading.as_ref().expect("mesh detail");
+    assert_eq!(sh.textures.len(), 1);
+    let bumps = c.surfaces.len() as u32 - 1;
+    let mut checked = 0;
+    for (r, d) in c.primitives.iter().zip(&sh.primitives) {
+        if r.surface == bumps {
+            for k in 0..3 {
+                assert_eq!(d.uvs[k], [r.corners[k][0], r.corners[k][2]], "a primitive's uvs are another's");
+            }
+            checked += 1;
+        }
+    }
+    assert_eq!(checked, 128);
     c
 }
 

@@ -178,6 +178,46 @@ mod tests {
         m.interpolation = Interpolation::Hold;
         assert_eq!(m.at(5).2.x, 0.0);
     }
+
+    #[test]
+    fn shading_follows_a_mirroring_stretching_motion() {
+        // uv = the base corner's (x, z); normals leaning 30° along +x.
+        let base = [
+            Primitive::quad([Vec3::ZERO, Vec3::X, Vec3::new(1.0, 0.0, -1.0), Vec3::NEG_Z]),
+            Primitive::triangle(Vec3::ZERO, Vec3::X, Vec3::NEG_Z),
+        ];
+        let lean = Vec3::new(0.5, 0.75f32.sqrt(), 0.0);
+        let shading: Vec<Shading> = base
+            .iter()
+            .map(|p| Shading {
+                uv: p.p.map(|c| glam::Vec2::new(c.x, c.z)),
+                normal: Shading::to_local(p, [lean; 4]),
+                ..Shading::FLAT
+            })
+            .collect();
+        let r = rotation_from_degrees(Vec3::new(0.0, 40.0, 0.0));
+        let scale = Vec3::new(-2.0, 1.0, 0.5);
+        let m = Motion {
+            pivot: Vec3::ZERO,
+            interpolation: Interpolation::Linear,
+            keyframes: vec![Keyframe { frame: 0, translate: Vec3::Y, rotation: r, scale }],
+        };
+        let moved = m.apply(0, &base);
+        let placed = m.apply_shading(0, &base, &moved, &shading);
+        let linear = Mat3::from_quat(r) * Mat3::from_diagonal(scale);
+        let want_normal = (linear.inverse().transpose() * lean).normalize();
+        for (q, sh) in moved.iter().zip(&placed) {
+            let [x, y, z] = Shading::local_frame(q);
+            for k in 0..q.corner_count() {
+                // Corner k came from the base corner whose (x, z) is its uv.
+                let from = linear.inverse() * (q.p[k] - Vec3::Y);
+                let uv = glam::Vec2::new(from.x, from.z);
+                assert!((uv - sh.uv[k]).length() < 1e-5, "corner {k}: {uv} vs {}", sh.uv[k]);
+                let n = sh.normal[k];
+                assert!(((x * n.x + y * n.y + z * n.z) - want_normal).length() < 1e-5, "corner {k}");
+            }
+        }
+    }
 }
 
 /// A camera keyframe: where the eye is and what it looks at.
