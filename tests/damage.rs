@@ -99,15 +99,15 @@ fn bumps(dir: &std::path::Path) -> Scene {
     Scene::from_toml(&text, &dir.join("damage.toml"), dir).unwrap()
 }
 
-fn mesh_contents() -> ArchiveContents {
-    let dir = tempfile::tempdir().unwrap();
-    let mut scene = bumps(dir.path());
-    // Mesh detail (§5.15) on the bumps, so that PSHD, TXHD and TXPX are
-    // damaged too: a 2 × 2 texture and normals leaning with the bumps.
-    scene.textures.push(illumnet::scene::texture::TextureImage {
+/// Mesh detail (§5.15) on `scene`'s bumps, so that PSHD, TXHD and TXPX
+/// are damaged too: a 2 × 2 texture, uvs the corners' (x, z), and normals
+/// leaning with the bumps.
+fn with_detail(scene: &mut Scene) {
+    use illumnet::scene::texture::{Shading, TextureImage, Wrap};
+    scene.textures.push(TextureImage {
         width: 2,
         height: 2,
-        wrap: [illumnet::scene::texture::Wrap::Repeat; 2],
+        wrap: [Wrap::Repeat; 2],
         nearest: true,
         srgb: vec![200, 40, 40, 40, 200, 40, 40, 40, 200, 200, 200, 200],
     });
@@ -115,16 +115,19 @@ fn mesh_contents() -> ArchiveContents {
     bumps.shading = bumps
         .primitives
         .iter()
-        .map(|p| illumnet::scene::texture::Shading {
+        .map(|p| Shading {
             uv: p.p.map(|c| glam::Vec2::new(c.x, c.z)),
-            normal: illumnet::scene::texture::Shading::to_local(
-                p,
-                p.p.map(|c| glam::Vec3::new(c.x - 1.0, 2.0, c.z - 1.0)),
-            ),
+            normal: Shading::to_local(p, p.p.map(|c| glam::Vec3::new(c.x - 1.0, 2.0, c.z - 1.0))),
             texture: 0,
             tint: [1.5, 1.6, 1.7],
         })
         .collect();
+}
+
+fn mesh_contents() -> ArchiveContents {
+    let dir = tempfile::tempdir().unwrap();
+    let mut scene = bumps(dir.path());
+    with_detail(&mut scene);
     let mut settings = BuildSettings::resolve(&scene, hints());
     settings.prototype_library = None;
     let c = build::build_sequence(&scene, &settings, &NoProgress).unwrap().contents;
@@ -546,9 +549,11 @@ fn write_fuzz_seed_corpus() {
             }
         }
     }
-    // Grouped triangles (format version 8): PRIM kind 2 and TVTX.
+    // Grouped triangles (format version 8): PRIM kind 2 and TVTX; with
+    // mesh detail since version 9 (PSHD, TXHD, TXPX).
     let dir = tempfile::tempdir().unwrap();
-    let scene = bumps(dir.path());
+    let mut scene = bumps(dir.path());
+    with_detail(&mut scene);
     let hints = BuildHints { patch_size: Some(0.4), frequency: Some(2), ray_spacing: Some(0.08), buckets: None };
     let mut settings = BuildSettings::resolve(&scene, hints);
     settings.prototype_library = None;
