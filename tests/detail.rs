@@ -204,7 +204,7 @@ fn a_gltf_drum_with_vertex_normals_shades_smoothly_across_its_facets() {
     let drum = smooth.surfaces.iter().find(|s| s.name == "drum").unwrap();
     assert_eq!((drum.primitives.len(), drum.shading.len()), (6, 6));
     for (p, sh) in drum.primitives.iter().zip(&drum.shading) {
-        let [x, y, z] = Shading::local_frame(p);
+        let [x, y, z] = p.own_frame();
         for k in 0..4 {
             let n = sh.normal[k];
             let world = x * n.x + y * n.y + z * n.z;

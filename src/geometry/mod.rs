@@ -84,6 +84,17 @@ impl Primitive {
         self.raw_normal().normalize_or_zero()
     }
 
+    /// The primitive's own orthonormal frame: x along its first edge
+    /// (`p1 − p0`, made perpendicular to the normal), y = z × x, z its
+    /// front normal. Mesh detail keeps shading normals in it (format
+    /// §5.15), so that they follow the primitive through rigid motion.
+    pub fn own_frame(&self) -> [Vec3; 3] {
+        let z = self.normal();
+        let x = (self.p[1] - self.p[0]).normalize_or_zero();
+        let x = (x - z * x.dot(z)).normalize_or_zero();
+        [x, z.cross(x), z]
+    }
+
     /// Surface area in m².
     pub fn area(&self) -> f32 {
         // For a planar quad, half the cross product of the diagonals is exact.

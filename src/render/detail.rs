@@ -36,7 +36,7 @@ impl<'a> SurfaceDetail<'a> {
                 .zip(v.primitives)
                 .map(|(p, r)| {
                     let emits = v.surfaces.get(r.surface as usize).is_some_and(|s| s.emission.iter().any(|&e| e > 0.0));
-                    (local_frame(p), p.kind, !emits)
+                    (p.own_frame(), p.kind, !emits)
                 })
                 .collect(),
             None => Vec::new(),
@@ -159,15 +159,6 @@ fn corner_weights(kind: PrimitiveKind, uv: Vec2) -> [f32; 4] {
         PrimitiveKind::Quad => [(1.0 - u) * (1.0 - v), u * (1.0 - v), u * v, (1.0 - u) * v],
         PrimitiveKind::Triangle => [1.0 - u - v, u, v, 0.0],
     }
-}
-
-/// The frame shading normals are stored in (§5.15): x along `p1 − p0`, z
-/// the face normal, y = z × x.
-pub(crate) fn local_frame(p: &Primitive) -> [Vec3; 3] {
-    let z = p.normal();
-    let x = (p.p[1] - p.p[0]).normalize_or_zero();
-    let x = (x - z * x.dot(z)).normalize_or_zero();
-    [x, z.cross(x), z]
 }
 
 #[cfg(test)]

@@ -120,7 +120,7 @@ impl Motion {
             .zip(moved)
             .zip(shading)
             .map(|((p, q), sh)| {
-                let [x, y, z] = Shading::local_frame(p);
+                let [x, y, z] = p.own_frame();
                 let world = sh.normal.map(|n| match n == Vec3::ZERO {
                     true => n,
                     // A zero scale has no inverse: the face normal then.
@@ -207,7 +207,7 @@ mod tests {
         let linear = Mat3::from_quat(r) * Mat3::from_diagonal(scale);
         let want_normal = (linear.inverse().transpose() * lean).normalize();
         for (q, sh) in moved.iter().zip(&placed) {
-            let [x, y, z] = Shading::local_frame(q);
+            let [x, y, z] = q.own_frame();
             for k in 0..q.corner_count() {
                 // Corner k came from the base corner whose (x, z) is its uv.
                 let from = linear.inverse() * (q.p[k] - Vec3::Y);

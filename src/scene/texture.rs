@@ -46,7 +46,7 @@ pub struct Shading {
     /// Texture coordinates at corners 0..4 (a triangle repeats corner 2).
     pub uv: [Vec2; 4],
     /// Unit shading normals at the corners, in the primitive's own frame
-    /// ([`Shading::local_frame`]: x along its first edge, z its face
+    /// ([`Primitive::own_frame`]: x along its first edge, z its face
     /// normal), so that they follow the primitive through rigid motion;
     /// zero where the mesh gives none (the face normal is used).
     pub normal: [Vec3; 4],
@@ -61,19 +61,10 @@ impl Shading {
     pub const FLAT: Shading =
         Shading { uv: [Vec2::ZERO; 4], normal: [Vec3::ZERO; 4], texture: u32::MAX, tint: [1.0; 3] };
 
-    /// The frame shading normals are stored in: x along `p1 − p0`, z the
-    /// face normal, y = z × x.
-    pub fn local_frame(p: &Primitive) -> [Vec3; 3] {
-        let z = p.normal();
-        let x = (p.p[1] - p.p[0]).normalize_or_zero();
-        let x = (x - z * x.dot(z)).normalize_or_zero();
-        [x, z.cross(x), z]
-    }
-
     /// `world` normals at `p`'s corners in its own frame, each of unit
     /// length (a zero or non-finite one stays zero).
     pub fn to_local(p: &Primitive, world: [Vec3; 4]) -> [Vec3; 4] {
-        let [x, y, z] = Self::local_frame(p);
+        let [x, y, z] = p.own_frame();
         world.map(|n| {
             let n = n.normalize_or_zero();
             if n == Vec3::ZERO { n } else { Vec3::new(n.dot(x), n.dot(y), n.dot(z)) }

@@ -300,7 +300,7 @@ fn convert(
                         .zip(&back)
                         .zip(&shading)
                         .map(|((front, back), s)| {
-                            let [x, y, z] = Shading::local_frame(front);
+                            let [x, y, z] = front.own_frame();
                             let world = s.normal.map(|n| -(x * n.x + y * n.y + z * n.z));
                             Shading {
                                 uv: triangles::flipped_corners(front.kind, s.uv),
