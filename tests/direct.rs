@@ -269,18 +269,26 @@ fn the_direct_part_is_the_first_reflection_of_the_emission() {
 
 #[test]
 fn direct_images_do_not_depend_on_the_thread_count() {
-    let s = common::scene(&scene(true));
+    // A grey wall beside the floor gives them light to exchange.
+    let wall =
+        "\n[[surface]]\nname = \"wall\"\nmaterial = \"grey\"\nquad = [[-2, 0, 1], [-2, 2, 1], [2, 2, 1], [2, 0, 1]]\n";
+    let s = common::scene(&(scene(true) + wall));
     let a = common::build_archive(&s, BuildHints { frequency: Some(6), patch_size: Some(0.2), ..Default::default() });
     let v = a.view();
     let sol = distribute::distribute(&v, &DistributeOptions::default(), &NoProgress).unwrap();
     let light = DirectLight::new(&v, &sol, render::direct::DEFAULT_LIGHT_SAMPLES);
     let indirect = render::indirect_frame_radiance(&v, 0, &sol);
-    let render_with = |threads: usize| {
+    // With the one-bounce gather everywhere too (its rays are seeded per pixel).
+    let gathering = light.clone().with_gather(&v, &sol, 32, f32::INFINITY);
+    let render_with = |threads: usize, light: &DirectLight| {
         let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
-        pool.install(|| Renderer::new(&v, RenderOptions::default()).frame_direct(0, &indirect, &light))
+        pool.install(|| Renderer::new(&v, RenderOptions::default()).frame_direct(0, &indirect, light))
     };
-    let (a, b) = (render_with(1), render_with(3));
+    let (g1, g3) = (render_with(1, &gathering), render_with(3, &gathering));
+    assert!(g1.0.pixels == g3.0.pixels);
+    let (a, b) = (render_with(1, &light), render_with(3, &light));
     assert!(a.0.pixels == b.0.pixels && a.1.pixels == b.1.pixels);
+    assert!(a.0.pixels != g1.0.pixels);
     // The direct layer is part of the total.
     assert!(a.0.pixels.iter().zip(&a.1.pixels).all(|(t, d)| (0..3).all(|c| d[c] <= t[c] + 1e-6)));
 }

@@ -140,18 +140,18 @@ def main() -> None:
             "shading",
             [
                 ("--shading inet (the paper's)", [], ["--shading", "inet"]),
-                ("--shading direct --light-samples 4", [], ["--shading", "direct", "--light-samples", "4"]),
-                ("--shading direct (default: 8)", [], ["--shading", "direct"]),
-                ("--shading direct --light-samples 16", [], ["--shading", "direct", "--light-samples", "16"]),
+                ("--shading direct --light-samples 4", [], ["--shading", "direct", "--gather", "0", "--light-samples", "4"]),
+                ("--shading direct (default: 8)", [], ["--shading", "direct", "--gather", "0"]),
+                ("--shading direct --light-samples 16", [], ["--shading", "direct", "--gather", "0", "--light-samples", "16"]),
             ],
         )
         series(
             "ladder",
             [
-                ("defaults (f = 16, δ = 7.5 mm)", [], ["--shading", "direct"]),
-                ("f = 20, δ = 5.3 mm", ["--frequency", "20", "--ray-spacing", "0.0053"], ["--shading", "direct"]),
-                ("f = 24, δ = 3.75 mm", ["--frequency", "24", "--ray-spacing", "0.00375"], ["--shading", "direct"]),
-                ("f = 32, δ = 3.75 mm", ["--frequency", "32", "--ray-spacing", "0.00375"], ["--shading", "direct"]),
+                ("defaults (f = 16, δ = 7.5 mm)", [], ["--shading", "direct", "--gather", "0"]),
+                ("f = 20, δ = 5.3 mm", ["--frequency", "20", "--ray-spacing", "0.0053"], ["--shading", "direct", "--gather", "0"]),
+                ("f = 24, δ = 3.75 mm", ["--frequency", "24", "--ray-spacing", "0.00375"], ["--shading", "direct", "--gather", "0"]),
+                ("f = 32, δ = 3.75 mm", ["--frequency", "32", "--ray-spacing", "0.00375"], ["--shading", "direct", "--gather", "0"]),
             ],
         )
     flicker = [json.loads(line) for line in run(["cargo", "run", "--release", "--quiet", "--example", "flicker", "--", "11", "0.025", "0.01", "6"]).splitlines() if line.startswith("{")]
@@ -215,8 +215,9 @@ against it; noise falls as 1/√spp), included in quadrature in every figure.
 For scale, Mitsuba needs about 64 spp (≈1 s) for 11%, 256 (≈4 s) for 5.6%,
 1 024 (≈16 s) for 2.8%.
 
-**At default settings the error is {results['shading'][2]['error'] * 100:.2f}%** with the
-default shading, direct light per pixel (build {default['build_s']:.1f} s, render
+**At default settings the error is {results['shading'][2]['error'] * 100:.2f}%** with
+direct light per pixel and the indirect light interpolated everywhere (`--gather 0`; with a single
+frame's default gather near other geometry, `docs/GATHER.md`) (build {default['build_s']:.1f} s, render
 {results['shading'][2]['render_s']:.2f} s, {default['link_ends'] / 1e6:.1f} M link ends), and
 {default['error'] * 100:.2f}% with the paper's rendering (`--shading inet`, render
 {default['render_s']:.2f} s). The test `tests/accuracy.rs` asserts < 2.3% and < 4% on every CI
@@ -240,8 +241,10 @@ link ends):
 What remains under direct shading is the indirect light interpolated
 between patch vertices (lines along contact edges, where a patch half in
 the corner averages light from both walls) and the reference's own noise
-(about 1.0%); a one-bounce final gather (issue 12, item 3) is the next
-step.
+(about 1.0%). The rows above interpolate it everywhere (`--gather 0`);
+the one-bounce gather near other geometry, a single frame's default since
+2026-12-03, takes it from rays where interpolation fails: `docs/GATHER.md`
+(`tools/gather_study.py`).
 
 ## Error versus cost: one setting at a time
 

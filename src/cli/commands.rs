@@ -384,6 +384,12 @@ pub fn render(
         bail_input!("--light-samples must be in 1..=64, got {}", args.light_samples);
     }
     let direct_shading = args.shading == Shading::Direct;
+    if args.gather.is_some_and(|n| n > 0) && !direct_shading {
+        bail_input!("--gather takes the indirect light of direct shading from rays: it needs --shading direct");
+    }
+    if args.gather_reach.is_nan() || args.gather_reach < 0.0 {
+        bail_input!("--gather-reach {}: expected a number of patch sides ≥ 0, or inf", args.gather_reach);
+    }
     if args.layers && (exr.is_none() || !direct_shading) {
         bail_input!("--layers writes EXR layers of direct and indirect light: it needs --exr and --shading direct");
     }
@@ -494,6 +500,8 @@ pub fn render(
     let view = archive.view();
     let t_open = t.elapsed().as_secs_f64();
     let sequence_output = range.len() > 1;
+    let gather_rays =
+        args.gather.unwrap_or(if sequence_output { 0 } else { illumnet::render::direct::DEFAULT_GATHER_RAYS });
     let out_path = |pattern: &Path, f: u32| -> Result<std::path::PathBuf> {
         match frame_path(pattern, f) {
             Some(p) => Ok(p),
@@ -626,7 +634,10 @@ pub fn render(
         }
         let t2 = Instant::now();
         let (image, direct) = if direct_shading {
-            let light = render::DirectLight::new(&view, &solution, args.light_samples);
+            let mut light = render::DirectLight::new(&view, &solution, args.light_samples);
+            if gather_rays > 0 {
+                light = light.with_gather(&view, &solution, gather_rays, args.gather_reach);
+            }
             let (image, direct) =
                 renderer.frame_direct(af, &render::indirect_radiance_seen_from(&view, &solution, eye), &light);
             (image, Some(direct))
@@ -731,7 +742,7 @@ pub fn render(
         println!("wrote contact sheet {}", sheet.display());
     }
     println!(
-        "rendered {} frame{} to {}{}: {}×{}, open {:.3} s, setup {:.3} s, delta apply {:.3} s, distribution {:.3} s ({} iterations, {:.0} M link ends/s; gather {:.0} M ends/s), render {:.3} s{}",
+        "rendered {} frame{} to {}{}: {}×{}, open {:.3} s, setup {:.3} s, delta apply {:.3} s, distribution {:.3} s ({} iterations, {:.0} M link ends/s; gather {:.0} M ends/s), render {:.3} s{}{}",
         range.len(),
         if range.len() == 1 { "" } else { "s" },
         png.display(),
@@ -749,6 +760,11 @@ pub fn render(
             gathered as f64 / seconds.max(1e-9) / 1e6
         },
         t_render,
+        if direct_shading && gather_rays > 0 {
+            format!(" (one-bounce gather near corners: {gather_rays} rays per pixel)")
+        } else {
+            String::new()
+        },
         memory::peak_resident().map(|b| format!(", peak memory {}", Bytes(b))).unwrap_or_default()
     );
     Ok(())

@@ -137,6 +137,22 @@ struct RenderArgs {
     /// to their light (`--shading direct`; every pixel first takes four).
     #[arg(long, default_value_t = illumnet::render::direct::DEFAULT_LIGHT_SAMPLES, value_name = "N")]
     light_samples: u32,
+    /// One-bounce gather: diffuse image samples near other geometry
+    /// (corners, contacts) take their indirect light from rays of their
+    /// own, N per pixel, each computing the direct light where it lands
+    /// and looking up the I-net's indirect light there, instead of
+    /// interpolating it between patch vertices (`--shading direct`; 0:
+    /// off). Default: 256 for one frame; 0 for several (a sequence or a
+    /// walkthrough, where each frame's cost counts and fresh noise would
+    /// flicker).
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(0..=4096))]
+    gather: Option<u32>,
+    /// Where the gather applies: samples whose nearest geometry is within
+    /// X patch sides take it whole, fading out to 2X (`inf`: every diffuse
+    /// sample; the interpolated light is smooth elsewhere and the gather
+    /// only adds noise there).
+    #[arg(long, default_value_t = 1.0, value_name = "X")]
+    gather_reach: f32,
     /// With --exr and `--shading direct`: also write the direct and the
     /// indirect light as IMAGE.direct.exr and IMAGE.indirect.exr.
     #[arg(long)]

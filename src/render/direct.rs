@@ -30,6 +30,7 @@ mod glossy;
 
 use glam::{Vec2, Vec3};
 
+use super::gather::Gather;
 use crate::archive::InetView;
 use crate::archive::layout::table_model;
 use crate::distribute::Solution;
@@ -53,6 +54,16 @@ pub const DEFAULT_LIGHT_SAMPLES: u32 = 8;
 /// closed form at their centre: the Cornell box's error is the same either
 /// way, and taking every point costs twice the time.
 const SPREAD: f32 = 0.05;
+
+/// Rays per pixel of the one-bounce gather ([`Gather`]) that a render of a
+/// single frame takes by default: on the Cornell box, 256 take the relative
+/// error from 1.92% to 1.71% for 1.2 s more at 256×256 (`docs/ACCURACY.md`).
+pub const DEFAULT_GATHER_RAYS: u32 = 256;
+
+/// Most emitters for which a gather ray computes the direct light exactly
+/// where it lands (its cost grows with them: every ray takes Lambert's
+/// closed form of each emitter in front); beyond, it looks up the I-net's.
+pub const GATHER_EXACT_EMITTERS: usize = 16;
 
 /// Shadow rays of a pixel's first estimate, shared by all the emitters.
 pub(crate) const FIRST_RAYS: u32 = 4;
@@ -82,6 +93,9 @@ pub struct DirectLight {
     samples: u32,
     /// Offset of shadow-ray origins along the normal (scale of the scene).
     epsilon: f32,
+    /// The one-bounce gather of indirect light, when asked for, and per
+    /// primitive whether its samples take it (diffuse, not emitting).
+    gather: Option<(Gather, Vec<bool>)>,
 }
 
 impl DirectLight {
@@ -114,7 +128,49 @@ impl DirectLight {
         }
         let (glossy_of, glossy) = glossy_frames(v, &solution.surface_specular);
         let epsilon = if lo.x <= hi.x { (hi - lo).max_element() * 1e-5 } else { 1e-6 };
-        Self { emitters, kd, glossy_of, glossy, samples: samples.clamp(1, 64), epsilon }
+        Self { emitters, kd, glossy_of, glossy, samples: samples.clamp(1, 64), epsilon, gather: None }
+    }
+
+    /// This direct light with a one-bounce gather ([`Gather`]) of `rays`
+    /// rays per pixel over the light of `solution`, which diffuse,
+    /// non-emitting samples whose nearest geometry is within `reach` patch
+    /// sides take their indirect light from (fading out to twice that;
+    /// infinite: every such sample). Where the rays land, the emitters'
+    /// direct light is computed exactly when the frame has at most
+    /// [`GATHER_EXACT_EMITTERS`] emitters, else taken from the I-net.
+    pub fn with_gather(mut self, v: &InetView<'_>, solution: &Solution, rays: u32, reach: f32) -> Self {
+        let exact = self.emitters.len() <= GATHER_EXACT_EMITTERS;
+        let gather = Gather::new(v, solution, rays, reach, exact);
+        let emission = &solution.surface_emission;
+        let takes = v
+            .primitives
+            .iter()
+            .enumerate()
+            .map(|(i, r)| {
+                let emits = emission.get(r.surface as usize).is_some_and(|e| e.iter().any(|&c| c > 0.0));
+                self.kd[i] != Vec3::ZERO && !emits && !self.is_glossy(i as u32)
+            })
+            .collect();
+        self.gather = Some((gather, takes));
+        self
+    }
+
+    /// The one-bounce gather, when there is one.
+    pub fn gather(&self) -> Option<&Gather> {
+        self.gather.as_ref().map(|g| &g.0)
+    }
+
+    /// The gather, when primitive `prim`'s samples take one, and what the
+    /// gathered light is multiplied by (`k_d`).
+    #[inline]
+    pub(crate) fn gather_for(&self, prim: u32) -> Option<(&Gather, Vec3)> {
+        let (g, takes) = self.gather.as_ref()?;
+        takes.get(prim as usize).copied().unwrap_or(false).then(|| (g, self.kd[prim as usize]))
+    }
+
+    /// Offset of ray origins above a face (the scene's scale × 10⁻⁵).
+    pub(crate) fn epsilon(&self) -> f32 {
+        self.epsilon
     }
 
     /// Shadow rays of a pixel's second estimate, in and near penumbrae
@@ -186,6 +242,25 @@ impl DirectLight {
         rays: u32,
         lit: &mut Vec<(u32, f32)>,
     ) -> (Vec3, bool) {
+        let (l, blocked) = self.estimate_signed(points, (n, face), prim, bvh, key, rays, lit);
+        (l.max(Vec3::ZERO), blocked)
+    }
+
+    /// [`Self::estimate`] without clamping at zero: negative where the
+    /// rays find more shadow than the mean holds. Unbiased, so a mean of
+    /// many such estimates (the gather's) is too; clamping each one would
+    /// lift every umbra.
+    #[allow(clippy::too_many_arguments)]
+    pub(crate) fn estimate_signed(
+        &self,
+        points: &[Vec3],
+        (n, face): (Vec3, Vec3),
+        prim: u32,
+        bvh: &PrimitiveBvh,
+        key: u64,
+        rays: u32,
+        lit: &mut Vec<(u32, f32)>,
+    ) -> (Vec3, bool) {
         let kd = self.kd.get(prim as usize).copied().unwrap_or(Vec3::ZERO);
         if kd == Vec3::ZERO || points.is_empty() || rays == 0 {
             return (Vec3::ZERO, false);
@@ -225,7 +300,7 @@ impl DirectLight {
                 blocked = true;
             }
         }
-        let direct = (unshadowed - shadowed / rays as f32).max(Vec3::ZERO);
+        let direct = unshadowed - shadowed / rays as f32;
         (kd * std::f32::consts::FRAC_1_PI * direct, blocked)
     }
 
@@ -298,7 +373,7 @@ fn glossy_frames(v: &InetView<'_>, specular: &[[f32; 3]]) -> (Vec<u32>, Vec<glos
 
 /// Point `i` of the R2 sequence (Roberts' generalised golden ratio, the
 /// best-spread additive recurrence in two dimensions) shifted by `shift`.
-fn r2_point(i: u32, shift: Vec2) -> Vec2 {
+pub(super) fn r2_point(i: u32, shift: Vec2) -> Vec2 {
     const A: Vec2 = Vec2::new(0.754_877_7, 0.569_840_3);
     let p = shift + A * i as f32;
     p - p.floor()
@@ -401,7 +476,7 @@ fn mix(mut z: u64) -> u64 {
 }
 
 /// The top 24 bits of `h` as a float in [0, 1).
-fn unit(h: u64) -> f32 {
+pub(super) fn unit(h: u64) -> f32 {
     ((h as u32) >> 8) as f32 * (1.0 / (1u32 << 24) as f32)
 }
 
@@ -413,14 +488,14 @@ pub fn pixel_key(frame: u32, x: u32, y: u32) -> u64 {
 /// `i ↦ (a·i + b) mod n`, a permutation of `0..n` chosen by a key (`a`
 /// odd and coprime with `n`): made once, applied to every ray.
 #[derive(Clone, Copy)]
-struct Permutation {
+pub(super) struct Permutation {
     a: u64,
     b: u64,
     n: u64,
 }
 
 impl Permutation {
-    fn new(n: u32, key: u64) -> Self {
+    pub(super) fn new(n: u32, key: u64) -> Self {
         let h = mix(key);
         let (n64, b) = (n as u64, (h >> 32) % n.max(1) as u64);
         let mut a = ((h as u32) % n.max(1)) as u64 | 1;
@@ -431,7 +506,7 @@ impl Permutation {
     }
 
     #[inline]
-    fn apply(&self, i: u32) -> u32 {
+    pub(super) fn apply(&self, i: u32) -> u32 {
         ((self.a * i as u64 + self.b) % self.n) as u32
     }
 }

@@ -12,6 +12,7 @@ mod camera;
 mod detail;
 pub mod direct;
 pub mod false_colour;
+mod gather;
 pub mod image_io;
 pub mod plan;
 pub mod view;
@@ -21,6 +22,7 @@ use rayon::prelude::*;
 
 pub use camera::PinholeCamera;
 pub use direct::DirectLight;
+pub use gather::Gather;
 pub use view::{frame_radiance, indirect_frame_radiance, indirect_radiance_seen_from, radiance_seen_from};
 
 use crate::archive::InetView;
@@ -229,15 +231,23 @@ impl SampleHit {
 /// is on a front face (back faces are black and take no light).
 type SamplePoint<'f> = dyn Fn(u32, u32, u32, &SampleHit) -> Option<Vec3> + Sync + 'f;
 
+/// What a ray from a point along a unit direction meets in the frame.
+type RayHit<'f> = dyn Fn(Vec3, Vec3) -> SampleHit + Sync + 'f;
+
+/// The side of the patch at a surface point of a primitive.
+type PatchSize<'f> = dyn Fn(u32, Vec2) -> f32 + Sync + 'f;
+
 /// What the direct light of a pixel needs: the frame's emitters, its
 /// shadow-ray BVH, the primitives' normals and detail, and the samples'
-/// positions.
+/// positions; and for the gather, the frame's rays.
 struct PixelLight<'f> {
     light: &'f DirectLight,
     bvh: &'f PrimitiveBvh,
     normals: &'f [Vec3],
     detail: &'f SurfaceDetail<'f>,
     point: &'f SamplePoint<'f>,
+    trace: &'f RayHit<'f>,
+    patch_size: &'f PatchSize<'f>,
     /// Where the camera is (glossy highlights depend on it).
     eye: Vec3,
     frame: u32,
@@ -248,6 +258,8 @@ struct PixelLight<'f> {
 #[derive(Default)]
 struct PixelScratch {
     lit: Vec<(u32, Vec3, Vec2)>,
+    /// Per primitive, the weight of the gather in its samples' indirect light.
+    reach: Vec<(u32, f32)>,
     points: Vec<Vec3>,
     emitters: Vec<(u32, f32)>,
 }
@@ -292,8 +304,22 @@ fn shade_image(
             hits_of(x as u32, y as u32, &mut hits);
             let mut acc = Vec3::ZERO;
             let mut back = 0;
-            for hit in &hits {
-                if detail.any() && hit.primitive != u32::MAX {
+            if let Some(pl) = direct {
+                pixel_reach(&hits, pl, (x as u32, y as u32), &mut scratch);
+            }
+            for (k, hit) in hits.iter().enumerate() {
+                let reach = scratch.reach.iter().find(|r| r.0 == hit.primitive).map_or(0.0, |r| r.1);
+                if reach > 0.0
+                    && let Some(pl) = direct
+                {
+                    let mut l = Vec3::ZERO;
+                    hit.add_radiance(vrad, &mut l);
+                    if detail.any() {
+                        l *= detail.albedo_scale(hit.primitive, Vec2::from(hit.uv));
+                    }
+                    let (at, of) = ((x as u32, y as u32), (k as u32, hits.len() as u32));
+                    acc += gathered(pl, at, of, hit, reach, l, &mut scratch.emitters).unwrap_or(l);
+                } else if detail.any() && hit.primitive != u32::MAX {
                     // A texture multiplies what the sample's surface reflects.
                     let mut l = Vec3::ZERO;
                     hit.add_radiance(vrad, &mut l);
@@ -345,6 +371,61 @@ fn shade_image(
         *p = [0, 1, 2].map(|c| p[c] + d[c]);
     }
     (Image { width: w, height: h, pixels }, Some(Image { width: w, height: h, pixels: direct_pixels }), back_faces)
+}
+
+/// How much of each sample's indirect light of pixel `(x, y)` comes from
+/// the gather ([`Gather::reach_weight`]), by primitive, into
+/// `scratch.reach`: probed once per primitive the pixel's samples see, from
+/// their mean point.
+fn pixel_reach(hits: &[SampleHit], pl: &PixelLight<'_>, (x, y): (u32, u32), scratch: &mut PixelScratch) {
+    scratch.reach.clear();
+    let Some(gather) = pl.light.gather() else { return };
+    scratch.lit.clear();
+    for (k, hit) in hits.iter().enumerate() {
+        if hit.vertices != [NO_VERTEX; 4]
+            && pl.light.gather_for(hit.primitive).is_some()
+            && let Some(p) = (pl.point)(x, y, k as u32, hit)
+        {
+            scratch.lit.push((hit.primitive, p, Vec2::from(hit.uv)));
+        }
+    }
+    scratch.lit.sort_by_key(|&(prim, _, _)| prim);
+    for run in scratch.lit.chunk_by(|a, b| a.0 == b.0) {
+        let prim = run[0].0;
+        let mean = run.iter().map(|r| r.1).sum::<Vec3>() / run.len() as f32;
+        let size = (pl.patch_size)(prim, run[0].2);
+        let w = gather.reach_weight(mean, pl.normals[prim as usize], size, pl.light.epsilon(), pl.trace);
+        scratch.reach.push((prim, w));
+    }
+}
+
+/// The indirect light of sample `k` of `count` of pixel `(x, y)`, which
+/// saw `hit`, when the frame gathers and its primitive takes the gather
+/// with weight `reach` > 0: the gathered light, blended with the
+/// interpolated light `interpolated` by that weight.
+#[allow(clippy::too_many_arguments)]
+fn gathered(
+    pl: &PixelLight<'_>,
+    (x, y): (u32, u32),
+    (k, count): (u32, u32),
+    hit: &SampleHit,
+    reach: f32,
+    interpolated: Vec3,
+    emitters: &mut Vec<(u32, f32)>,
+) -> Option<Vec3> {
+    let (gather, kd) = pl.light.gather_for(hit.primitive)?;
+    let point = (pl.point)(x, y, k, hit)?;
+    let face = pl.normals[hit.primitive as usize];
+    let uv = Vec2::from(hit.uv);
+    let (n, scale) = if pl.detail.any() {
+        (pl.detail.normal(hit.primitive, uv, face), pl.detail.albedo_scale(hit.primitive, uv))
+    } else {
+        (face, Vec3::ONE)
+    };
+    let key = direct::pixel_key(pl.frame, x, y) ^ 0x2545_f491_4f6c_dd1d;
+    let exact = gather::ExactDirect { light: pl.light, bvh: pl.bvh, normals: pl.normals, emitters };
+    let incoming = gather.incoming(point, (n, face), key, (k, count), pl.trace, pl.detail, exact);
+    Some(kd * scale * incoming * reach + interpolated * (1.0 - reach))
 }
 
 /// The summed diffuse direct light of a pixel's samples `hits` (its first
@@ -563,8 +644,7 @@ impl<'a> Renderer<'a> {
             let s = Vec2::new((sx as f32 + 0.5) / n as f32, (sy as f32 + 0.5) / n as f32);
             camera.ray(x as f32 + s.x, y as f32 + s.y)
         };
-        let trace = |x: u32, y: u32, sx: u32, sy: u32| -> SampleHit {
-            let (o, d) = sample_ray(x, y, sx, sy);
+        let hit_at = |o: Vec3, d: Vec3| -> SampleHit {
             let Some(hit) = bvh.closest_hit(o, d, 0.0) else {
                 return NO_HIT;
             };
@@ -590,10 +670,25 @@ impl<'a> Renderer<'a> {
             }
             SampleHit { t: hit.hit.t, primitive: pi as u32, vertices, weights, uv: hit.hit.uv.to_array() }
         };
+        let trace = |x: u32, y: u32, sx: u32, sy: u32| -> SampleHit {
+            let (o, d) = sample_ray(x, y, sx, sy);
+            hit_at(o, d)
+        };
         // Where sample k of pixel (x, y), which saw `hit`, lies.
         let sample_point = |x: u32, y: u32, k: u32, hit: &SampleHit| -> Option<Vec3> {
             let (o, d) = sample_ray(x, y, k % n, k / n);
             (self.normals[hit.primitive as usize].dot(d) < 0.0).then(|| o + d * hit.t)
+        };
+        let grids = &self.grids;
+        // The side of the patch at surface point uv of a primitive (a
+        // grouped triangle's group: its area's square root).
+        let patch_size = |prim: u32, uv: Vec2| {
+            let record = &v.primitives[prim as usize];
+            let cell = match record.kind == layout::kind::GROUPED_TRIANGLE {
+                true => 0,
+                false => grids[prim as usize].locate(uv).cell,
+            };
+            v.patch_area.get((record.first_patch + cell) as usize).map_or(0.0, |a| a.sqrt())
         };
         let pixel_light = direct.map(|light| PixelLight {
             light,
@@ -601,6 +696,8 @@ impl<'a> Renderer<'a> {
             normals: &self.normals,
             detail: &self.detail,
             point: &sample_point as &SamplePoint<'_>,
+            trace: &hit_at as &RayHit<'_>,
+            patch_size: &patch_size,
             eye: Vec3::from(record.position),
             frame,
         });

@@ -164,7 +164,9 @@ fn renderer_bytes(s: &ArchiveSummary, job: &RenderJob) -> u64 {
     // Per pixel: the image and its direct part (12 each), the encoded
     // PNG and EXR rows, the shading passes' per-pixel flags and samples.
     let images = pixels * 64 + if job.keep_images { pixels * 12 * job.frames as u64 } else { 0 };
-    let radiance = b.vertex_count as u64 * 12 * 3 + b.patch_count as u64 * 12 * 2;
+    // Vertex radiance (interpolated, the gather's) and the f64 sums that
+    // make it; patch radiance and the gather's per-patch reflected light.
+    let radiance = b.vertex_count as u64 * (12 * 4 + 32) + b.patch_count as u64 * 12 * 4;
     let primitives = b.primitive_count as u64 * 320;
     images + radiance + primitives
 }

@@ -362,6 +362,7 @@ mod tests {
             glossy: vec![GlossyFrame { ks: Vec3::ONE, lobe, t: Vec3::X, b: Vec3::Y.cross(Vec3::X), n: Vec3::Y }],
             samples: 8,
             epsilon: 1e-5,
+            gather: None,
         };
         (light, PrimitiveBvh::new(&all))
     }
