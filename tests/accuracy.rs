@@ -47,10 +47,11 @@ fn errors(name: &str, archive: &illumnet::archive::Archive, (inet_bar, direct_ba
 
 #[test]
 fn cornell_box_is_close_to_the_path_traced_reference_with_either_shading() {
-    // The paper's rendering: measured 0.0324 (docs/ACCURACY.md); direct
-    // light per pixel: measured 0.0192, of which about 1.0% is the
-    // reference's own noise (in quadrature).
-    let (inet, direct) = errors("cornell_box", &default_archive(&Scene::cornell_box()), (0.04, 0.023));
+    // The paper's rendering: measured 0.0313; direct light per pixel, the
+    // indirect light interpolated everywhere: 0.0173 (0.0324 and 0.0192
+    // against the earlier 8 192-spp reference); 0.49% of either is the
+    // reference's own noise, in quadrature.
+    let (inet, direct) = errors("cornell_box", &default_archive(&Scene::cornell_box()), (0.036, 0.02));
     assert!(direct < 0.7 * inet, "direct shading {direct:.4} is not clearly better than the I-net's {inet:.4}");
 }
 
@@ -124,17 +125,17 @@ fn the_gather_follows_the_cornell_box_corners() {
         "corner row: mean error {plain_bias:+.4} interpolated, {gathered_bias:+.4} gathered; \
          whole image {plain_all:.4} and {gathered_all:.4}"
     );
-    // Measured +0.073 and +0.041 (what remains is mostly the corner's own
+    // Measured +0.072 and +0.040 (what remains is mostly the corner's own
     // cover of the 4×4 samples: every pixel of the row puts the line at the
     // same place between them).
     assert!(
         plain_bias > 0.04 && gathered_bias < 0.6 * plain_bias,
         "corner row {gathered_bias:+.4} vs {plain_bias:+.4}"
     );
-    // Measured 0.0192 and 0.0171 (about 1.0% of either is the reference's
-    // own noise, in quadrature).
+    // Measured 0.0173 and 0.0149: with the reference's own noise (0.49%)
+    // removed, 1.65% and 1.41% (docs/GATHER.md).
     assert!(
-        gathered_all < plain_all - 0.0015 && gathered_all < 0.018,
+        gathered_all < plain_all - 0.0015 && gathered_all < 0.0155,
         "whole image {gathered_all:.4} vs {plain_all:.4}"
     );
     // The middle of the back wall is far from everything: untouched.

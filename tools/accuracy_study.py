@@ -202,16 +202,16 @@ do not edit by hand: edit the script.*
 
 ## The measure and the reference
 
-Reference: `tests/data/cornell_box_ref.exr`, Mitsuba 3.9.1 `path` integrator
-(unbounded depth, box pixel filter, emitters visible, `llvm_ad_rgb`), 8 192
-samples per pixel of `scenes/cornell_box.toml`, made by
-`tools/reference/reference.py` (see its README) in 170 s.
+Reference: `tests/data/cornell_box_ref.exr`, Mitsuba 3.9.1 `path`
+integrator (unbounded depth, box pixel filter, emitters visible,
+`llvm_ad_rgb`), the mean of two independent renders of 16 384 samples per
+pixel of `scenes/cornell_box.toml` (`tools/reference/README.md`).
 
 Measure: relative L2 error ‖ours − ref‖ / ‖ref‖ on linear RGB radiance over
 the pixels whose reference is below 1.0 in every channel (emitters seen
 directly left out), as `illumnet compare OURS.exr REF.exr` prints it. The
-reference's own noise by this measure is about 1.0% (256 spp measures 5.65%
-against it; noise falls as 1/√spp), included in quadrature in every figure.
+reference's own noise by this measure is 0.49% (half the difference of its
+two halves), included in quadrature in every figure.
 For scale, Mitsuba needs about 64 spp (≈1 s) for 11%, 256 (≈4 s) for 5.6%,
 1 024 (≈16 s) for 2.8%.
 

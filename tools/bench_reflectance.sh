@@ -28,14 +28,18 @@ done
 # The render command, glossy box against diffuse box (issue 12's bar: 3x),
 # and against the glossy box with every iteration reading the tables (the
 # schedule before deferral), alternating, ROUNDS times (default 5); medians.
+# Both boxes again without the one-bounce gather (--gather 0), which a
+# single frame takes by default and which costs both about the same.
 rounds=${ROUNDS:-5}
 declare -A walls
 for ((r = 0; r < rounds; r++)); do
-  for run in diffuse glossy every; do
+  for run in diffuse glossy every diffuse0 glossy0; do
     case $run in
       diffuse) args=("$out/cornell_box.inet") ;;
       glossy) args=("$out/glossy_floor.inet") ;;
       every) args=("$out/glossy_floor.inet" --glossy-every-step) ;;
+      diffuse0) args=("$out/cornell_box.inet" --gather 0) ;;
+      glossy0) args=("$out/glossy_floor.inet" --gather 0) ;;
     esac
     w=$( { /usr/bin/time -f "%e" "$bin" render -q "${args[@]}" -o "$out/x.png" >/dev/null; } 2>&1 | tail -1)
     walls[$run]+="$w "
@@ -44,4 +48,6 @@ done
 median() { tr ' ' '\n' <<<"$1" | grep . | sort -g | awk '{a[NR]=$1} END {print a[int((NR+1)/2)]}'; }
 d=$(median "${walls[diffuse]}"); g=$(median "${walls[glossy]}"); e=$(median "${walls[every]}")
 echo "== render command, median of $rounds: diffuse box $d s, glossy box $g s ($(awk "BEGIN{printf \"%.2f\", $g/$d}")x), glossy box reading tables every iteration $e s ($(awk "BEGIN{printf \"%.2f\", $e/$d}")x)"
+d0=$(median "${walls[diffuse0]}"); g0=$(median "${walls[glossy0]}")
+echo "== without the gather (--gather 0): diffuse box $d0 s, glossy box $g0 s ($(awk "BEGIN{printf \"%.2f\", $g0/$d0}")x)"
 

@@ -220,3 +220,53 @@ pub(crate) fn cosine_direction(u: Vec2, (t, b, n): (Vec3, Vec3, Vec3)) -> Vec3 {
     let (s, c) = (std::f32::consts::TAU * u.y).sin_cos();
     t * (r * c) + b * (r * s) + n * (1.0 - u.x).max(0.0).sqrt()
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn lattice_directions_are_cosine_distributed() {
+        // Over the hemisphere, E[cos θ] = 2/3 and E[cos² θ] = 1/2 under the
+        // cosine density; the mean direction is the normal times 2/3.
+        let frame = (Vec3::X, Vec3::Y, Vec3::Z);
+        let n = 4096;
+        let (mut c1, mut c2, mut mean) = (0.0f64, 0.0f64, Vec3::ZERO);
+        for i in 0..n {
+            let w = cosine_direction(r2_point(i, Vec2::new(0.3, 0.7)), frame);
+            assert!((w.length() - 1.0).abs() < 1e-5 && w.z >= 0.0);
+            c1 += w.z as f64;
+            c2 += (w.z * w.z) as f64;
+            mean += w;
+        }
+        let n = n as f64;
+        assert!((c1 / n - 2.0 / 3.0).abs() < 1e-3, "{}", c1 / n);
+        assert!((c2 / n - 0.5).abs() < 1e-3, "{}", c2 / n);
+        let m = mean / n as f32;
+        assert!(m.x.abs() < 2e-3 && m.y.abs() < 2e-3, "{m}");
+    }
+
+    #[test]
+    fn reach_weight_falls_from_one_to_zero_between_reach_and_twice_it() {
+        let gather = Gather { rays: 16, reach: 1.0, reflected: Reflected::All(Vec::new()) };
+        // A wall x = d in front of a floor (normal +z) at the origin: the
+        // probe leaving along +x (30° above the floor) meets it at d / cos 30°.
+        let at = |d: f32| {
+            move |o: Vec3, w: Vec3| {
+                let t = if w.x > 0.0 { (d - o.x) / w.x } else { f32::INFINITY };
+                super::super::SampleHit { t, ..super::super::NO_HIT }
+            }
+        };
+        let cos30 = 0.866_025_4;
+        let weight = |d: f32| gather.reach_weight(Vec3::ZERO, Vec3::Z, 0.1, 0.0, &at(d));
+        assert_eq!(weight(0.05 * cos30), 1.0);
+        assert_eq!(weight(0.1 * cos30), 1.0);
+        assert!((weight(0.15 * cos30) - 0.5).abs() < 1e-4);
+        assert_eq!(weight(0.2 * cos30), 0.0);
+        assert_eq!(weight(10.0), 0.0);
+        let everywhere = Gather { reach: f32::INFINITY, ..gather.clone() };
+        assert_eq!(everywhere.reach_weight(Vec3::ZERO, Vec3::Z, 0.1, 0.0, &at(10.0)), 1.0);
+        let nowhere = Gather { reach: 0.0, ..gather };
+        assert_eq!(nowhere.reach_weight(Vec3::ZERO, Vec3::Z, 0.1, 0.0, &at(0.0)), 0.0);
+    }
+}
