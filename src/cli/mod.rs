@@ -132,7 +132,7 @@ struct RenderArgs {
     /// patches (§3.5).
     #[arg(long, value_enum, default_value_t = Shading::Direct)]
     shading: Shading,
-    /// Shadow rays, N×N per pixel and primitive, that pixels next to a
+    /// Shadow rays, N×N per pixel and primitive, that pixels near a
     /// blocked first ray take again, shared by all emitters in proportion
     /// to their light (`--shading direct`; every pixel first takes four).
     #[arg(long, default_value_t = illumnet::render::direct::DEFAULT_LIGHT_SAMPLES, value_name = "N")]

@@ -18,8 +18,8 @@
 //! The work is per pixel and primitive, not per image sample: a pixel's
 //! samples on one primitive share one closed form (at their centre) and
 //! one set of shadow rays (leaving from the samples in turn), shared by all
-//! the emitters. Four rays give every pixel a first estimate; pixels next
-//! to one whose first rays were blocked are estimated again with many
+//! the emitters. Four rays give every pixel a first estimate; pixels within
+//! two of one whose first rays were blocked are estimated again with many
 //! (the renderer's two passes). Where every ray is blocked (umbrae) the
 //! estimate is noise around zero clamped at zero: a slight lift, where the
 //! per-sample version returned exactly zero. Rays are seeded by frame,
@@ -42,7 +42,7 @@ pub use glossy::{
 };
 
 /// Default light samples: `8 × 8` shadow rays per pixel and primitive in
-/// the second pass (pixels next to a blocked first ray), shared by all
+/// the second pass (pixels near a blocked first ray), shared by all
 /// emitters in proportion to their light; the first pass takes four.
 pub const DEFAULT_LIGHT_SAMPLES: u32 = 8;
 
@@ -57,7 +57,8 @@ const SPREAD: f32 = 0.05;
 
 /// Rays per pixel of the one-bounce gather ([`Gather`]) that a render of a
 /// single frame takes by default: on the Cornell box, 256 take the relative
-/// error from 1.92% to 1.71% for 1.2 s more at 256×256 (`docs/ACCURACY.md`).
+/// error from 1.60% to 1.34% (the reference's noise removed) for 1.3 s more
+/// at 256×256 (`docs/GATHER.md`).
 pub const DEFAULT_GATHER_RAYS: u32 = 256;
 
 /// Most emitters for which a gather ray computes the direct light exactly
