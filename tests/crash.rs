@@ -76,9 +76,17 @@ fn a_full_disk_is_one_clear_error_that_leaves_nothing_behind() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("box.inet");
     std::fs::write(&out, b"the previous archive").unwrap();
-    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/cornell_box.toml");
-    // 10 MB: the archive's write fails; 3 MB: a spilled run's does first.
-    for (budget, limit) in [(None, 10u64 << 20), (Some("40M"), 10 << 20), (Some("40M"), 3 << 20)] {
+    let scenes = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes");
+    // 10 MB: the archive's write fails; 3 MB: a spilled run's does first;
+    // the fan room's 54 MiB of spilled per-frame link changes (in an
+    // unnamed file) fail at 40 MB, before its archive is written.
+    for (scene, budget, limit, what) in [
+        ("cornell_box.toml", None, 10u64 << 20, "box.inet: File too large"),
+        ("cornell_box.toml", Some("40M"), 10 << 20, "box.inet: File too large"),
+        ("cornell_box.toml", Some("40M"), 3 << 20, "cannot spill link ends"),
+        ("fan_room.toml", Some("48M"), 40 << 20, "cannot spill per-frame link changes"),
+    ] {
+        let scene = scenes.join(scene);
         let mut c = Command::new(env!("CARGO_BIN_EXE_illumnet"));
         c.args(["build", "-q", scene.to_str().unwrap(), "-o", out.to_str().unwrap()]);
         if let Some(b) = budget {
@@ -100,6 +108,7 @@ fn a_full_disk_is_one_clear_error_that_leaves_nothing_behind() {
         let err = String::from_utf8_lossy(&o.stderr);
         assert_eq!(o.status.code(), Some(5), "{budget:?}: {:?} {err}", o.status);
         assert_eq!(err.matches("File too large").count(), 1, "{budget:?}: {err}");
+        assert!(err.contains(what), "{budget:?}: {err}");
         assert_eq!(std::fs::read(&out).unwrap(), b"the previous archive");
         assert!(leftovers(dir.path()).is_empty(), "{budget:?}: {:?}", leftovers(dir.path()));
     }

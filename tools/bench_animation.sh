@@ -5,6 +5,8 @@
 # and the archive overhead.
 # Usage: tools/bench_animation.sh [FRAMES]   (default: all 60)
 #        SHADING=inet tools/bench_animation.sh   (both sides; default direct)
+#        GATHER=256 tools/bench_animation.sh     (--gather on both sides; default 0,
+#          what a sequence renders with, while a single frame gathers 256 rays by default)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 cargo build --release --quiet
@@ -12,6 +14,8 @@ bin=target/release/illumnet
 scene=scenes/fan_room.toml
 frames=${1:-60}
 shading=${SHADING:-direct}
+gather=()
+[[ $shading == direct ]] && gather=(--gather "${GATHER:-0}")
 out=$(mktemp -d)
 trap 'rm -rf "$out"' EXIT
 now() { date +%s.%N; }
@@ -19,14 +23,14 @@ now() { date +%s.%N; }
 t0=$(now)
 "$bin" build -q "$scene" -o "$out/seq.inet" | tee "$out/build.txt"
 t1=$(now)
-"$bin" render -q "$out/seq.inet" --shading "$shading" --frames "0..$frames" -o "$out/seq_%04d.png" > "$out/render.txt"
+"$bin" render -q "$out/seq.inet" --shading "$shading" "${gather[@]}" --frames "0..$frames" -o "$out/seq_%04d.png" > "$out/render.txt"
 t2=$(now)
 tail -1 "$out/render.txt"
 
 t3=$(now)
 for ((f = 0; f < frames; f++)); do
   "$bin" build -q "$scene" --frame "$f" -o "$out/one.inet" > /dev/null
-  "$bin" render -q "$out/one.inet" --shading "$shading" -o "$out/one_$f.png" > /dev/null
+  "$bin" render -q "$out/one.inet" --shading "$shading" "${gather[@]}" -o "$out/one_$f.png" > /dev/null
 done
 t4=$(now)
 "$bin" build -q "$scene" --frame 0 -o "$out/still.inet" > /dev/null
@@ -43,7 +47,9 @@ print(f"sequence: build {t1 - t0:.1f} s + {frames} frames {t2 - t1:.1f} s = {seq
 print(f"  per frame: delta apply {delta / frames:.3f} s, distribution {dist / frames:.3f} s, shading {rend / frames:.3f} s, "
       f"image writing and rest {(t2 - t1 - delta - dist - rend) / frames:.3f} s")
 print(f"from scratch: {frames} x (build + render) = {scratch:.1f} s ({scratch / frames:.2f} s/frame)")
-print(f"speedup: {scratch / seq:.1f}x (shading {os.environ.get('SHADING', 'direct')} on both sides)")
+shading = os.environ.get('SHADING', 'direct')
+gather = f", --gather {os.environ.get('GATHER', '0')}" if shading == 'direct' else ''
+print(f"speedup: {scratch / seq:.1f}x (shading {shading}{gather} on both sides)")
 print(f"archive: sequence {size_seq / 1e6:.1f} MB vs one still frame {size_still / 1e6:.1f} MB "
       f"(+{(size_seq - size_still) / 1e6:.1f} MB for temporal objects and deltas)")
 PY

@@ -7,6 +7,8 @@
 //! (no frame ever has to exist uncompressed in one piece) and a reader can
 //! decompress a frame's blocks in parallel.
 
+use std::io::{Read, Seek, SeekFrom, Write};
+
 use bytemuck::cast_slice_mut;
 use rayon::prelude::*;
 
@@ -21,10 +23,122 @@ pub const LEVEL: i32 = 1;
 /// size) and the number of records it holds.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct Block {
-    /// The zstd frame.
-    pub stored: Vec<u8>,
+    /// The zstd frame, held or spilled.
+    pub stored: Stored,
     /// Records it decompresses to.
     pub count: u64,
+}
+
+/// Where a block's bytes are: in memory, or in a spill file that a bounded
+/// build wrote them to ([`SpillFile`]), so that a sequence's link changes
+/// do not have to fit in memory until the archive is written.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Stored {
+    /// In memory.
+    Held(Vec<u8>),
+    /// `len` bytes at `offset` of the spill file.
+    Spilled {
+        /// Byte offset in the spill file.
+        offset: u64,
+        /// Byte length.
+        len: u64,
+    },
+}
+
+impl Default for Stored {
+    fn default() -> Self {
+        Stored::Held(Vec::new())
+    }
+}
+
+impl Stored {
+    /// Bytes stored.
+    pub fn len(&self) -> u64 {
+        match self {
+            Stored::Held(b) => b.len() as u64,
+            Stored::Spilled { len, .. } => *len,
+        }
+    }
+
+    /// Whether nothing is stored.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+}
+
+/// An unnamed scratch file that blocks are appended to ([`Stored::Spilled`]
+/// points into it): it has no name, so nothing is left behind however the
+/// process ends, and its space is freed when the last handle closes.
+#[derive(Debug, Clone)]
+pub struct SpillFile {
+    file: std::sync::Arc<std::fs::File>,
+    end: std::sync::Arc<std::sync::Mutex<u64>>,
+}
+
+impl PartialEq for SpillFile {
+    fn eq(&self, other: &Self) -> bool {
+        std::sync::Arc::ptr_eq(&self.file, &other.file)
+    }
+}
+
+impl SpillFile {
+    /// A new, empty spill file in `dir` (on the output's file system, so
+    /// that the disk the archive goes to is the one that must hold it).
+    pub fn new_in(dir: &std::path::Path) -> std::io::Result<Self> {
+        let file = tempfile::tempfile_in(dir)?;
+        Ok(Self { file: std::sync::Arc::new(file), end: Default::default() })
+    }
+
+    /// Appends a held block's bytes to the file and points the block at
+    /// them (a spilled or empty block is left as it is).
+    pub fn spill(&self, block: &mut Block) -> std::io::Result<()> {
+        let Stored::Held(bytes) = &block.stored else { return Ok(()) };
+        if bytes.is_empty() {
+            return Ok(());
+        }
+        let mut end = self.end.lock().map_err(|_| std::io::Error::other("spill file poisoned"))?;
+        let offset = *end;
+        let mut f = &*self.file;
+        f.seek(SeekFrom::Start(offset))?;
+        f.write_all(bytes)?;
+        *end += bytes.len() as u64;
+        block.stored = Stored::Spilled { offset, len: bytes.len() as u64 };
+        Ok(())
+    }
+
+    /// Bytes spilled so far.
+    pub fn len(&self) -> u64 {
+        self.end.lock().map_or(0, |e| *e)
+    }
+
+    /// Whether nothing was spilled.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Hands `len` bytes at `offset` to `sink`, in pieces of at most
+    /// `buf`'s capacity (1 MiB is reserved when it has none).
+    fn read(
+        &self,
+        offset: u64,
+        len: u64,
+        buf: &mut Vec<u8>,
+        sink: &mut dyn FnMut(&[u8]) -> std::io::Result<()>,
+    ) -> std::io::Result<()> {
+        let _held = self.end.lock().map_err(|_| std::io::Error::other("spill file poisoned"))?;
+        let mut f = &*self.file;
+        f.seek(SeekFrom::Start(offset))?;
+        let step = buf.capacity().max(1 << 20);
+        let mut left = len;
+        while left > 0 {
+            let n = left.min(step as u64) as usize;
+            buf.resize(n, 0);
+            f.read_exact(buf)?;
+            sink(buf)?;
+            left -= n as u64;
+        }
+        Ok(())
+    }
 }
 
 /// Compresses blocks, reusing one zstd context and one output buffer, so
@@ -52,68 +166,124 @@ impl BlockCompressor {
         self.buffer.clear();
         self.buffer.reserve(zstd::zstd_safe::compress_bound(self.columns.len()));
         self.zstd.compress_to_buffer(&self.columns[..], &mut self.buffer)?;
-        Ok(Block { stored: self.buffer.clone(), count: records.len() as u64 })
+        Ok(Block { stored: Stored::Held(self.buffer.clone()), count: records.len() as u64 })
     }
 }
 
 /// The `DIDX` and `DELT` sections of a sequence, ready to write: per frame,
-/// its blocks, in order.
+/// its blocks, in order, held or spilled.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct EncodedDeltas {
     /// `DIDX`: one record per frame.
     pub index: Vec<DeltaIndexRecord>,
     /// Per frame, its blocks' stored bytes (empty blocks left out).
-    frames: Vec<Vec<Vec<u8>>>,
+    frames: Vec<Vec<Stored>>,
+    /// Where spilled blocks are.
+    spill: Option<SpillFile>,
 }
 
 impl EncodedDeltas {
     /// Assembles `frames` frames from blocks: `blocks[c][f]` is block `c` of
     /// frame `f` (a missing entry is an empty block); each frame's blocks
     /// are concatenated in `c` order, so the blocks of one frame must hold
-    /// consecutive ranges of its sorted records.
-    pub fn from_blocks(frames: usize, blocks: Vec<Vec<Block>>) -> Self {
-        let mut per_frame: Vec<Vec<Vec<u8>>> = vec![Vec::new(); frames];
+    /// consecutive ranges of its sorted records. Spilled blocks are in
+    /// `spill`, and are read back once here for the frames' checksums.
+    pub fn from_blocks(frames: usize, blocks: Vec<Vec<Block>>, spill: Option<SpillFile>) -> std::io::Result<Self> {
+        let mut per_frame: Vec<Vec<Stored>> = vec![Vec::new(); frames];
         let mut counts = vec![0u64; frames];
         for chunk in blocks {
             for (f, b) in chunk.into_iter().enumerate().take(frames) {
                 counts[f] += b.count;
                 if !b.stored.is_empty() {
+                    if matches!(b.stored, Stored::Spilled { .. }) && spill.is_none() {
+                        return Err(std::io::Error::other("a block was spilled but no spill file was given"));
+                    }
                     per_frame[f].push(b.stored);
                 }
             }
         }
-        let mut index = Vec::with_capacity(frames);
+        let mut e = Self { index: Vec::with_capacity(frames), frames: per_frame, spill };
         let mut offset = 0u64;
-        for (pieces, count) in per_frame.iter().zip(counts) {
+        let mut buf = Vec::new();
+        for (f, count) in counts.into_iter().enumerate() {
             let mut hasher = xxhash_rust::xxh3::Xxh3::new();
             let mut len = 0u64;
-            for p in pieces {
-                hasher.update(p);
-                len += p.len() as u64;
-            }
-            index.push(DeltaIndexRecord { offset, stored_length: len, count, checksum: hasher.digest() });
+            e.frame_bytes(f, &mut buf, &mut |piece| {
+                hasher.update(piece);
+                len += piece.len() as u64;
+                Ok(())
+            })?;
+            e.index.push(DeltaIndexRecord { offset, stored_length: len, count, checksum: hasher.digest() });
             offset += len;
         }
-        Self { index, frames: per_frame }
+        Ok(e)
     }
 
     /// Encodes whole frames of sorted records, one block per frame.
     pub fn from_frames(frames: &[Vec<DeltaRecord>]) -> std::io::Result<Self> {
         let mut z = BlockCompressor::new()?;
         let blocks = frames.iter().map(|r| z.compress(r)).collect::<std::io::Result<Vec<_>>>()?;
-        Ok(Self::from_blocks(frames.len(), vec![blocks]))
+        Self::from_blocks(frames.len(), vec![blocks], None)
     }
 
-    /// The `DELT` payload, piece by piece.
-    pub fn pieces(&self) -> impl Iterator<Item = &[u8]> {
-        self.frames.iter().flatten().map(|p| &p[..])
+    /// Bytes of the `DELT` payload.
+    pub fn stored_length(&self) -> u64 {
+        self.frames.iter().flatten().map(Stored::len).sum()
+    }
+
+    /// Bytes of it that are spilled, not held.
+    pub fn spilled_bytes(&self) -> u64 {
+        self.frames.iter().flatten().filter(|s| matches!(s, Stored::Spilled { .. })).map(Stored::len).sum()
+    }
+
+    /// Hands frame `frame`'s stored bytes to `sink`, in order, piece by
+    /// piece (spilled blocks read through `buf`).
+    fn frame_bytes(
+        &self,
+        frame: usize,
+        buf: &mut Vec<u8>,
+        sink: &mut dyn FnMut(&[u8]) -> std::io::Result<()>,
+    ) -> std::io::Result<()> {
+        for piece in &self.frames[frame] {
+            match piece {
+                Stored::Held(b) => b.chunks(1 << 20).try_for_each(&mut *sink)?,
+                Stored::Spilled { offset, len } => {
+                    let spill = self.spill.as_ref().ok_or_else(|| std::io::Error::other("no spill file"))?;
+                    spill.read(*offset, *len, buf, sink)?;
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Hands the whole `DELT` payload to `sink`, frame by frame, in pieces
+    /// of at most 1 MiB.
+    pub fn write_to(&self, sink: &mut dyn FnMut(&[u8]) -> std::io::Result<()>) -> std::io::Result<()> {
+        let mut buf = Vec::new();
+        (0..self.frames.len()).try_for_each(|f| self.frame_bytes(f, &mut buf, sink))
+    }
+
+    /// The `DELT` payload in one piece (for tests and tools).
+    pub fn payload(&self) -> std::io::Result<Vec<u8>> {
+        let mut all = Vec::with_capacity(self.stored_length() as usize);
+        self.write_to(&mut |p| {
+            all.extend_from_slice(p);
+            Ok(())
+        })?;
+        Ok(all)
     }
 
     /// Decodes frame `frame` (no range or order checks: see
     /// [`super::SequenceView::frame_delta`] for the reader's).
     pub fn frame(&self, frame: usize) -> Result<Vec<DeltaRecord>, ArchiveError> {
         let ix = self.index.get(frame).ok_or_else(|| ArchiveError::corrupt(format!("no delta for frame {frame}")))?;
-        let stored = self.frames[frame].concat();
+        let mut stored = Vec::with_capacity(ix.stored_length as usize);
+        let mut buf = Vec::new();
+        self.frame_bytes(frame, &mut buf, &mut |p| {
+            stored.extend_from_slice(p);
+            Ok(())
+        })
+        .map_err(|e| ArchiveError::corrupt(format!("frame {frame}'s spilled link changes: {e}")))?;
         decode(&stored, ix.count, frame as u32, true)
     }
 }
@@ -269,24 +439,40 @@ mod tests {
             vec![Block::default(), z.compress(&f1[..300]).unwrap()],
             vec![Block::default(), z.compress(&f1[300..]).unwrap()],
         ];
-        let e = EncodedDeltas::from_blocks(2, blocks);
+        let e = EncodedDeltas::from_blocks(2, blocks.clone(), None).unwrap();
         assert_eq!(e.index[0].count, 0);
         assert_eq!(e.index[0].stored_length, 0);
         assert_eq!(e.index[1].count, 1000);
-        assert_eq!(e.pieces().count(), 2, "two blocks in frame 1");
-        let whole: Vec<u8> = e.pieces().collect::<Vec<_>>().concat();
+        assert_eq!(e.frames[1].len(), 2, "two blocks in frame 1");
+        let whole: Vec<u8> = e.payload().unwrap();
         assert_eq!(e.index[1].checksum, xxhash_rust::xxh3::xxh3_64(&whole));
         assert_eq!(e.frame(1).unwrap(), f1);
         assert!(e.frame(0).unwrap().is_empty());
         // One block per frame gives the same records.
         assert_eq!(EncodedDeltas::from_frames(&[Vec::new(), f1.clone()]).unwrap().frame(1).unwrap(), f1);
+        // Spilled blocks, appended out of order, give the same sections.
+        let spill = SpillFile::new_in(&std::env::temp_dir()).unwrap();
+        let mut spilled = blocks;
+        for b in spilled.iter_mut().rev().flatten() {
+            spill.spill(b).unwrap();
+        }
+        assert!(spilled.iter().flatten().all(|b| !matches!(b.stored, Stored::Held(ref v) if !v.is_empty())));
+        let s = EncodedDeltas::from_blocks(2, spilled, Some(spill.clone())).unwrap();
+        assert_eq!(s.index, e.index);
+        assert_eq!((s.spilled_bytes(), spill.len()), (whole.len() as u64, whole.len() as u64));
+        assert_eq!(s.payload().unwrap(), whole);
+        assert_eq!(s.frame(1).unwrap(), f1);
+        // A spilled block without its file is refused, not read as empty.
+        let mut lone = z.compress(&f1[..10]).unwrap();
+        SpillFile::new_in(&std::env::temp_dir()).unwrap().spill(&mut lone).unwrap();
+        assert!(EncodedDeltas::from_blocks(2, vec![vec![Block::default(), lone]], None).is_err());
     }
 
     #[test]
     fn wrong_counts_and_damaged_frames_are_errors() {
         let f1: Vec<DeltaRecord> = (0..500).map(|i| record(0, i, 1)).collect();
         let e = EncodedDeltas::from_frames(&[Vec::new(), f1]).unwrap();
-        let stored = &e.pieces().collect::<Vec<_>>().concat()[..];
+        let stored = &e.payload().unwrap()[..];
         for count in [0, 499, 501, u64::MAX] {
             let err = decode(stored, count, 1, true).unwrap_err().to_string();
             assert!(err.contains("DELT frame 1"), "{err}");

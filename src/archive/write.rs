@@ -323,9 +323,10 @@ fn write_all<W: Write + Seek>(
             }
             let d = &seq.deltas;
             w.column(tag::DELTA_INDEX, &d.index)?;
-            let pieces: Vec<&[u8]> = d.pieces().collect();
-            let length = pieces.iter().map(|p| p.len() as u64).sum();
-            w.pieces(tag::DELTAS, compression::NONE, &pieces, length, d.index.len() as u64, 0)?;
+            let length = d.stored_length();
+            w.streamed(tag::DELTAS, compression::NONE, length, length, d.index.len() as u64, 0, |sink| {
+                d.write_to(sink)
+            })?;
         }
         Ok(())
     };

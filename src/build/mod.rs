@@ -344,11 +344,11 @@ fn sequence_sections(
     scene: &Scene,
     instances: &[Instance],
     blocks: Vec<Vec<crate::archive::deltas::Block>>,
-) -> Option<SequenceContents> {
-    let anim = scene.animation?;
-    if !scene.is_animated() {
-        return None;
-    }
+    spilled: Option<crate::archive::deltas::SpillFile>,
+) -> Result<Option<SequenceContents>, BuildError> {
+    let Some(anim) = scene.animation.filter(|_| scene.is_animated()) else {
+        return Ok(None);
+    };
     let mut first = 0;
     let records = instances
         .iter()
@@ -365,7 +365,8 @@ fn sequence_sections(
             r
         })
         .collect();
-    let deltas = crate::archive::deltas::EncodedDeltas::from_blocks(anim.frames as usize, blocks);
+    let deltas = crate::archive::deltas::EncodedDeltas::from_blocks(anim.frames as usize, blocks, spilled)
+        .map_err(|e| BuildError::Scratch(format!("cannot read back the spilled per-frame link changes: {e}")))?;
     let cameras = match scene.camera_keys.is_empty() {
         true => Vec::new(),
         false => (0..anim.frames).map(|f| camera_record(&scene.camera_at(f))).collect(),
@@ -374,7 +375,7 @@ fn sequence_sections(
         true => Vec::new(),
         false => (0..anim.frames).flat_map(|f| scene.surfaces.iter().map(move |s| s.emission_at(f))).collect(),
     };
-    Some(SequenceContents {
+    Ok(Some(SequenceContents {
         record: AnimationRecord {
             frames: anim.frames,
             fps: anim.fps,
@@ -385,7 +386,7 @@ fn sequence_sections(
         deltas,
         cameras,
         emissions,
-    })
+    }))
 }
 
 fn camera_record(c: &crate::scene::Camera) -> CameraRecord {
@@ -612,6 +613,7 @@ fn build_impl(
         stats: traced_stats,
     } = traced;
     let spilled_any = spill.as_ref().is_some_and(|s| s.run_count() > 0);
+    let spilled_deltas = spill.as_ref().and_then(|s| s.delta_file());
     let (table, spilled, bundles) = match spill {
         Some(sp) if spilled_any => {
             // What was never spilled goes too, in runs of consecutive pairs.
@@ -828,7 +830,7 @@ fn build_impl(
             surface_names: scene.surfaces.iter().map(|s| s.name.clone()).collect(),
             material_names: scene.materials.iter().map(|m| m.name.clone()).collect(),
         },
-        sequence: sequence_sections(scene, &instances, traced_deltas),
+        sequence: sequence_sections(scene, &instances, traced_deltas, spilled_deltas)?,
         reflectance: reflectance_contents,
         shading: shading_contents(scene, &instances),
     };

@@ -29,6 +29,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 
 use super::BuildError;
 use super::trace::Bundle;
+use crate::archive::deltas::{Block, SpillFile};
 use crate::archive::{LinkEndSink, LinkEndSource};
 
 /// Bytes a bundle holds per link (a, b, w: u32; two u8 buckets).
@@ -69,6 +70,12 @@ pub(super) struct Spill {
     /// Link ends per patch, over every run.
     ends_per_patch: Mutex<Vec<u64>>,
     sequence: AtomicU64,
+    /// A sequence's per-frame link changes, made at the first chunk's
+    /// that does not fit in memory.
+    deltas: std::sync::OnceLock<SpillFile>,
+    /// Bytes of per-frame link changes held in memory (also counted in
+    /// `in_memory`): at most half the threshold.
+    deltas_held: AtomicU64,
 }
 
 /// An end as it is sorted.
@@ -104,6 +111,8 @@ impl Spill {
             buffers: Mutex::new(Vec::new()),
             ends_per_patch: Mutex::new(vec![0; patches]),
             sequence: AtomicU64::new(0),
+            deltas: std::sync::OnceLock::new(),
+            deltas_held: AtomicU64::new(0),
         })
     }
 
@@ -221,6 +230,45 @@ impl Spill {
             })?);
         }
         Ok(dir.as_ref().expect("made above").0.path().join(name))
+    }
+
+    /// Holds a chunk's compressed per-frame link changes (counted with the
+    /// links) while they fit in half the threshold; beyond it, writes them
+    /// to the spill file (an unnamed file next to the output, made at the
+    /// first such chunk) and points the blocks into it, so that a
+    /// sequence's changes are not all held until the archive is written.
+    pub(super) fn spill_deltas(&self, blocks: &mut [Block]) -> Result<(), BuildError> {
+        let dir = crate::scratch::dir_of(&self.output);
+        let error = |e: std::io::Error| {
+            BuildError::Scratch(format!("cannot spill per-frame link changes to {}: {e}", dir.display()))
+        };
+        let bytes: u64 = blocks.iter().map(|b| b.stored.len()).sum();
+        if bytes == 0 {
+            return Ok(());
+        }
+        let room = self.threshold / 2;
+        if self
+            .deltas_held
+            .fetch_update(Ordering::Relaxed, Ordering::Relaxed, |h| (h + bytes <= room).then_some(h + bytes))
+            .is_ok()
+        {
+            self.in_memory.fetch_add(bytes, Ordering::Relaxed);
+            return Ok(());
+        }
+        let file = match self.deltas.get() {
+            Some(f) => f,
+            None => {
+                let made = SpillFile::new_in(dir).map_err(error)?;
+                self.deltas.get_or_init(|| made)
+            }
+        };
+        blocks.iter_mut().try_for_each(|b| file.spill(b)).map_err(error)?;
+        Ok(())
+    }
+
+    /// The file the per-frame link changes were spilled to, if any were.
+    pub(super) fn delta_file(&self) -> Option<SpillFile> {
+        self.deltas.get().cloned()
     }
 
     /// Runs spilled so far.

@@ -256,6 +256,14 @@ pub struct TraceInput<'a> {
 /// must not depend on the number of threads.
 const CHUNKS: u32 = 64;
 
+/// Per-frame link changes a chunk holds (over all frames) before it
+/// compresses them as a part of its blocks: 128 Ki records, 2.5 MiB, so
+/// that a sequence's changes take little memory while they are traced
+/// (the fan room's chunks held up to 14 MiB each). Fixed, like
+/// [`CHUNKS`], so that the archive's bytes depend on neither the threads
+/// nor the budget.
+const PART_RECORDS: usize = 1 << 17;
+
 /// Scratch space of one chunk of pairs (reused through a pool).
 #[derive(Default)]
 struct Scratch {
@@ -645,8 +653,8 @@ pub struct Traced {
     pub backs: Vec<u32>,
     /// Per non-diffuse patch and direction pair, likewise.
     pub nd_backs: Vec<u32>,
-    /// Per chunk of direction pairs (in pair order), per frame, the changes
-    /// of the link multiset relative to frame 0, compressed
+    /// Per part of a chunk of direction pairs (in pair order), per frame,
+    /// the changes of the link multiset relative to frame 0, compressed
     /// (`archive::deltas::EncodedDeltas::from_blocks` assembles them); frame
     /// 0's blocks are empty, and stills have just those.
     pub deltas: Vec<Vec<Block>>,
@@ -806,8 +814,30 @@ pub fn trace_all(
     };
     let pool = std::sync::Mutex::new(Vec::new());
     progress.start("tracing direction bundles", pairs as u64);
-    // Per chunk: its bundles, its block of every frame's changes, totals.
-    type Chunk = (Vec<Bundle>, Vec<Block>, BundleStats);
+    // Per chunk: its bundles, its parts (a block of every frame's changes
+    // each), totals.
+    type Chunk = (Vec<Bundle>, Vec<Vec<Block>>, BundleStats);
+    let compress = |s: &mut Scratch| -> Result<Vec<Block>, BuildError> {
+        let error = |e: std::io::Error| BuildError::Failed(format!("cannot compress the per-frame link changes: {e}"));
+        if s.compressor.is_none() {
+            s.compressor = Some(BlockCompressor::new().map_err(error)?);
+        }
+        let z = s.compressor.as_mut().expect("just made");
+        let mut blocks = s
+            .chunk
+            .iter_mut()
+            .map(|records| {
+                let b = z.compress(records);
+                records.clear();
+                b
+            })
+            .collect::<std::io::Result<Vec<Block>>>()
+            .map_err(error)?;
+        if let Some(spill) = spill {
+            spill.spill_deltas(&mut blocks)?;
+        }
+        Ok(blocks)
+    };
     let results: Vec<Result<Chunk, BuildError>> = (0..chunks)
         .into_par_iter()
         .map(|c| {
@@ -821,6 +851,7 @@ pub fn trace_all(
             s.counts.resize(patches.len());
             let mut stats = BundleStats::default();
             let mut bundles = Vec::new();
+            let mut parts = Vec::new();
             for k in c * per_chunk..((c + 1) * per_chunk).min(pairs) {
                 let (b, st) = trace_pair(s, k);
                 stats.rays += st.rays;
@@ -830,29 +861,19 @@ pub fn trace_all(
                 if let Some(spill) = spill {
                     spill.hold(&mut bundles)?;
                 }
+                // The records held are bounded by a fixed count, not by the
+                // budget, so that the blocks do not depend on it.
+                if s.chunk.iter().map(Vec::len).sum::<usize>() >= PART_RECORDS {
+                    parts.push(compress(s)?);
+                }
             }
             if let Some(spill) = spill {
                 spill.end_chunk(&mut bundles)?;
             }
             s.counts.hits.flush(&hit_counts);
             s.counts.backs.flush(&back_counts);
-            let compress = |s: &mut Scratch| -> std::io::Result<Vec<Block>> {
-                if s.compressor.is_none() {
-                    s.compressor = Some(BlockCompressor::new()?);
-                }
-                let z = s.compressor.as_mut().expect("just made");
-                s.chunk
-                    .iter_mut()
-                    .map(|records| {
-                        let b = z.compress(records);
-                        records.clear();
-                        b
-                    })
-                    .collect()
-            };
-            let blocks = compress(s)
-                .map_err(|e| BuildError::Failed(format!("cannot compress the per-frame link changes: {e}")))?;
-            Ok((bundles, blocks, stats))
+            parts.push(compress(s)?);
+            Ok((bundles, parts, stats))
         })
         .collect();
     progress.finish();
@@ -865,7 +886,7 @@ pub fn trace_all(
         stats.hits += s.hits;
         stats.links += s.links;
         bundles.extend(b);
-        deltas.push(d);
+        deltas.extend(d);
     }
     let hits: Vec<u32> =
         hit_counts.into_iter().map(|h| u32::try_from(h.into_inner())).collect::<Result<_, _>>().map_err(|_| {

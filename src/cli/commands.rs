@@ -70,11 +70,19 @@ fn build_scene(scene: &Scene, output: &Path, args: &BuildArgs, progress: &dyn Pr
     for w in &seq.warnings {
         eprintln!("warning: {w}");
     }
+    let spilled_changes = seq.contents.sequence.as_ref().map_or(0, |q| q.deltas.spilled_bytes());
     if let Some(s) = &spilled {
         println!(
             "memory: budget {budget}: spilled {} runs of link ends ({}) next to {}, merged as written",
             s.run_count(),
             Bytes(s.spilled_bytes()),
+            output.display()
+        );
+    }
+    if spilled_changes > 0 {
+        println!(
+            "memory: budget {budget}: spilled {} of per-frame link changes next to {}, copied as written",
+            Bytes(spilled_changes),
             output.display()
         );
     }
