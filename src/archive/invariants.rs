@@ -8,6 +8,8 @@
 //! breaks them would divide by a share of zero, give links negative
 //! weights, or send more power than a patch holds, and render NaN.
 
+use rayon::prelude::*;
+
 use super::ArchiveError;
 use super::layout::DeltaRecord;
 use super::links::{Columns, LinkWindow, Links};
@@ -85,18 +87,20 @@ pub(super) fn check_frame(
     links: &Links<'_>,
 ) -> Result<(), ArchiveError> {
     let bad = |i: usize, what: String| ArchiveError::corrupt(format!("DELT frame {frame}, record {i}: {what}"));
-    for (i, d) in records.iter().enumerate() {
-        let most = hits[d.a as usize].min(hits[d.b as usize]);
-        if d.count.unsigned_abs() > most {
-            return Err(bad(
-                i,
-                format!(
-                    "count {} is more rays than the {most} that cross patch {} (PHIT)",
-                    d.count,
-                    if hits[d.a as usize] <= hits[d.b as usize] { d.a } else { d.b }
-                ),
-            ));
-        }
+    // The first record (in file order, whatever the threads) that breaks a rule.
+    let too_many = |d: &DeltaRecord| d.count.unsigned_abs() > hits[d.a as usize].min(hits[d.b as usize]);
+    if let Some(i) = records.par_iter().position_first(too_many) {
+        let d = &records[i];
+        let (ha, hb) = (hits[d.a as usize], hits[d.b as usize]);
+        return Err(bad(
+            i,
+            format!(
+                "count {} is more rays than the {} that cross patch {} (PHIT)",
+                d.count,
+                ha.min(hb),
+                if ha <= hb { d.a } else { d.b }
+            ),
+        ));
     }
     // The two ends of each removal: at `a` (direction 2k, other `b`,
     // bucket `bucket_a`) and at `b` (2k + 1, `a`, `bucket_b`). An end's key
@@ -105,71 +109,74 @@ pub(super) fn check_frame(
     // (Additions are left out: a valid frame's removals of a key never
     // exceed what frame 0 gave it, whatever it adds.)
     let mut keyed: Vec<(EndKey, u32)> = records
-        .iter()
+        .par_iter()
         .enumerate()
         .filter(|(_, d)| d.count < 0)
-        .flat_map(|(i, d)| {
+        .flat_map_iter(|(i, d)| {
             [((d.a, d.bucket_a, 2 * d.pair, d.b), i as u32), ((d.b, d.bucket_b, 2 * d.pair + 1, d.a), i as u32)]
         })
         .collect();
     if keyed.is_empty() {
         return Ok(());
     }
-    keyed.sort_unstable();
-    // Per removed end: the key, the rays removed and the first record.
-    let mut removals: Vec<(EndKey, i64, usize)> = Vec::new();
-    for run in keyed.chunk_by(|x, y| x.0 == y.0) {
-        let net: i64 = run.iter().map(|&(_, i)| records[i as usize].count as i64).sum();
-        removals.push((run[0].0, net, run[0].1 as usize));
-    }
-    let mut wanted: Vec<u32> = removals.iter().map(|r| r.0.0).collect();
+    // Keys with their record indices are unique: the order is the same
+    // whatever the threads.
+    keyed.par_sort_unstable();
+    let mut wanted: Vec<u32> = keyed.iter().map(|k| k.0.0).collect();
     wanted.dedup();
     let patches = offsets.len() - 1;
-    let mut next = 0;
-    let mut base: Vec<f64> = Vec::new();
     links.for_each_window_of(Columns::ALL, patches, &wanted, |w: LinkWindow<'_>| {
-        while next < removals.len() && (removals[next].0.0 as usize) < w.patches.end {
-            let q = removals[next].0.0;
-            let count = removals[next..].iter().take_while(|r| r.0.0 == q).count();
-            let mine = &removals[next..next + count];
-            next += count;
-            if (q as usize) < w.patches.start {
-                continue;
-            }
-            // Frame 0's weight of each removed end, found by binary search:
-            // a row is ordered by bucket, direction pair and the link's
-            // patch pair (§5.10), that is by `order_key`.
-            let r = w.local(offsets[q as usize] as usize..offsets[q as usize + 1] as usize);
-            let order_key = |e: usize| {
-                let (d, other) = (w.direction[e], w.other.ids()[e]);
-                let link = if d.is_multiple_of(2) { (q, other) } else { (other, q) };
-                (w.bucket.get(e).copied().unwrap_or(0), d / 2, link, d)
-            };
-            base.clear();
-            for &((_, bucket, direction, other), _, _) in mine {
-                let link = if direction.is_multiple_of(2) { (q, other) } else { (other, q) };
-                let key = (bucket, direction / 2, link, direction);
-                let from = r.start + first_false(r.len(), |i| order_key(r.start + i) < key);
-                base.push(
-                    (from..r.end).take_while(|&e| order_key(e) == key).map(|e| w.weight.get(e) as f64).sum::<f64>()
-                        + 0.0,
-                );
-            }
-            for (k, &((_, _, direction, other), net, first)) in mine.iter().enumerate() {
-                if base[k] + (net as f64) < 0.0 {
-                    return Err(bad(
-                        first,
-                        format!(
-                            "removes {} rays from patch {q}'s end of its link with patch {other} along direction \
-                             {direction}, which frame 0 gave {}: a negative weight",
-                            -net, base[k]
-                        ),
-                    ));
-                }
-            }
+        let lo = keyed.partition_point(|k| (k.0.0 as usize) < w.patches.start);
+        let hi = keyed.partition_point(|k| (k.0.0 as usize) < w.patches.end);
+        // Per patch, in patch order, the first end it removes too much from.
+        let found =
+            keyed[lo..hi].par_chunk_by(|x, y| x.0.0 == y.0.0).map(|mine| removal_error(&w, offsets, records, mine));
+        match found.find_first(Option::is_some).flatten() {
+            Some((first, what)) => Err(bad(first, what)),
+            None => Ok(()),
         }
-        Ok(())
     })
+}
+
+/// Of the removals `mine` (keyed ends of one patch, sorted), the first
+/// that takes more rays from an end than frame 0 gave it: its first
+/// record and what is wrong.
+fn removal_error(
+    w: &LinkWindow<'_>,
+    offsets: &[u64],
+    records: &[DeltaRecord],
+    mine: &[(EndKey, u32)],
+) -> Option<(usize, String)> {
+    let q = mine[0].0.0;
+    // Frame 0's weight of each removed end, found by binary search: a row
+    // is ordered by bucket, direction pair and the link's patch pair
+    // (§5.10), that is by `order_key`.
+    let r = w.local(offsets[q as usize] as usize..offsets[q as usize + 1] as usize);
+    let order_key = |e: usize| {
+        let (d, other) = (w.direction[e], w.other.ids()[e]);
+        let link = if d.is_multiple_of(2) { (q, other) } else { (other, q) };
+        (w.bucket.get(e).copied().unwrap_or(0), d / 2, link, d)
+    };
+    for run in mine.chunk_by(|x, y| x.0 == y.0) {
+        let (_, bucket, direction, other) = run[0].0;
+        let net: i64 = run.iter().map(|&(_, i)| records[i as usize].count as i64).sum();
+        let link = if direction.is_multiple_of(2) { (q, other) } else { (other, q) };
+        let key = (bucket, direction / 2, link, direction);
+        let from = r.start + first_false(r.len(), |i| order_key(r.start + i) < key);
+        let base =
+            (from..r.end).take_while(|&e| order_key(e) == key).map(|e| w.weight.get(e) as f64).sum::<f64>() + 0.0;
+        if base + (net as f64) < 0.0 {
+            return Some((
+                run[0].1 as usize,
+                format!(
+                    "removes {} rays from patch {q}'s end of its link with patch {other} along direction \
+                     {direction}, which frame 0 gave {base}: a negative weight",
+                    -net
+                ),
+            ));
+        }
+    }
+    None
 }
 
 /// The first of `0..n` for which `before` is false, `before` being true
