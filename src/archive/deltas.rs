@@ -116,8 +116,8 @@ impl SpillFile {
         self.len() == 0
     }
 
-    /// Hands `len` bytes at `offset` to `sink`, in pieces of at most
-    /// `buf`'s capacity (1 MiB is reserved when it has none).
+    /// Hands `len` bytes at `offset` to `sink`, in pieces of 1 MiB or of
+    /// `buf`'s capacity if that is larger.
     fn read(
         &self,
         offset: u64,
@@ -171,7 +171,9 @@ impl BlockCompressor {
 }
 
 /// The `DIDX` and `DELT` sections of a sequence, ready to write: per frame,
-/// its blocks, in order, held or spilled.
+/// its blocks, in order, held or spilled. (Equality compares storage too:
+/// the same bytes held and spilled are not equal; compare
+/// [`Self::payload`] for content.)
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct EncodedDeltas {
     /// `DIDX`: one record per frame.
@@ -257,7 +259,7 @@ impl EncodedDeltas {
     }
 
     /// Hands the whole `DELT` payload to `sink`, frame by frame, in pieces
-    /// of at most 1 MiB.
+    /// of about 1 MiB.
     pub fn write_to(&self, sink: &mut dyn FnMut(&[u8]) -> std::io::Result<()>) -> std::io::Result<()> {
         let mut buf = Vec::new();
         (0..self.frames.len()).try_for_each(|f| self.frame_bytes(f, &mut buf, sink))

@@ -87,7 +87,7 @@ pub(super) fn check_frame(
     links: &Links<'_>,
 ) -> Result<(), ArchiveError> {
     let bad = |i: usize, what: String| ArchiveError::corrupt(format!("DELT frame {frame}, record {i}: {what}"));
-    // The first record (in file order, whatever the threads) that breaks a rule.
+    // The first record (in file order, whatever the threads) that moves too many rays.
     let too_many = |d: &DeltaRecord| d.count.unsigned_abs() > hits[d.a as usize].min(hits[d.b as usize]);
     if let Some(i) = records.par_iter().position_first(too_many) {
         let d = &records[i];

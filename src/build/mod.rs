@@ -451,15 +451,25 @@ const LEAST_LINKS: u64 = 16 << 20;
 
 /// Resident bytes a build needs whatever its links: per patch (geometry,
 /// adjacency, hit counts and each tracer's counts), per vertex and per
-/// primitive (with the BVH), each tracer's scratch, the non-diffuse hit
-/// counts.
-fn fixed_build_bytes(patches: &Patches, prims: usize, nd_patches: usize, pairs: usize) -> Vec<(&'static str, u64)> {
+/// primitive (with the BVH), each tracer's scratch (for a sequence, with
+/// a part of its per-frame link changes), the non-diffuse hit counts.
+fn fixed_build_bytes(
+    patches: &Patches,
+    prims: usize,
+    nd_patches: usize,
+    pairs: usize,
+    frames: u32,
+) -> Vec<(&'static str, u64)> {
     let threads = rayon::current_num_threads() as u64;
     let p = patches.len() as u64;
+    let changes = match frames {
+        0 | 1 => 0,
+        f => trace::part_records(f as usize) as u64 * trace::PART_BYTES_PER_RECORD,
+    };
     vec![
         ("patches", p * (12 + 12 + 4 + 4 + 16 + 16 + 8 + 4 + 4) + patches.vertex_position.len() as u64 * 12),
         ("primitives and BVH", prims as u64 * (SETUP_BYTES_PER_PRIMITIVE + BVH_BYTES_PER_PRIMITIVE)),
-        ("tracers' scratch", threads * (p * 4 + (4 << 20))),
+        ("tracers' scratch", threads * (p * 4 + (4 << 20) + changes)),
         ("non-diffuse hit counts", (nd_patches * pairs) as u64 * 8),
     ]
 }
@@ -577,7 +587,7 @@ fn build_impl(
     let spill = match bound {
         Some(b) if !keep_links => {
             let nd = nd_index.iter().filter(|&&i| i != u32::MAX).count();
-            let mut parts = fixed_build_bytes(&patches, prims.len(), nd, dirs.len() / 2);
+            let mut parts = fixed_build_bytes(&patches, prims.len(), nd, dirs.len() / 2, scene.frame_count());
             let fixed: u64 = parts.iter().map(|p| p.1).sum();
             if b.budget < fixed + LEAST_LINKS {
                 parts.push(("links", LEAST_LINKS));

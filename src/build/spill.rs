@@ -60,7 +60,8 @@ pub(super) struct Spill {
     /// The scratch directory and its lock (held while it lives), made
     /// at the first spill.
     dir: Mutex<Option<Scratch>>,
-    /// In-memory bundle bytes above which a worker spills its own.
+    /// Bytes held (bundles, and the per-frame link changes kept in
+    /// memory) above which a worker spills its bundles.
     threshold: u64,
     in_memory: AtomicU64,
     runs: Mutex<Vec<Run>>,
@@ -70,8 +71,8 @@ pub(super) struct Spill {
     /// Link ends per patch, over every run.
     ends_per_patch: Mutex<Vec<u64>>,
     sequence: AtomicU64,
-    /// A sequence's per-frame link changes, made at the first chunk's
-    /// that does not fit in memory.
+    /// Where a sequence's per-frame link changes go once they no longer
+    /// fit in memory (made when the first part does not).
     deltas: std::sync::OnceLock<SpillFile>,
     /// Bytes of per-frame link changes held in memory (also counted in
     /// `in_memory`): at most half the threshold.
@@ -232,11 +233,12 @@ impl Spill {
         Ok(dir.as_ref().expect("made above").0.path().join(name))
     }
 
-    /// Holds a chunk's compressed per-frame link changes (counted with the
-    /// links) while they fit in half the threshold; beyond it, writes them
-    /// to the spill file (an unnamed file next to the output, made at the
-    /// first such chunk) and points the blocks into it, so that a
-    /// sequence's changes are not all held until the archive is written.
+    /// Holds a part's compressed per-frame link changes (counted in
+    /// `in_memory` with the links) while they fit in half the threshold;
+    /// beyond it, writes them to the spill file (an unnamed file next to
+    /// the output, made at the first such part) and points the blocks
+    /// into it, so that a sequence's changes are not all held until the
+    /// archive is written.
     pub(super) fn spill_deltas(&self, blocks: &mut [Block]) -> Result<(), BuildError> {
         let dir = crate::scratch::dir_of(&self.output);
         let error = |e: std::io::Error| {

@@ -257,12 +257,21 @@ pub struct TraceInput<'a> {
 const CHUNKS: u32 = 64;
 
 /// Per-frame link changes a chunk holds (over all frames) before it
-/// compresses them as a part of its blocks: 128 Ki records, 2.5 MiB, so
-/// that a sequence's changes take little memory while they are traced
-/// (the fan room's chunks held up to 14 MiB each). Fixed, like
-/// [`CHUNKS`], so that the archive's bytes depend on neither the threads
-/// nor the budget.
-const PART_RECORDS: usize = 1 << 17;
+/// compresses them as a part of its blocks: at least 128 Ki records
+/// (2.5 MiB) and 512 per frame, so that a sequence's changes take little
+/// memory while they are traced (the fan room's chunks held up to 14 MiB
+/// each) and a long sequence's blocks do not shrink to a few records.
+/// Fixed by the frame count alone, like [`CHUNKS`], so that the archive's
+/// bytes depend on neither the threads nor the budget. (A part is cut
+/// after a whole pair: it may exceed this by one pair's records.)
+pub(super) fn part_records(frames: usize) -> usize {
+    (1usize << 17).max(frames.saturating_mul(512))
+}
+
+/// Bytes a tracer holds per record of a part: the record (20), its
+/// encoded columns (18) and compressed copy, and the slack of the
+/// per-frame lists.
+pub(super) const PART_BYTES_PER_RECORD: u64 = 56;
 
 /// Scratch space of one chunk of pairs (reused through a pool).
 #[derive(Default)]
@@ -863,7 +872,7 @@ pub fn trace_all(
                 }
                 // The records held are bounded by a fixed count, not by the
                 // budget, so that the blocks do not depend on it.
-                if s.chunk.iter().map(Vec::len).sum::<usize>() >= PART_RECORDS {
+                if s.chunk.iter().map(Vec::len).sum::<usize>() >= part_records(frames) {
                     parts.push(compress(s)?);
                 }
             }
