@@ -33,6 +33,8 @@ pub struct PrimitiveBvh {
     filters: Vec<QuadFilter>,
     /// Original index of each ordered primitive.
     original: Vec<u32>,
+    /// Their padded boxes, as the BVH was built from.
+    boxes: Vec<Aabb>,
 }
 
 impl PrimitiveBvh {
@@ -52,7 +54,8 @@ impl PrimitiveBvh {
         let original = bvh.primitive_indices.clone();
         let ordered: Vec<Primitive> = original.iter().map(|&i| primitives[i as usize]).collect();
         let filters = ordered.iter().map(QuadFilter::new).collect();
-        Self { bvh, ordered, filters, original }
+        let boxes = original.iter().map(|&i| aabbs[i as usize]).collect();
+        Self { bvh, ordered, filters, original, boxes }
     }
 
     /// Calls `out` for every intersection of the full line through `origin`
@@ -91,6 +94,42 @@ impl PrimitiveBvh {
         found
     }
 
+    /// [`Self::occluded`], trying first the primitive that blocked the
+    /// last ray given the same `hint` (start with `u32::MAX`), which is
+    /// updated: rays from one pixel towards one light are mostly blocked
+    /// by the same thing. The same answer as [`Self::occluded`]: the hint
+    /// counts only where its box meets the ray, as traversal would have
+    /// reached it (its leaf's box holds its box).
+    #[inline]
+    pub fn occluded_hinted(&self, origin: Vec3, dir: Vec3, t_min: f32, t_max: f32, hint: &mut u32) -> bool {
+        let ray = Ray::new(origin.into(), dir.into(), t_min, t_max);
+        let h = *hint as usize;
+        if h < self.ordered.len()
+            && self.boxes[h].intersect_ray(&ray) < ray.tmax
+            && self.ordered[h].intersect_filtered(&self.filters[h], origin, dir, t_min, t_max).is_some()
+        {
+            return true;
+        }
+        let mut found = None;
+        let mut rh = RayHit::none();
+        self.bvh.ray_traverse(ray, &mut rh, |r, id| {
+            if found.is_some() {
+                return f32::NEG_INFINITY;
+            }
+            match self.ordered[id].intersect_filtered(&self.filters[id], origin, dir, r.tmin, r.tmax) {
+                Some(_) => {
+                    found = Some(id as u32);
+                    f32::NEG_INFINITY
+                }
+                None => f32::INFINITY,
+            }
+        });
+        if let Some(id) = found {
+            *hint = id;
+        }
+        found.is_some()
+    }
+
     /// The closest intersection with `t` in `(t_min, ∞)`, from either side.
     #[inline]
     pub fn closest_hit(&self, origin: Vec3, dir: Vec3, t_min: f32) -> Option<PrimitiveHit> {
@@ -107,5 +146,51 @@ impl PrimitiveBvh {
             }
         });
         best
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_hinted_shadow_ray_answers_as_an_unhinted_one() {
+        // A closed box, a slab and a few tilted quads and triangles inside,
+        // rays between random points, the hint carried from ray to ray as
+        // a pixel's rays carry it.
+        let mut state = 0x9e37_79b9_7f4a_7c15u64;
+        let mut unit = move || {
+            state = state.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1_442_695_040_888_963_407);
+            (state >> 40) as f32 / (1u64 << 24) as f32
+        };
+        let v = |x: f32, y: f32, z: f32| Vec3::new(x, y, z);
+        let mut prims = vec![
+            Primitive::quad([v(0., 0., 0.), v(4., 0., 0.), v(4., 0., 4.), v(0., 0., 4.)]),
+            Primitive::quad([v(0., 4., 0.), v(0., 4., 4.), v(4., 4., 4.), v(4., 4., 0.)]),
+            Primitive::quad([v(1., 2., 1.), v(3., 2., 1.), v(3., 2., 3.), v(1., 2., 3.)]),
+        ];
+        for _ in 0..12 {
+            let c = v(0.5 + 3.0 * unit(), 0.5 + 3.0 * unit(), 0.5 + 3.0 * unit());
+            let (a, b) = (v(unit() - 0.5, unit() - 0.5, unit() - 0.5), v(unit() - 0.5, unit() - 0.5, unit() - 0.5));
+            prims.push(Primitive::quad([c, c + a, c + a + b, c + b]));
+            prims.push(Primitive::triangle(c, c - a, c - b));
+        }
+        let bvh = PrimitiveBvh::new(&prims);
+        let (mut hint, mut blocked, mut by_hint) = (u32::MAX, 0, 0);
+        for i in 0..20_000 {
+            if i % 64 == 0 {
+                hint = u32::MAX; // a new pixel
+            }
+            let o = v(4.0 * unit(), 4.0 * unit(), 4.0 * unit());
+            let to = v(4.0 * unit(), 4.0 * unit(), 4.0 * unit()) - o;
+            let (d, t) = (to.normalize(), to.length());
+            let before = hint;
+            let want = bvh.occluded(o, d, 0.0, t);
+            let got = bvh.occluded_hinted(o, d, 0.0, t, &mut hint);
+            assert_eq!(got, want, "ray {i}");
+            blocked += want as u32;
+            by_hint += (got && hint == before && before != u32::MAX) as u32;
+        }
+        assert!(blocked > 2_000 && by_hint > 500, "{blocked} blocked, {by_hint} by the blocker of the ray before");
     }
 }

@@ -282,6 +282,7 @@ impl DirectLight {
         // index of the current ray within its emitter.
         let (mut next, mut below, mut within) = (0usize, 0.0f32, 0u32);
         let (mut shadowed, mut blocked) = (Vec3::ZERO, false);
+        let mut hint = u32::MAX;
         for q in 0..rays {
             let h = mix(key ^ q as u64);
             let target = (q as f32 + unit(h)) / rays as f32 * weight;
@@ -295,7 +296,7 @@ impl DirectLight {
             let uv = r2_point(within, shift + Vec2::splat(lit[next].0 as f32 * 0.618_034));
             within += 1;
             let x = points[order.apply(q % count) as usize];
-            if let Some((f, true)) = self.shadow_ray(x, (n, face), em, uv, bvh) {
+            if let Some((f, true)) = self.shadow_ray(x, (n, face), em, uv, bvh, &mut hint) {
                 // f over the chance of this emitter (its share of the weight).
                 shadowed += em.radiance * (f * weight / weight_of(&lit[next]));
                 blocked = true;
@@ -318,6 +319,7 @@ impl DirectLight {
         em: &Emitter,
         uv: Vec2,
         bvh: &PrimitiveBvh,
+        hint: &mut u32,
     ) -> Option<(f32, bool)> {
         let origin = x + face * self.epsilon;
         let (y, jacobian) = sample_point(&em.prim, uv);
@@ -332,7 +334,7 @@ impl DirectLight {
             return None;
         }
         let f = cos_x * cos_y / r2 * jacobian;
-        Some((f, bvh.occluded(origin, d, 0.0, r2.sqrt() * (1.0 - 1e-4))))
+        Some((f, bvh.occluded_hinted(origin, d, 0.0, r2.sqrt() * (1.0 - 1e-4), hint)))
     }
 }
 
