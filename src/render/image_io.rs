@@ -96,6 +96,9 @@ pub fn write_exr_with(image: &Image, path: &Path, metadata: Metadata<'_>) -> Res
         (p[0], p[1], p[2])
     });
     let mut exr = ExrImage::from_channels((w, h), channels);
+    // Blocks in increasing order, whichever thread compressed them first:
+    // the same image gives the same bytes.
+    exr.layer_data.encoding.line_order = exr::meta::attribute::LineOrder::Increasing;
     for (key, value) in metadata {
         // OpenEXR text is Latin-1: a path in another script keeps its shape.
         let latin1 = |t: &str| -> String { t.chars().map(|c| if (c as u32) < 256 { c } else { '?' }).collect() };
