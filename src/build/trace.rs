@@ -252,8 +252,8 @@ pub struct TraceInput<'a> {
 
 /// Direction pairs are traced in this many chunks (or one pair per chunk
 /// when there are fewer pairs). Each chunk compresses its share of every
-/// frame's delta as one block, so the count is fixed: the archive's bytes
-/// must not depend on the number of threads.
+/// frame's delta as blocks (one per part, [`part_records`]), so the count
+/// is fixed: the archive's bytes must not depend on the number of threads.
 const CHUNKS: u32 = 64;
 
 /// Per-frame link changes a chunk holds (over all frames) before it
