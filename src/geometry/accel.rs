@@ -75,23 +75,8 @@ impl PrimitiveBvh {
     /// from either side (a shadow ray): traversal stops at the first hit.
     #[inline]
     pub fn occluded(&self, origin: Vec3, dir: Vec3, t_min: f32, t_max: f32) -> bool {
-        let ray = Ray::new(origin.into(), dir.into(), t_min, t_max);
-        let mut found = false;
-        let mut rh = RayHit::none();
-        self.bvh.ray_traverse(ray, &mut rh, |r, id| {
-            if found {
-                return f32::NEG_INFINITY;
-            }
-            match self.ordered[id].intersect_filtered(&self.filters[id], origin, dir, r.tmin, r.tmax) {
-                Some(_) => {
-                    found = true;
-                    // Below every box's entry distance: nothing more is visited.
-                    f32::NEG_INFINITY
-                }
-                None => f32::INFINITY,
-            }
-        });
-        found
+        let mut no_hint = u32::MAX;
+        self.occluded_hinted(origin, dir, t_min, t_max, &mut no_hint)
     }
 
     /// [`Self::occluded`], trying first the primitive that blocked the
