@@ -134,7 +134,8 @@ struct RenderArgs {
     shading: Shading,
     /// Shadow rays, N×N per pixel and primitive, that pixels near a
     /// blocked first ray take again, shared by all emitters in proportion
-    /// to their light (`--shading direct`; every pixel first takes four).
+    /// to their light; only those to the emitters found blocked nearby are
+    /// traced (`--shading direct`; every pixel first takes four).
     #[arg(long, default_value_t = illumnet::render::direct::DEFAULT_LIGHT_SAMPLES, value_name = "N")]
     light_samples: u32,
     /// One-bounce gather: diffuse image samples near other geometry

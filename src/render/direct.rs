@@ -20,7 +20,8 @@
 //! one set of shadow rays (leaving from the samples in turn), shared by all
 //! the emitters. Four rays give every pixel a first estimate; pixels within
 //! two of one whose first rays were blocked are estimated again with many
-//! (the renderer's two passes). Where every ray is blocked (umbrae) the
+//! (the renderer's two passes), aimed only at the emitters those rays found
+//! blocked. Where every ray is blocked (umbrae) the
 //! estimate is noise around zero clamped at zero: a slight lift, where the
 //! per-sample version returned exactly zero. Rays are seeded by frame,
 //! pixel and primitive, so images are deterministic and do not depend on
@@ -43,7 +44,8 @@ pub use glossy::{
 
 /// Default light samples: `8 × 8` shadow rays per pixel and primitive in
 /// the second pass (pixels near a blocked first ray), shared by all
-/// emitters in proportion to their light; the first pass takes four.
+/// emitters in proportion to their light, of which those that no blocked
+/// ray nearby aimed at are not traced; the first pass takes four.
 pub const DEFAULT_LIGHT_SAMPLES: u32 = 8;
 
 /// Largest spread of a pixel's points, relative to their distance from an
@@ -220,8 +222,8 @@ impl DirectLight {
     /// and face normal `face`, equal but for meshes with vertex normals)
     /// reflect of the emitters' direct light, from `rays` shadow rays
     /// through `bvh` (the frame's present primitives) seeded by `key`
-    /// ([`pixel_key`]); and whether any ray was blocked. `lit` is scratch
-    /// space.
+    /// ([`pixel_key`]); and the emitters a ray to which was blocked (a
+    /// mask of [`emitter_bit`]s). `lit` is scratch space.
     ///
     /// The unoccluded irradiance is the closed form at the points' mean
     /// (exact to second order in the pixel's footprint). The rays serve all
@@ -242,7 +244,7 @@ impl DirectLight {
         key: u64,
         rays: u32,
         lit: &mut Vec<(u32, f32)>,
-    ) -> (Vec3, bool) {
+    ) -> (Vec3, u64) {
         let (l, blocked) = self.estimate_signed(points, (n, face), prim, bvh, key, rays, lit);
         (l.max(Vec3::ZERO), blocked)
     }
@@ -261,19 +263,101 @@ impl DirectLight {
         key: u64,
         rays: u32,
         lit: &mut Vec<(u32, f32)>,
-    ) -> (Vec3, bool) {
+    ) -> (Vec3, u64) {
+        let Some((kd, unshadowed)) = self.unshadowed(points, (n, face), prim, rays, lit) else {
+            return (Vec3::ZERO, 0);
+        };
+        let (shadowed, blocked) = self.shadowed(points, (n, face), lit, bvh, key, rays, u64::MAX);
+        (kd * std::f32::consts::FRAC_1_PI * (unshadowed - shadowed), blocked)
+    }
+
+    /// The second estimate of a pixel whose neighbours' first estimates
+    /// found the emitters `near` (an [`emitter_bit`] mask) blocked:
+    /// [`Self::estimate`] afresh for those emitters, with as many of
+    /// `rays` as their share of the light (each emitter keeps the density
+    /// of rays it would have had among all of them), and, for the others,
+    /// the part of the pixel's own first estimate (seeded by the same
+    /// `key`) that their rays gave. Which emitters are estimated afresh
+    /// depends on the neighbours' rays only, so the sum stays unbiased; a
+    /// pixel in the shadow of one lamp among several traces rays to that
+    /// lamp only. With one emitter, this is [`Self::estimate`] with `rays`
+    /// rays seeded by `!key`.
+    #[allow(clippy::too_many_arguments)]
+    pub(crate) fn estimate_refined(
+        &self,
+        points: &[Vec3],
+        (n, face): (Vec3, Vec3),
+        prim: u32,
+        bvh: &PrimitiveBvh,
+        key: u64,
+        (rays, near): (u32, u64),
+        lit: &mut Vec<(u32, f32)>,
+    ) -> Vec3 {
+        let Some((kd, unshadowed)) = self.unshadowed(points, (n, face), prim, rays, lit) else {
+            return Vec3::ZERO;
+        };
+        // The first estimate's rays to the emitters left out.
+        let (kept, _) = self.shadowed(points, (n, face), lit, bvh, key, FIRST_RAYS, !near);
+        let weight: f32 = lit.iter().map(|l| self.weight_of(l)).sum();
+        lit.retain(|&(e, _)| emitter_bit(e) & near != 0);
+        let share: f32 = lit.iter().map(|l| self.weight_of(l)).sum();
+        let fresh = if share > 0.0 {
+            let m = ((rays as f32 * (share / weight)).ceil() as u32).clamp(1, rays);
+            self.shadowed(points, (n, face), lit, bvh, !key, m, u64::MAX).0
+        } else {
+            Vec3::ZERO
+        };
+        (kd * std::f32::consts::FRAC_1_PI * (unshadowed - kept - fresh)).max(Vec3::ZERO)
+    }
+
+    /// The weight by which rays are shared among the emitters: the light
+    /// (summed over colour) that `lit`'s emitter gives unoccluded.
+    #[inline]
+    fn weight_of(&self, &(e, u): &(u32, f32)) -> f32 {
+        self.emitters[e as usize].radiance.element_sum() * u
+    }
+
+    /// `k_d` of `prim` and the unoccluded irradiance-weighted radiance of
+    /// the emitters in front of `points` (listed with their closed forms
+    /// into `lit`); `None` when there is nothing to estimate.
+    fn unshadowed(
+        &self,
+        points: &[Vec3],
+        (n, face): (Vec3, Vec3),
+        prim: u32,
+        rays: u32,
+        lit: &mut Vec<(u32, f32)>,
+    ) -> Option<(Vec3, Vec3)> {
         let kd = self.kd.get(prim as usize).copied().unwrap_or(Vec3::ZERO);
         if kd == Vec3::ZERO || points.is_empty() || rays == 0 {
-            return (Vec3::ZERO, false);
+            return None;
         }
         let mean = points.iter().copied().sum::<Vec3>() / points.len() as f32;
         self.lit_by(points, mean, (n, face), lit);
-        let weight_of = |&(e, u): &(u32, f32)| self.emitters[e as usize].radiance.element_sum() * u;
-        let weight: f32 = lit.iter().map(weight_of).sum();
+        let weight: f32 = lit.iter().map(|l| self.weight_of(l)).sum();
         if weight <= 0.0 {
-            return (Vec3::ZERO, false);
+            return None;
         }
-        let unshadowed: Vec3 = lit.iter().map(|&(e, u)| self.emitters[e as usize].radiance * u).sum();
+        Some((kd, lit.iter().map(|&(e, u)| self.emitters[e as usize].radiance * u).sum()))
+    }
+
+    /// The shadowed part of the light of the emitters `lit` (nonempty
+    /// weights), estimated by `rays` rays shared among them in proportion
+    /// to their light and seeded by `key`, of which only those aimed at
+    /// emitters in `traced` (an [`emitter_bit`] mask) are traced and
+    /// counted; and the emitters a counted ray to which was blocked.
+    #[allow(clippy::too_many_arguments)]
+    fn shadowed(
+        &self,
+        points: &[Vec3],
+        (n, face): (Vec3, Vec3),
+        lit: &[(u32, f32)],
+        bvh: &PrimitiveBvh,
+        key: u64,
+        rays: u32,
+        traced: u64,
+    ) -> (Vec3, u64) {
+        let weight: f32 = lit.iter().map(|l| self.weight_of(l)).sum();
         let count = points.len() as u32;
         let key = mix(key ^ 0x4f1b_bcdc_bfa5_3e0b);
         let order = Permutation::new(count, key);
@@ -281,29 +365,32 @@ impl DirectLight {
         // Running position along the emitters laid end to end, and the
         // index of the current ray within its emitter.
         let (mut next, mut below, mut within) = (0usize, 0.0f32, 0u32);
-        let (mut shadowed, mut blocked) = (Vec3::ZERO, false);
+        let (mut shadowed, mut blocked) = (Vec3::ZERO, 0u64);
         let mut hint = u32::MAX;
         for q in 0..rays {
             let h = mix(key ^ q as u64);
             let target = (q as f32 + unit(h)) / rays as f32 * weight;
             // The emitter whose share of the weight holds `target`.
-            while next + 1 < lit.len() && below + weight_of(&lit[next]) <= target {
-                below += weight_of(&lit[next]);
+            while next + 1 < lit.len() && below + self.weight_of(&lit[next]) <= target {
+                below += self.weight_of(&lit[next]);
                 next += 1;
                 within = 0;
             }
-            let em = &self.emitters[lit[next].0 as usize];
-            let uv = r2_point(within, shift + Vec2::splat(lit[next].0 as f32 * 0.618_034));
+            let (e, _) = lit[next];
+            let em = &self.emitters[e as usize];
+            let uv = r2_point(within, shift + Vec2::splat(e as f32 * 0.618_034));
             within += 1;
+            if emitter_bit(e) & traced == 0 {
+                continue;
+            }
             let x = points[order.apply(q % count) as usize];
             if let Some((f, true)) = self.shadow_ray(x, (n, face), em, uv, bvh, &mut hint) {
                 // f over the chance of this emitter (its share of the weight).
-                shadowed += em.radiance * (f * weight / weight_of(&lit[next]));
-                blocked = true;
+                shadowed += em.radiance * (f * weight / self.weight_of(&lit[next]));
+                blocked |= emitter_bit(e);
             }
         }
-        let direct = unshadowed - shadowed / rays as f32;
-        (kd * std::f32::consts::FRAC_1_PI * direct, blocked)
+        (shadowed / rays as f32, blocked)
     }
 
     /// The unshadowed integrand (over uv) of the shadow ray from `x`
@@ -470,6 +557,13 @@ pub fn polygon_irradiance(x: Vec3, n: Vec3, poly: &[Vec3]) -> f32 {
     (0.5 * sum.abs()) as f32
 }
 
+/// Emitter `e`'s bit in a mask of a frame's emitters; emitters from 63 on
+/// share the last bit.
+#[inline]
+pub(crate) fn emitter_bit(e: u32) -> u64 {
+    1 << e.min(63)
+}
+
 /// splitmix64: a well-mixed 64-bit hash.
 fn mix(mut z: u64) -> u64 {
     z = z.wrapping_add(0x9e37_79b9_7f4a_7c15);
@@ -563,6 +657,78 @@ mod tests {
         let s = 1e4;
         let sky = [Vec3::new(-s, 1e-3, -s), Vec3::new(s, 1e-3, -s), Vec3::new(s, 1e-3, s), Vec3::new(-s, 1e-3, s)];
         assert!((polygon_irradiance(x, n, &sky) - std::f32::consts::PI).abs() < 1e-3);
+    }
+
+    /// A quad emitter facing down of radiance `l` over `[x0, x1] × [z0, z1]`
+    /// at height `y`.
+    fn ceiling_emitter((x0, x1): (f32, f32), (z0, z1): (f32, f32), y: f32, l: f32) -> Emitter {
+        let prim =
+            Primitive::quad([Vec3::new(x0, y, z0), Vec3::new(x1, y, z0), Vec3::new(x1, y, z1), Vec3::new(x0, y, z1)]);
+        let centre = Vec3::new(0.5 * (x0 + x1), y, 0.5 * (z0 + z1));
+        Emitter { prim, normal: prim.normal(), radiance: Vec3::splat(l), centre, radius: prim.p[0].distance(centre) }
+    }
+
+    /// The first and the refined estimates are unbiased whichever emitters
+    /// the neighbours found blocked: a point lit by two emitters, a
+    /// blocker hiding part of the first. The refined estimate keeps the
+    /// first estimate's part of the emitters it leaves out, so leaving out
+    /// the blocked one must still give its shadow; and it traces rays
+    /// only to the emitters it estimates afresh.
+    #[test]
+    fn refined_estimates_are_unbiased_whichever_emitters_they_refine() {
+        let a = ceiling_emitter((-0.5, 0.5), (-0.5, 0.5), 1.0, 10.0);
+        let b = ceiling_emitter((1.0, 1.6), (-0.3, 0.3), 1.0, 6.0);
+        let floor = Primitive::quad([
+            Vec3::new(-2.0, 0.0, -2.0),
+            Vec3::new(-2.0, 0.0, 2.0),
+            Vec3::new(2.0, 0.0, 2.0),
+            Vec3::new(2.0, 0.0, -2.0),
+        ]);
+        // At half height over the point: its shadow on the light's plane
+        // is [0, 0.4] × [-0.2, 0.2], inside emitter a.
+        let blocker = Primitive::quad([
+            Vec3::new(0.0, 0.5, -0.1),
+            Vec3::new(0.2, 0.5, -0.1),
+            Vec3::new(0.2, 0.5, 0.1),
+            Vec3::new(0.0, 0.5, 0.1),
+        ]);
+        let (x, n) = (Vec3::ZERO, Vec3::Y);
+        let shadow =
+            [Vec3::new(0.0, 1.0, -0.2), Vec3::new(0.4, 1.0, -0.2), Vec3::new(0.4, 1.0, 0.2), Vec3::new(0.0, 1.0, 0.2)];
+        let irradiance = |e: &Emitter| polygon_irradiance(x, n, &e.prim.p) as f64;
+        let kd = 0.5;
+        let want = kd / std::f64::consts::PI
+            * (10.0 * (irradiance(&a) - polygon_irradiance(x, n, &shadow) as f64) + 6.0 * irradiance(&b));
+        let light = DirectLight {
+            emitters: vec![a, b],
+            kd: vec![Vec3::splat(kd as f32), Vec3::ZERO],
+            glossy_of: vec![u32::MAX; 2],
+            glossy: Vec::new(),
+            samples: 8,
+            epsilon: 1e-5,
+            gather: None,
+        };
+        let bvh = PrimitiveBvh::new(&[floor, blocker]);
+        let points = [x; 4];
+        let mut lit = Vec::new();
+        let runs = 4000;
+        let first =
+            (0..runs).map(|k| light.estimate(&points, (n, n), 0, &bvh, mix(k), FIRST_RAYS, &mut lit).0.x as f64);
+        let mean = first.sum::<f64>() / runs as f64;
+        assert!((mean - want).abs() < 5e-3 * want, "first estimates: mean {mean} vs {want}");
+        for near in [emitter_bit(0), emitter_bit(1), emitter_bit(0) | emitter_bit(1)] {
+            let refined = (0..runs)
+                .map(|k| light.estimate_refined(&points, (n, n), 0, &bvh, mix(k), (64, near), &mut lit).x as f64);
+            let mean = refined.sum::<f64>() / runs as f64;
+            assert!((mean - want).abs() < 5e-3 * want, "refining {near:b}: mean {mean} vs {want}");
+        }
+        // Emitter b is never blocked here: refining it alone changes no
+        // estimate, refining a alone traces no ray to b.
+        for k in 0..64 {
+            let first = light.estimate(&points, (n, n), 0, &bvh, mix(k), FIRST_RAYS, &mut lit).0;
+            let only_b = light.estimate_refined(&points, (n, n), 0, &bvh, mix(k), (64, emitter_bit(1)), &mut lit);
+            assert!((first - only_b).abs().max_element() < 1e-5 * want as f32, "{first} vs {only_b}");
+        }
     }
 
     #[test]

@@ -279,10 +279,11 @@ const REFINE_RADIUS: u32 = 2;
 /// direct light; and the direct light alone.
 ///
 /// Direct light takes two passes. The first gives every pixel a cheap
-/// unbiased estimate (four rays, [`DirectLight::estimate`]) and notes the pixels where
-/// a shadow ray was blocked; the second estimates again, with many rays
-/// (the light samples squared), every pixel with such a pixel among the
-/// 24 around it ([`REFINE_RADIUS`]). Deciding from the neighbours, not from the pixel's
+/// unbiased estimate (four rays, [`DirectLight::estimate`]) and notes, per
+/// pixel, the emitters a shadow ray to which was blocked; the second
+/// estimates again, with many rays (the light samples squared), every pixel
+/// with such a pixel among the 24 around it ([`REFINE_RADIUS`]), afresh for
+/// the emitters found blocked there only ([`DirectLight::estimate_refined`]). Deciding from the neighbours, not from the pixel's
 /// own rays, keeps the result unbiased (a pixel refined because its own
 /// first rays were blocked would be refined exactly when it looked dark,
 /// which brightened the outskirts of soft shadows: the Cornell box measured
@@ -300,7 +301,8 @@ fn shade_image(
     let mut direct_pixels = vec![[0.0f32; 3]; (w * h) as usize];
     // Glossy highlights: taken once, in the first pass.
     let mut glossy_pixels = vec![[0.0f32; 3]; (w * h) as usize];
-    let mut blocked = vec![false; (w * h) as usize];
+    // Per pixel, the emitters its first rays found blocked.
+    let mut blocked = vec![0u64; (w * h) as usize];
     let rows = direct_pixels
         .par_chunks_mut(w as usize)
         .zip(blocked.par_chunks_mut(w as usize))
@@ -343,7 +345,7 @@ fn shade_image(
             *px = (acc * inv).to_array();
             if let Some(pl) = direct {
                 let (light, highlights, any_blocked) =
-                    pixel_direct(&hits, pl, (x as u32, y as u32), &mut scratch, false);
+                    pixel_direct(&hits, pl, (x as u32, y as u32), &mut scratch, None);
                 drow[x] = (light * inv).to_array();
                 grow[x] = (highlights * inv).to_array();
                 brow[x] = any_blocked;
@@ -360,14 +362,16 @@ fn shade_image(
         let r = REFINE_RADIUS;
         let (x0, x1) = (x.saturating_sub(r), (x + r).min(w - 1));
         let (y0, y1) = (y.saturating_sub(r), (y + r).min(h - 1));
-        (y0..=y1).any(|j| (x0..=x1).any(|i| (i, j) != (x, y) && blocked[(j * w + i) as usize]))
+        let around = (y0..=y1).flat_map(|j| (x0..=x1).map(move |i| (i, j))).filter(|&p| p != (x, y));
+        around.fold(0, |mask, (i, j)| mask | blocked[(j * w + i) as usize])
     };
     direct_pixels.par_chunks_mut(w as usize).enumerate().for_each(|(y, drow)| {
         let (mut scratch, mut hits) = (PixelScratch::default(), Vec::new());
         for (x, d) in drow.iter_mut().enumerate() {
-            if near_blocked(x as u32, y as u32) {
+            let near = near_blocked(x as u32, y as u32);
+            if near != 0 {
                 hits_of(x as u32, y as u32, &mut hits);
-                let (light, _, _) = pixel_direct(&hits, pl, (x as u32, y as u32), &mut scratch, true);
+                let (light, _, _) = pixel_direct(&hits, pl, (x as u32, y as u32), &mut scratch, Some(near));
                 *d = (light / hits.len().max(1) as f32).to_array();
             }
         }
@@ -437,17 +441,18 @@ fn gathered(
 }
 
 /// The summed diffuse direct light of a pixel's samples `hits` (its first
-/// estimate, or the refined one), computed once per primitive the samples
+/// estimate, or, given the emitters its neighbours' first rays found
+/// blocked, the refined one), computed once per primitive the samples
 /// see and weighted by how many see it; the summed glossy highlights (first
-/// estimate only: they are not refined); and whether a first-estimate
-/// shadow ray was blocked.
+/// estimate only: they are not refined); and the emitters a first-estimate
+/// shadow ray to which was blocked.
 fn pixel_direct(
     hits: &[SampleHit],
     pl: &PixelLight<'_>,
     (x, y): (u32, u32),
     scratch: &mut PixelScratch,
-    refined: bool,
-) -> (Vec3, Vec3, bool) {
+    refined: Option<u64>,
+) -> (Vec3, Vec3, u64) {
     scratch.lit.clear();
     for (k, hit) in hits.iter().enumerate() {
         if hit.primitive != u32::MAX
@@ -459,7 +464,7 @@ fn pixel_direct(
     // Stable: each primitive's samples stay in sample order.
     scratch.lit.sort_by_key(|&(prim, _, _)| prim);
     let pixel = direct::pixel_key(pl.frame, x, y);
-    let (mut light, mut highlights, mut blocked) = (Vec3::ZERO, Vec3::ZERO, false);
+    let (mut light, mut highlights, mut blocked) = (Vec3::ZERO, Vec3::ZERO, 0);
     for run in scratch.lit.chunk_by(|a, b| a.0 == b.0) {
         let prim = run[0].0;
         scratch.points.clear();
@@ -475,13 +480,17 @@ fn pixel_direct(
         } else {
             (face, Vec3::ONE)
         };
-        let rays = if refined { pl.light.refined_rays() } else { direct::FIRST_RAYS };
-        // The refined estimate's rays are drawn afresh (another key).
-        let key = if refined { !key } else { key };
-        let (l, b) = pl.light.estimate(points, (n, face), prim, pl.bvh, key, rays, &mut scratch.emitters);
-        blocked |= b;
+        let l = if let Some(near) = refined {
+            let rays = (pl.light.refined_rays(), near);
+            pl.light.estimate_refined(points, (n, face), prim, pl.bvh, key, rays, &mut scratch.emitters)
+        } else {
+            let rays = direct::FIRST_RAYS;
+            let (l, b) = pl.light.estimate(points, (n, face), prim, pl.bvh, key, rays, &mut scratch.emitters);
+            blocked |= b;
+            l
+        };
         light += l * scale * run.len() as f32;
-        if !refined && pl.light.is_glossy(prim) {
+        if refined.is_none() && pl.light.is_glossy(prim) {
             highlights += pl.light.glossy_estimate(points, face, pl.eye, prim, pl.bvh, key, &mut scratch.emitters);
         }
     }

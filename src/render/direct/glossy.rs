@@ -193,12 +193,6 @@ impl DirectLight {
         (unshadowed + u - shadowed - s).max(Vec3::ZERO)
     }
 
-    /// An emitter's share of the light-point weight: its radiance times
-    /// its unshadowed irradiance.
-    fn weight_of(&self, &(e, u): &(u32, f32)) -> f32 {
-        self.emitters[e as usize].radiance.element_sum() * u
-    }
-
     /// The chance that a light point falls on emitter `e`.
     fn chance(&self, (lit, weight): (&[(u32, f32)], f32), e: u32) -> f32 {
         lit.iter().find(|l| l.0 == e).map_or(0.0, |l| self.weight_of(l) / weight)
