@@ -134,6 +134,10 @@ pub fn write_png_with(
         enc.set_color(png::ColorType::Rgb);
         enc.set_depth(png::BitDepth::Eight);
         enc.set_source_srgb(png::SrgbRenderingIntent::Perceptual);
+        // fdeflate: the fan room's 60 frames took 0.7 s less to write
+        // (of a 11 s render) than at the default level, for files a third
+        // larger (3.1 against 2.3 MB).
+        enc.set_compression(png::Compression::Fast);
         for (key, value) in metadata {
             enc.add_itxt_chunk(key.clone(), value.clone())?;
         }
