@@ -29,7 +29,7 @@
 
 mod glossy;
 
-use glam::{Vec2, Vec3};
+use glam::{DVec3, Vec2, Vec3};
 
 use super::gather::Gather;
 use crate::archive::InetView;
@@ -501,7 +501,7 @@ fn shaded_irradiance(x: Vec3, n: Vec3, face: Vec3, poly: &[Vec3]) -> f32 {
     let mut m = 0;
     let k = poly.len();
     for i in 0..k {
-        let (a, b) = (poly[i], poly[(i + 1) % k]);
+        let (a, b) = (poly[i], poly[if i + 1 == k { 0 } else { i + 1 }]);
         let (da, db) = (face.dot(a - x), face.dot(b - x));
         if da > 0.0 && m < clipped.len() {
             clipped[m] = a;
@@ -524,7 +524,7 @@ pub fn polygon_irradiance(x: Vec3, n: Vec3, poly: &[Vec3]) -> f32 {
     let mut m = 0;
     let k = poly.len();
     for i in 0..k {
-        let (a, b) = (poly[i] - x, poly[(i + 1) % k] - x);
+        let (a, b) = (poly[i] - x, poly[if i + 1 == k { 0 } else { i + 1 }] - x);
         let (da, db) = (n.dot(a), n.dot(b));
         if da > 0.0 {
             clipped[m] = a;
@@ -541,9 +541,8 @@ pub fn polygon_irradiance(x: Vec3, n: Vec3, poly: &[Vec3]) -> f32 {
     }
     let mut sum = 0.0f64;
     for i in 0..m {
-        let (a, b) = (clipped[i].as_dvec3(), clipped[(i + 1) % m].as_dvec3());
-        let (la, lb) = (a.length(), b.length());
-        if la == 0.0 || lb == 0.0 {
+        let (a, b) = (clipped[i].as_dvec3(), clipped[if i + 1 == m { 0 } else { i + 1 }].as_dvec3());
+        if a == DVec3::ZERO || b == DVec3::ZERO {
             continue;
         }
         let cross = a.cross(b);
@@ -568,8 +567,9 @@ fn angle(s: f64, c: f64) -> f64 {
     const TAN_PI_8: f64 = 0.414_213_562_373_095_05;
     let ac = c.abs();
     let steep = s > ac;
-    let t = if steep { ac / s } else { s / ac };
-    let (u, base) = if t > TAN_PI_8 { ((t - 1.0) / (t + 1.0), FRAC_PI_4) } else { (t, 0.0) };
+    // t = num / den ∈ [0, 1]; u = (t − 1)/(t + 1) in one division.
+    let (num, den) = if steep { (ac, s) } else { (s, ac) };
+    let (u, base) = if num > TAN_PI_8 * den { ((num - den) / (num + den), FRAC_PI_4) } else { (num / den, 0.0) };
     // atan u for |u| ≤ tan(π/8): its Taylor series to u²³ (the first
     // term left out is below 2·10⁻¹⁰ of u).
     const INV_ODD: [f64; 12] = [
