@@ -3,17 +3,24 @@
 //!
 //! Primitives are reordered once into the BVH's leaf order so traversal
 //! indexes them directly; hits report original primitive indices.
+//!
+//! A long, thin quad lying across the axes (a fan blade turned 45°) has
+//! a box far larger than itself, and where many such quads overlap (a
+//! sequence's blade in every frame) every ray near them tests them all.
+//! Such quads enter the BVH as several references, each the box of a
+//! strip of the quad ([`pieces`]); a hit counts only in the strip that
+//! holds its surface coordinate, so each is reported once.
 
 use std::time::Duration;
 
-use glam::{Vec3, Vec3A};
+use glam::{Vec2, Vec3, Vec3A};
 use obvhs::BvhBuildParams;
 use obvhs::aabb::Aabb;
 use obvhs::bvh2::Bvh2;
 use obvhs::bvh2::builder::build_bvh2;
 use obvhs::ray::{Ray, RayHit};
 
-use super::{Primitive, QuadFilter, SurfaceHit};
+use super::{Primitive, PrimitiveKind, QuadFilter, SurfaceHit};
 
 /// A hit reported by [`PrimitiveBvh`]: original primitive index and surface hit.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -27,14 +34,87 @@ pub struct PrimitiveHit {
 /// Bounding volume hierarchy over primitives.
 pub struct PrimitiveBvh {
     bvh: Bvh2,
-    /// Primitives in BVH leaf order.
+    /// Primitives of the references in BVH leaf order (a split quad once
+    /// per strip).
     ordered: Vec<Primitive>,
     /// Their quad filters.
     filters: Vec<QuadFilter>,
-    /// Original index of each ordered primitive.
+    /// Original index of each reference's primitive.
     original: Vec<u32>,
     /// Their padded boxes, as the BVH was built from.
     boxes: Vec<Aabb>,
+    /// The strip of its quad that each reference stands for.
+    strips: Vec<Strip>,
+}
+
+/// Strip `index` of `count` equal strips of a flat quad across its surface
+/// coordinate `axis` (0: u, 1: v); `count` 1 for a whole primitive.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Strip {
+    axis: u8,
+    index: u8,
+    count: u8,
+}
+
+impl Strip {
+    const WHOLE: Strip = Strip { axis: 0, index: 0, count: 1 };
+
+    /// Whether a hit at surface coordinates `uv` belongs to this strip:
+    /// to exactly one of a quad's strips, whatever its rounding.
+    #[inline]
+    fn holds(self, uv: Vec2) -> bool {
+        self.count == 1 || {
+            let k = (uv[self.axis as usize] * self.count as f32).floor();
+            k.clamp(0.0, (self.count - 1) as f32) as u8 == self.index
+        }
+    }
+}
+
+/// Surface area of a box (twice its `half_area`).
+fn half_area(lo: Vec3, hi: Vec3) -> f32 {
+    let d = (hi - lo).max(Vec3::ZERO);
+    d.x * d.y + d.y * d.z + d.z * d.x
+}
+
+/// The strips quad `p` enters the BVH as, with their bounds: 2, 4 or 8
+/// across its longer side, as long as each halving of the strips' width
+/// cuts the summed half-areas of their boxes by at least 15% (a long
+/// quad lying across the axes); else the whole primitive. Axis-aligned
+/// quads and triangles stay whole.
+fn pieces(p: &Primitive) -> Vec<(Strip, Vec3, Vec3)> {
+    let (lo, hi) = p.bounds();
+    let whole = vec![(Strip::WHOLE, lo, hi)];
+    // A strip's box holds the hits in it only where the quad is flat.
+    let n = p.raw_normal().normalize_or_zero();
+    let size = (hi - lo).max_element();
+    if p.kind != PrimitiveKind::Quad || n == Vec3::ZERO || p.p.iter().any(|&q| n.dot(q - p.p[0]).abs() > 1e-5 * size) {
+        return whole;
+    }
+    let (lu, lv) =
+        (p.p[0].distance(p.p[1]) + p.p[3].distance(p.p[2]), p.p[0].distance(p.p[3]) + p.p[1].distance(p.p[2]));
+    let axis = if lu >= lv { 0 } else { 1 };
+    let strips = |count: u8| -> Vec<(Strip, Vec3, Vec3)> {
+        (0..count)
+            .map(|index| {
+                let (a, b) = (index as f32 / count as f32, (index + 1) as f32 / count as f32);
+                let at = |s: f32, t: f32| p.point(if axis == 0 { Vec2::new(s, t) } else { Vec2::new(t, s) });
+                let c = [at(a, 0.0), at(b, 0.0), at(b, 1.0), at(a, 1.0)];
+                let (lo, hi) = (c.iter().fold(c[0], |m, &q| m.min(q)), c.iter().fold(c[0], |m, &q| m.max(q)));
+                (Strip { axis, index, count }, lo, hi)
+            })
+            .collect()
+    };
+    let cost = |s: &[(Strip, Vec3, Vec3)]| s.iter().map(|&(_, lo, hi)| half_area(lo, hi)).sum::<f32>();
+    let (mut best, mut best_cost) = (whole, half_area(lo, hi));
+    for count in [2, 4, 8] {
+        let split = strips(count);
+        let c = cost(&split);
+        if c > best_cost * 0.85 {
+            break;
+        }
+        (best, best_cost) = (split, c);
+    }
+    best
 }
 
 impl PrimitiveBvh {
@@ -43,19 +123,28 @@ impl PrimitiveBvh {
     pub fn new(primitives: &[Primitive]) -> Self {
         let (lo, hi) = super::bounds_of(primitives);
         let pad = ((hi - lo).max_element() * 1e-6).max(1e-9);
-        let aabbs: Vec<Aabb> = primitives
-            .iter()
-            .map(|p| {
-                let (a, b) = p.bounds();
-                Aabb::new(Vec3A::from(a - pad), Vec3A::from(b + pad))
-            })
-            .collect();
+        let mut aabbs = Vec::with_capacity(primitives.len());
+        let mut refs = Vec::with_capacity(primitives.len());
+        for (i, p) in primitives.iter().enumerate() {
+            for (strip, a, b) in pieces(p) {
+                aabbs.push(Aabb::new(Vec3A::from(a - pad), Vec3A::from(b + pad)));
+                refs.push((i as u32, strip));
+            }
+        }
         let bvh = build_bvh2(&aabbs, BvhBuildParams::medium_build(), &mut Duration::default());
-        let original = bvh.primitive_indices.clone();
+        let leaf = &bvh.primitive_indices;
+        let original: Vec<u32> = leaf.iter().map(|&r| refs[r as usize].0).collect();
+        let strips = leaf.iter().map(|&r| refs[r as usize].1).collect();
         let ordered: Vec<Primitive> = original.iter().map(|&i| primitives[i as usize]).collect();
         let filters = ordered.iter().map(QuadFilter::new).collect();
-        let boxes = original.iter().map(|&i| aabbs[i as usize]).collect();
-        Self { bvh, ordered, filters, original, boxes }
+        let boxes = leaf.iter().map(|&r| aabbs[r as usize]).collect();
+        Self { bvh, ordered, filters, original, boxes, strips }
+    }
+
+    /// References in the BVH: the primitives, with a long quad lying
+    /// across the axes counted once per strip.
+    pub fn references(&self) -> usize {
+        self.ordered.len()
     }
 
     /// Calls `out` for every intersection of the full line through `origin`
@@ -65,7 +154,9 @@ impl PrimitiveBvh {
         let ray = Ray::new(origin.into(), dir.into(), 0.0, f32::INFINITY);
         self.bvh.ray_traverse_anyhit(ray, |r, id| {
             let prim = &self.ordered[id];
-            if let Some(hit) = prim.intersect_filtered(&self.filters[id], origin, dir, r.tmin, r.tmax) {
+            if let Some(hit) = prim.intersect_filtered(&self.filters[id], origin, dir, r.tmin, r.tmax)
+                && self.strips[id].holds(hit.uv)
+            {
                 out(PrimitiveHit { primitive: self.original[id], hit });
             }
         });
@@ -137,6 +228,62 @@ impl PrimitiveBvh {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A fan of long, thin quads turned about one axis (a blade in every
+    /// frame of a sequence) over a floor: the blades enter as strips, the
+    /// floor whole, and every query answers as a test of every primitive.
+    #[test]
+    fn split_quads_answer_as_whole_ones() {
+        let mut state = 0x2545_f491_4f6c_dd1du64;
+        let mut unit = move || {
+            state = state.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1_442_695_040_888_963_407);
+            (state >> 40) as f32 / (1u64 << 24) as f32
+        };
+        let floor = Primitive::quad([
+            Vec3::new(-2.0, 0.0, -2.0),
+            Vec3::new(-2.0, 0.0, 2.0),
+            Vec3::new(2.0, 0.0, 2.0),
+            Vec3::new(2.0, 0.0, -2.0),
+        ]);
+        let mut prims = vec![floor];
+        for k in 0..60 {
+            let a = k as f32 * 0.37;
+            let (along, across) = (Vec3::new(a.cos(), 0.0, a.sin()), Vec3::new(-a.sin(), 0.0, a.cos()));
+            let (c, h) = (Vec3::new(0.0, 1.0 + 0.001 * k as f32, 0.0) + along * 0.1, across * 0.04);
+            prims.push(Primitive::quad([c - h, c + along * 0.7 - h, c + along * 0.7 + h, c + h]));
+        }
+        assert_eq!(pieces(&floor).len(), 1, "an axis-aligned quad stays whole");
+        assert_eq!(pieces(&prims[3]).len(), 4, "a blade across the axes (at 42°) is split");
+        let bvh = PrimitiveBvh::new(&prims);
+        assert!(bvh.references() > 3 * prims.len(), "{} references", bvh.references());
+        let filters: Vec<QuadFilter> = prims.iter().map(QuadFilter::new).collect();
+        let (mut hits, mut through_blades) = (0, 0);
+        for i in 0..20_000 {
+            let o = Vec3::new(2.0 * unit() - 1.0, 0.5 + unit(), 2.0 * unit() - 1.0);
+            let d = Vec3::new(unit() - 0.5, unit() - 0.5, unit() - 0.5).normalize();
+            // The line from 10 back, so that all its hits are ahead.
+            let back = o - d * 10.0;
+            let every = |from: Vec3, t_max: f32| {
+                let hit = |(p, (prim, f)): (usize, (&Primitive, &QuadFilter))| {
+                    prim.intersect_filtered(f, from, d, 0.0, t_max).map(|h| (p as u32, h.t, h.uv))
+                };
+                prims.iter().zip(&filters).enumerate().filter_map(hit).collect::<Vec<_>>()
+            };
+            let mut want = every(back, f32::INFINITY);
+            let mut got = Vec::new();
+            bvh.all_hits(back, d, |h| got.push((h.primitive, h.hit.t, h.hit.uv)));
+            want.sort_by_key(|w| w.0);
+            got.sort_by_key(|g| g.0);
+            assert_eq!(got, want, "ray {i}");
+            hits += got.len();
+            through_blades += got.iter().filter(|g| g.0 > 0).count();
+            // The nearest hit ahead of o, and whether anything lies within 1.
+            let ahead = every(o, f32::INFINITY).iter().map(|w| w.1).fold(f32::INFINITY, f32::min);
+            assert_eq!(bvh.closest_hit(o, d, 0.0).map_or(f32::INFINITY, |h| h.hit.t), ahead, "ray {i}");
+            assert_eq!(bvh.occluded(o, d, 0.0, 1.0), !every(o, 1.0).is_empty(), "ray {i}");
+        }
+        assert!(hits > 20_000 && through_blades > 2_000, "{hits} hits, {through_blades} on blades");
+    }
 
     #[test]
     fn a_hinted_shadow_ray_answers_as_an_unhinted_one() {
