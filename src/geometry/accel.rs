@@ -8,7 +8,7 @@
 //! a box far larger than itself, and where many such quads overlap (a
 //! sequence's blade in every frame) every ray near them tests them all.
 //! Such quads enter the BVH as several references, each the box of a
-//! strip of the quad ([`pieces`]); a hit counts only in the strip that
+//! strip of the quad (`pieces`); a hit counts only in the strip that
 //! holds its surface coordinate, so each is reported once.
 
 use std::time::Duration;
