@@ -84,10 +84,13 @@ fn half_area(lo: Vec3, hi: Vec3) -> f32 {
 fn pieces(p: &Primitive) -> Vec<(Strip, Vec3, Vec3)> {
     let (lo, hi) = p.bounds();
     let whole = vec![(Strip::WHOLE, lo, hi)];
-    // A strip's box holds the hits in it only where the quad is flat.
+    // Hits lie on the plane through p0 (the intersection's), up to `warp`
+    // off the bilinear surface the strips' corners are on: each strip's
+    // box is widened by it, and the quad kept whole unless nearly flat.
     let n = p.raw_normal().normalize_or_zero();
     let size = (hi - lo).max_element();
-    if p.kind != PrimitiveKind::Quad || n == Vec3::ZERO || p.p.iter().any(|&q| n.dot(q - p.p[0]).abs() > 1e-5 * size) {
+    let warp = p.p.iter().map(|&q| n.dot(q - p.p[0]).abs()).fold(0.0, f32::max);
+    if p.kind != PrimitiveKind::Quad || n == Vec3::ZERO || warp > 1e-5 * size {
         return whole;
     }
     let (lu, lv) =
@@ -96,11 +99,15 @@ fn pieces(p: &Primitive) -> Vec<(Strip, Vec3, Vec3)> {
     let strips = |count: u8| -> Vec<(Strip, Vec3, Vec3)> {
         (0..count)
             .map(|index| {
-                let (a, b) = (index as f32 / count as f32, (index + 1) as f32 / count as f32);
+                // The strip and 10⁻³ of the quad around it, so that a hit's
+                // coordinate rounded across a cut or an edge is still in
+                // the box of the strip that `holds` it.
+                const MARGIN: f32 = 1e-3;
+                let (a, b) = (index as f32 / count as f32 - MARGIN, (index + 1) as f32 / count as f32 + MARGIN);
                 let at = |s: f32, t: f32| p.point(if axis == 0 { Vec2::new(s, t) } else { Vec2::new(t, s) });
-                let c = [at(a, 0.0), at(b, 0.0), at(b, 1.0), at(a, 1.0)];
+                let c = [at(a, -MARGIN), at(b, -MARGIN), at(b, 1.0 + MARGIN), at(a, 1.0 + MARGIN)];
                 let (lo, hi) = (c.iter().fold(c[0], |m, &q| m.min(q)), c.iter().fold(c[0], |m, &q| m.max(q)));
-                (Strip { axis, index, count }, lo, hi)
+                (Strip { axis, index, count }, lo - warp, hi + warp)
             })
             .collect()
     };
@@ -252,6 +259,14 @@ mod tests {
             let (c, h) = (Vec3::new(0.0, 1.0 + 0.001 * k as f32, 0.0) + along * 0.1, across * 0.04);
             prims.push(Primitive::quad([c - h, c + along * 0.7 - h, c + along * 0.7 + h, c + h]));
         }
+        // A long diagonal strip across the scene, one corner lifted
+        // within the flatness allowed (its hits are on the plane through
+        // p0, off its strips' corners).
+        let (c, along, across) = (Vec3::new(-1.8, 0.5, -1.7), Vec3::new(3.4, 0.0, 3.2), Vec3::new(-0.05, 0.0, 0.05));
+        let mut warped = Primitive::quad([c, c + along, c + along + across, c + across]);
+        warped.p[1].y += 3e-5;
+        assert_eq!(pieces(&warped).len(), 8, "a long warped strip is split");
+        prims.push(warped);
         assert_eq!(pieces(&floor).len(), 1, "an axis-aligned quad stays whole");
         assert_eq!(pieces(&prims[3]).len(), 4, "a blade across the axes (at 42°) is split");
         let bvh = PrimitiveBvh::new(&prims);
