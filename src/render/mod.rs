@@ -283,12 +283,13 @@ const REFINE_RADIUS: u32 = 2;
 /// pixel, the emitters a shadow ray to which was blocked; the second
 /// estimates again, with many rays (the light samples squared), every pixel
 /// with such a pixel among the 24 around it ([`REFINE_RADIUS`]), afresh for
-/// the emitters found blocked there only ([`DirectLight::estimate_refined`]). Deciding from the neighbours, not from the pixel's
-/// own rays, keeps the result unbiased (a pixel refined because its own
-/// first rays were blocked would be refined exactly when it looked dark,
-/// which brightened the outskirts of soft shadows: the Cornell box measured
-/// 2.78% against 1.86% with every ray traced), and penumbrae are wider
-/// than a pixel, so their neighbours find them.
+/// the emitters found blocked there only
+/// ([`DirectLight::estimate_refined`]). Deciding from the neighbours, not
+/// from the pixel's own rays, keeps the result unbiased (a pixel refined
+/// because its own first rays were blocked would be refined exactly when
+/// it looked dark, which brightened the outskirts of soft shadows: the
+/// Cornell box measured 2.78% against 1.86% with every ray traced), and
+/// penumbrae are wider than a pixel, so their neighbours find them.
 fn shade_image(
     (w, h): (u32, u32),
     hits_of: &PixelHits<'_>,
