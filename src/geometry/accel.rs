@@ -70,12 +70,6 @@ impl Strip {
     }
 }
 
-/// Surface area of a box (twice its `half_area`).
-fn half_area(lo: Vec3, hi: Vec3) -> f32 {
-    let d = (hi - lo).max(Vec3::ZERO);
-    d.x * d.y + d.y * d.z + d.z * d.x
-}
-
 /// The strips quad `p` enters the BVH as, with their bounds: 2, 4 or 8
 /// across its longer side, as long as each halving of the strips' width
 /// cuts the summed half-areas of their boxes by at least 15% (a long
@@ -111,6 +105,7 @@ fn pieces(p: &Primitive) -> Vec<(Strip, Vec3, Vec3)> {
             })
             .collect()
     };
+    let half_area = |lo: Vec3, hi: Vec3| Aabb::new(Vec3A::from(lo), Vec3A::from(hi)).half_area();
     let cost = |s: &[(Strip, Vec3, Vec3)]| s.iter().map(|&(_, lo, hi)| half_area(lo, hi)).sum::<f32>();
     let (mut best, mut best_cost) = (whole, half_area(lo, hi));
     for count in [2, 4, 8] {
