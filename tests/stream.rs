@@ -82,6 +82,10 @@ fn streamed_link_ends_give_the_mapped_light_bit_for_bit() {
             assert!(window > ends || s.window_count() > 1, "{name}: {} windows", s.window_count());
             assert_eq!(s.ends(), ends);
             assert_same(&want, &solve_all(&streamed), &format!("{name} in windows of {window}"));
+            // The gather's workers each hold one window's buffers, the
+            // other passes two: no more were ever made.
+            let most = rayon::current_num_threads().max(2) * s.window_capacity() * 10;
+            assert!(s.pooled_bytes() <= most, "{name}: {} bytes of windows kept, at most {most}", s.pooled_bytes());
         }
         eprintln!("{name}: {ends} link ends, {} frames", want.len());
     }

@@ -147,6 +147,26 @@ impl<'a> Links<'a> {
         }
     }
 
+    /// Like [`Self::for_each_window`], but windows are taken several at
+    /// once, each by one of rayon's workers, which reads it (streamed) and
+    /// calls `f` with it and its patches' part of `out` (`per_patch`
+    /// entries a patch): for the gather, whose windows are independent.
+    /// Resident ends are one window, given all of `out`; `f` should then
+    /// split its work over the workers itself, and need not when streamed.
+    pub fn for_each_window_par<T: Send, E: From<ArchiveError> + Send>(
+        &self,
+        columns: Columns,
+        patches: usize,
+        out: &mut [T],
+        per_patch: usize,
+        f: impl Fn(LinkWindow<'_>, &mut [T]) -> Result<(), E> + Sync,
+    ) -> Result<(), E> {
+        match self {
+            Links::Resident(_) => self.for_each_window(columns, patches, |w| f(w, &mut *out)),
+            Links::Streamed(stream) => stream.for_each_window_par(columns, out, per_patch, f),
+        }
+    }
+
     /// Like [`Self::for_each_window`], but only over the windows that hold
     /// a patch of the ascending list `wanted` (a resident archive is one
     /// window): for checks that look at a few patches' rows.

@@ -499,8 +499,8 @@ impl Archive {
 
     /// Opens the archive at `path` with its link ends streamed from disk
     /// in windows of about `window_ends` ends (see [`LinkStream`]): memory
-    /// holds every other section, two windows, and one checksum per column
-    /// per 65 536 ends. Validation is that of [`Self::open`], the link
+    /// holds every other section, a window per worker (at least two), and
+    /// one checksum per column per 65 536 ends. Validation is that of [`Self::open`], the link
     /// columns read once, in chunks, without mapping the file.
     pub fn open_streamed(path: &Path, window_ends: usize) -> Result<Self, ArchiveError> {
         let io = |e: std::io::Error| ArchiveError::Io { path: path.into(), source: e };

@@ -1,6 +1,7 @@
 //! Streaming frame 0's link ends from disk: the columns of §5.10 read in
 //! windows of consecutive patches into reused buffers, so that memory
-//! holds two windows, not the archive, whatever its size.
+//! holds a few windows (one per worker, at least two), not the archive,
+//! whatever its size.
 //!
 //! Reads are `pread`s into owned buffers, not a mapping: a file truncated
 //! or rewritten under a running render is an error (a short read, a
@@ -290,20 +291,7 @@ impl LinkStream {
                     path: self.path.clone(),
                     source: std::io::Error::other("the link reader stopped"),
                 })??;
-                let w = &self.windows[i];
-                let first_chunk_end = (w.ends.start / CHUNK_ENDS) * CHUNK_ENDS;
-                let local = w.ends.start - first_chunk_end..w.ends.end - first_chunk_end;
-                let pick = |len: usize| if len == 0 { 0..0 } else { local.clone() };
-                // `read_window` checked every id of the buffer.
-                let other = PatchIds::validated(&b.other[pick(b.other.len())], self.patches);
-                f(LinkWindow {
-                    patches: w.patches.clone(),
-                    first_end: w.ends.start,
-                    other,
-                    weight: Weights::new(&b.weight[pick(b.weight.len())], &self.escapes, w.ends.start as u64),
-                    direction: &b.direction[pick(b.direction.len())],
-                    bucket: &b.bucket[pick(b.bucket.len())],
-                })?;
+                f(self.window(i, &b))?;
                 // Two buffers and room for two: this never blocks.
                 let _ = free_tx.send(b);
             }
@@ -312,6 +300,68 @@ impl LinkStream {
             }
             Ok(())
         })
+    }
+
+    /// Calls `f` on every window, several at once: each of rayon's
+    /// workers reads a window into a buffer of its own, checks it as
+    /// [`Self::for_each_window`] does, and calls `f` with it and the
+    /// window's part of `out` (`per_patch` entries a patch, `out` having
+    /// them for every patch). Each core then copies, checks and uses its
+    /// own windows, where a reader thread beside the workers handed every
+    /// window over: a stage that one core ran for all, and three threads
+    /// contending for two cores. Holds one window's buffers per worker
+    /// ([`Self::parallel_pass_bytes`]).
+    pub(super) fn for_each_window_par<T: Send, E: From<ArchiveError> + Send>(
+        &self,
+        columns: Columns,
+        out: &mut [T],
+        per_patch: usize,
+        f: impl Fn(LinkWindow<'_>, &mut [T]) -> Result<(), E> + Sync,
+    ) -> Result<(), E> {
+        use rayon::prelude::*;
+        assert_eq!(out.len(), self.patches * per_patch, "one entry set per patch");
+        if self.evict.load(Ordering::Relaxed) {
+            drop_cached(&self.file);
+        }
+        let mut parts = Vec::with_capacity(self.windows.len());
+        let mut rest = out;
+        for w in &self.windows {
+            let (part, tail) = std::mem::take(&mut rest).split_at_mut(w.patches.len() * per_patch);
+            parts.push(part);
+            rest = tail;
+        }
+        parts.into_par_iter().enumerate().with_max_len(1).try_for_each(|(i, part)| {
+            let mut b = self.pool.lock().ok().and_then(|mut p| p.pop()).unwrap_or_default();
+            let done = self.read_window(i, columns, &mut b).map_err(E::from).and_then(|()| f(self.window(i, &b), part));
+            if let Ok(mut pool) = self.pool.lock() {
+                pool.push(b);
+            }
+            done
+        })
+    }
+
+    /// The most heap a [`Self::for_each_window_par`] pass reading
+    /// `columns` holds: one window's buffers per worker of rayon's pool.
+    pub fn parallel_pass_bytes(&self, columns: Columns) -> usize {
+        rayon::current_num_threads().max(1) * self.capacity * bytes_per_end(columns)
+    }
+
+    /// Window `i` over the buffers `read_window` filled (and checked).
+    fn window<'b>(&'b self, i: usize, b: &'b Buffers) -> LinkWindow<'b> {
+        let w = &self.windows[i];
+        let first_chunk_end = (w.ends.start / CHUNK_ENDS) * CHUNK_ENDS;
+        let local = w.ends.start - first_chunk_end..w.ends.end - first_chunk_end;
+        let pick = |len: usize| if len == 0 { 0..0 } else { local.clone() };
+        // `read_window` checked every id of the buffer.
+        let other = PatchIds::validated(&b.other[pick(b.other.len())], self.patches);
+        LinkWindow {
+            patches: w.patches.clone(),
+            first_end: w.ends.start,
+            other,
+            weight: Weights::new(&b.weight[pick(b.weight.len())], &self.escapes, w.ends.start as u64),
+            direction: &b.direction[pick(b.direction.len())],
+            bucket: &b.bucket[pick(b.bucket.len())],
+        }
     }
 
     /// Reads window `i`'s `columns` into `b` in whole chunks, each checked
@@ -324,10 +374,18 @@ impl LinkStream {
         let (a, e) = (c0 * CHUNK_ENDS, (c1 * CHUNK_ENDS).min(self.ends));
         let want = [columns.other, columns.weight, columns.direction, columns.bucket && self.at[3].is_some()];
         let n = |c: usize| if want[c] { e - a } else { 0 };
-        b.other.resize(n(0), 0);
-        b.weight.resize(n(1), 0);
-        b.direction.resize(n(2), 0);
-        b.bucket.resize(n(3), 0);
+        // Grown once, to the largest window exactly (growing by doubling
+        // could hold twice what the memory plan counts).
+        fn fit<T: Copy + Default>(v: &mut Vec<T>, n: usize, most: usize) {
+            if v.capacity() < n {
+                v.reserve_exact(most.max(n) - v.len());
+            }
+            v.resize(n, T::default());
+        }
+        fit(&mut b.other, n(0), self.capacity);
+        fit(&mut b.weight, n(1), self.capacity);
+        fit(&mut b.direction, n(2), self.capacity);
+        fit(&mut b.bucket, n(3), self.capacity);
         let bytes: [&mut [u8]; 4] = [
             bytemuck::cast_slice_mut(&mut b.other),
             &mut b.weight,

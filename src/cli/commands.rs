@@ -475,6 +475,7 @@ pub fn render(
         keep_images: extras.gif.is_some() || extras.contact_sheet.is_some(),
         anderson_depth: args.anderson as u32,
         buckets: !args.no_buckets,
+        threads: rayon::current_num_threads() as u32,
     };
     let memory = plan::plan(&summary, &job, budget)?;
     let samples = job.width as f64 * job.height as f64 * (args.samples * args.samples) as f64 * job.frames as f64;

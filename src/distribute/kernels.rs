@@ -83,14 +83,15 @@ pub(super) fn weighted_sum<W: Copy + Into<f32>>(other: Bounded<'_>, weight: &[W]
 
 /// Adds what the window's weights kept apart (`LCNX`: weights that are
 /// not a count in 1..=255, whose `LCNT` byte 0 gave nothing in the gather)
-/// to their owners' slots, `bucket(q, end)` choosing the slot of owner
-/// `q`'s end. Serial: escapes are rare (none in the scenes we ship).
+/// to their owners' slots of `out` (the window's patches' slots),
+/// `slot(q, end)` choosing, within `out`, the slot of owner `q`'s end.
+/// Serial: escapes are rare (none in the scenes we ship).
 fn add_escapes(
     w: &LinkWindow<'_>,
     offsets: &[u64],
     present: Option<&[bool]>,
     shoot: &[[f32; 4]],
-    recv: &mut [[f32; 4]],
+    out: &mut [[f32; 4]],
     slot: impl Fn(usize, usize) -> usize,
 ) {
     for x in w.weight.escapes() {
@@ -101,30 +102,50 @@ fn add_escapes(
             continue;
         }
         let s = shoot[w.other.ids()[end - w.first_end] as usize];
-        let r = &mut recv[slot(q, end)];
+        let r = &mut out[slot(q, end)];
         for c in 0..4 {
             r[c] += x.weight * s[c];
         }
     }
 }
 
-/// Gathers `recv[q] = Σ w·shoot[other]` over the link ends of the
-/// window's patches (`offsets` is `LOFF`, `recv` has one entry per patch);
-/// patches not `present` (temporal instances absent from the frame)
-/// receive nothing.
+/// Runs `f` over `out` in blocks of `BLOCK` patches (`per_patch` slots
+/// each), `f` given the block's first patch index within `out`: on rayon's
+/// workers when `parallel`, else on this thread (a window of a streamed
+/// pass, whose workers each take whole windows).
+fn for_blocks(
+    out: &mut [[f32; 4]],
+    per_patch: usize,
+    parallel: bool,
+    f: impl Fn(usize, &mut [[f32; 4]]) + Sync + Send,
+) {
+    let size = BLOCK * per_patch;
+    if parallel {
+        out.par_chunks_mut(size).enumerate().for_each(|(block, o)| f(block * BLOCK, o));
+    } else {
+        out.chunks_mut(size).enumerate().for_each(|(block, o)| f(block * BLOCK, o));
+    }
+}
+
+/// Gathers `out[q − first] = Σ w·shoot[other]` over the link ends of the
+/// window's patches (`first` its first patch; `offsets` is `LOFF`, `out`
+/// has one entry per patch of the window); patches not `present`
+/// (temporal instances absent from the frame) receive nothing. On rayon's
+/// workers when `parallel`.
 pub(super) fn gather(
     w: &LinkWindow<'_>,
     offsets: &[u64],
     present: Option<&[bool]>,
     shoot: &[[f32; 4]],
-    recv: &mut [[f32; 4]],
+    out: &mut [[f32; 4]],
+    parallel: bool,
 ) {
+    assert_eq!(out.len(), w.patches.len(), "one entry per patch of the window");
     let other = Bounded::from(w.other);
     let base = w.patches.start;
-    recv[w.patches.clone()].par_chunks_mut(BLOCK).enumerate().for_each(|(block, out)| {
-        let first = base + block * BLOCK;
+    for_blocks(out, 1, parallel, |first, out| {
         for (i, r) in out.iter_mut().enumerate() {
-            let q = first + i;
+            let q = base + first + i;
             if present.is_some_and(|p| !p[q]) {
                 *r = [0.0; 4];
                 continue;
@@ -133,7 +154,7 @@ pub(super) fn gather(
             *r = weighted_sum(other.slice(e.clone()), &w.weight.counts()[e], shoot);
         }
     });
-    add_escapes(w, offsets, present, shoot, recv, |q, _| q);
+    add_escapes(w, offsets, present, shoot, out, |q, _| q - base);
 }
 
 /// The runs of equal bucket in each patch's link ends (`LBKT`), found once
@@ -173,8 +194,9 @@ impl BucketRuns {
     }
 }
 
-/// Like [`gather`], but sorts what arrives into buckets: `recv[q·B + k]`
-/// holds the light patch `q` received over ends of bucket `k` (B = buckets).
+/// Like [`gather`], but sorts what arrives into buckets: slot
+/// `(q − first)·B + k` of `out` holds the light patch `q` received over
+/// ends of bucket `k` (B = buckets).
 #[allow(clippy::too_many_arguments)]
 pub(super) fn gather_buckets(
     w: &LinkWindow<'_>,
@@ -183,15 +205,15 @@ pub(super) fn gather_buckets(
     buckets: usize,
     present: Option<&[bool]>,
     shoot: &[[f32; 4]],
-    recv: &mut [[f32; 4]],
+    out: &mut [[f32; 4]],
+    parallel: bool,
 ) {
+    assert_eq!(out.len(), w.patches.len() * buckets, "one slot per patch of the window and bucket");
     let other = Bounded::from(w.other);
     let base = w.patches.start;
-    let window = &mut recv[w.patches.start * buckets..w.patches.end * buckets];
-    window.par_chunks_mut(BLOCK * buckets).enumerate().for_each(|(block, out)| {
-        let first = base + block * BLOCK;
+    for_blocks(out, buckets, parallel, |first, out| {
         for (i, r) in out.chunks_exact_mut(buckets).enumerate() {
-            let q = first + i;
+            let q = base + first + i;
             r.fill([0.0; 4]);
             if present.is_some_and(|p| !p[q]) {
                 continue;
@@ -209,11 +231,11 @@ pub(super) fn gather_buckets(
             }
         }
     });
-    add_escapes(w, offsets, present, shoot, recv, |q, end| {
+    add_escapes(w, offsets, present, shoot, out, |q, end| {
         // The run of `q` that holds the end gives its bucket.
         let r = runs.offsets[q] as usize..runs.offsets[q + 1] as usize;
         let k = r.start + runs.end[r.clone()].partition_point(|&x| x as usize <= end);
-        q * buckets + runs.bucket[k.min(r.end - 1)] as usize
+        (q - base) * buckets + runs.bucket[k.min(r.end - 1)] as usize
     });
 }
 
@@ -504,7 +526,7 @@ mod tests {
         assert_eq!(runs.offsets.len(), n + 1);
         assert!(PatchIds::check(&other, n - 1).is_none(), "the test reaches the last patch");
         let mut recv = vec![[0.0f32; 4]; n * 2];
-        gather_buckets(&window(0..n), &offsets, &runs, 2, None, &shoot, &mut recv);
+        gather_buckets(&window(0..n), &offsets, &runs, 2, None, &shoot, &mut recv, true);
         // The same in three windows, runs found window by window too.
         let mut split = vec![[0.0f32; 4]; n * 2];
         let mut split_runs = BucketRuns::with_patches(n);
@@ -512,7 +534,8 @@ mod tests {
             split_runs.add(&offsets, &window(w.clone()));
         }
         for w in [0..2, 2..3, 3..n] {
-            gather_buckets(&window(w), &offsets, &split_runs, 2, None, &shoot, &mut split);
+            let out = &mut split[w.start * 2..w.end * 2];
+            gather_buckets(&window(w), &offsets, &split_runs, 2, None, &shoot, out, false);
         }
         assert_eq!(split, recv, "windows give the same sums in any windows");
         let mut want = vec![[0.0f64; 4]; n * 2];

@@ -321,10 +321,13 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
     fn gather_base(&mut self, present: Option<&[bool]>) -> Result<(), DistributeError> {
         let (d, nb) = (self.d, self.d.nb);
         let (offsets, shoot, recv) = (d.v.link_offsets, &self.shoot, &mut self.recv);
-        d.v.links.for_each_window(Columns::GATHER, d.v.patch_count(), |w| {
+        // Resident ends are one window, split over the workers; streamed
+        // windows are each one worker's.
+        let parallel = !d.v.links.is_streamed();
+        d.v.links.for_each_window_par(Columns::GATHER, d.v.patch_count(), recv, nb, |w, out| {
             match &d.bucket_runs {
-                Some(runs) => gather_buckets(&w, offsets, runs, nb, present, shoot, recv),
-                None => gather(&w, offsets, present, shoot, recv),
+                Some(runs) => gather_buckets(&w, offsets, runs, nb, present, shoot, out, parallel),
+                None => gather(&w, offsets, present, shoot, out, parallel),
             }
             Ok::<(), DistributeError>(())
         })

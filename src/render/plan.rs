@@ -6,7 +6,8 @@
 //!
 //! Everything resident counts: a mapped archive's pages (all of them: a
 //! distribution reads every link end each iteration), or a streamed one's
-//! copied sections, chunk checksums and two windows; the distribution's
+//! copied sections, chunk checksums and a window per worker (at least
+//! two); the distribution's
 //! state ([`crate::distribute::memory`]); the images, vertex radiance,
 //! primitives and the sample cache of the renderer.
 
@@ -49,6 +50,8 @@ pub struct RenderJob {
     pub anderson_depth: u32,
     /// Whether the distribution uses the archive's buckets.
     pub buckets: bool,
+    /// Worker threads: a streamed gather holds a window per worker.
+    pub threads: u32,
 }
 
 /// How the archive's link ends are held.
@@ -192,12 +195,14 @@ pub fn plan(s: &ArchiveSummary, job: &RenderJob, budget: MemoryBudget) -> Result
         }
     }
     // Streamed: the copied sections, a checksum per column per chunk, the
-    // open's read buffer, two windows.
+    // open's read buffer, a window per worker (at least two: the other
+    // passes read one while using another).
     let ends = s.build.link_end_count;
     let sums = ends.div_ceil(CHUNK_ENDS as u64) * 32;
     // `DELT` stays on disk: one frame's stored bytes at a time.
     let held = s.held_bytes() + sums + OPEN_BUFFER + s.max_delta_stored;
-    let window_bytes = |w: u64| 2 * (w + 2 * CHUNK_ENDS as u64) * WINDOW_BYTES_PER_END;
+    let windows = job.threads.max(2) as u64;
+    let window_bytes = |w: u64| windows * (w + 2 * CHUNK_ENDS as u64) * WINDOW_BYTES_PER_END;
     let base = with(vec![("archive sections held", held)]);
     let base_total = sum(&base);
     let least = {
@@ -211,7 +216,7 @@ pub fn plan(s: &ArchiveSummary, job: &RenderJob, budget: MemoryBudget) -> Result
     let room = budget.bytes - base_total;
     // The cache only where it leaves room for the largest windows.
     let cache = if cache > 0 && room >= cache + window_bytes(MAX_WINDOW_ENDS) { cache } else { 0 };
-    let per_window = (room - cache) / (2 * WINDOW_BYTES_PER_END);
+    let per_window = (room - cache) / (windows * WINDOW_BYTES_PER_END);
     let window = per_window.saturating_sub(2 * CHUNK_ENDS as u64).clamp(MIN_WINDOW_ENDS, MAX_WINDOW_ENDS);
     let mut parts = base;
     parts.push(("link windows", window_bytes(window)));
