@@ -202,7 +202,7 @@ fn frame_radiance_from_the_sequence_archive_equals_from_scratch() {
         let (e1, e2): (f64, f64) = (sol.balance.emitted.iter().sum(), want.balance.emitted.iter().sum());
         assert!((e1 / e2 - 1.0).abs() < 1e-6, "frame {k}: emitted {e1} vs {e2}");
         // The frame's image (keyed camera, present geometry) matches too.
-        let opts_r = illumnet::render::RenderOptions { samples_per_axis: 2 };
+        let opts_r = illumnet::render::RenderOptions { samples_per_axis: 2, ..Default::default() };
         let img = illumnet::render::render_frame(&v, k, &sol.radiance, &opts_r);
         let want_img = illumnet::render::render(&still_arch.view(), &want.radiance, &opts_r);
         let err = illumnet::render::image_io::relative_l2(&img, &want_img).unwrap();
@@ -425,7 +425,7 @@ fn cached_visibility_renders_the_same_images_and_retraces_only_near_movers() {
     let seq = build::build_sequence(&scene, &BuildSettings::resolve(&scene, hints), &NoProgress).unwrap();
     let arch = Archive::from_bytes(&archive::write_to_vec(&seq.contents).unwrap()).unwrap();
     let v = arch.view();
-    let opts = RenderOptions { samples_per_axis: 3 };
+    let opts = RenderOptions { samples_per_axis: 3, ..Default::default() };
     let mut cached = Renderer::new(&v, opts);
     let mut uncached = Renderer::new(&v, opts).with_cache_budget(0);
     let total = (v.camera.width * v.camera.height * 9) as usize;

@@ -522,8 +522,11 @@ fn any_view_from_one_archive() {
         "32x32",
         "--fov",
         "39.3",
-        // A walkthrough does not gather by default; one frame does.
+        // A walkthrough does not gather nor sample edges finer by
+        // default; one frame does.
         "--gather",
+        "0",
+        "--edge-samples",
         "0",
     ]);
     assert!(read_exr(Path::new(&path("k.exr"))).unwrap() == frames[0], "frame 0 is the first key's view");

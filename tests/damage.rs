@@ -209,7 +209,7 @@ fn outcome(bytes: &[u8]) -> Result<Outcome, String> {
             Err(e) => return Ok(Outcome::Stopped(e)),
         };
         let last = v.sequence.map_or(0, |s| s.frames() - 1);
-        let mut renderer = Renderer::new(&v, RenderOptions { samples_per_axis: 1 });
+        let mut renderer = Renderer::new(&v, RenderOptions { samples_per_axis: 1, ..Default::default() });
         for f in 0..=last {
             let s = match d.frame(f, None, &NoProgress) {
                 Ok(s) => s,

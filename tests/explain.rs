@@ -25,7 +25,7 @@ fn samples_see_the_patch_under_them() {
     );
     let archive = common::build_archive(&scene, BuildHints::default());
     let v = archive.view();
-    let samples = Renderer::new(&v, RenderOptions { samples_per_axis: 1 }).sample_patches(0);
+    let samples = Renderer::new(&v, RenderOptions { samples_per_axis: 1, ..Default::default() }).sample_patches(0);
     let camera = illumnet::render::PinholeCamera::from_record(v.camera);
     let (mut checked, mut worst) = (0, 0.0f32);
     for y in 0..30 {

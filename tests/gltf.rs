@@ -36,7 +36,7 @@ fn render_frame(archive: &Archive, frame: u32) -> render::Image {
     let sol = distribute::distribute_frame(&v, frame, &DistributeOptions::default(), &NoProgress).unwrap();
     let light = render::DirectLight::new(&v, &sol, render::direct::DEFAULT_LIGHT_SAMPLES);
     let indirect = render::indirect_frame_radiance(&v, frame, &sol);
-    let opts = RenderOptions { samples_per_axis: 2 };
+    let opts = RenderOptions { samples_per_axis: 2, ..Default::default() };
     render::Renderer::new(&v, opts).frame_direct(frame, &indirect, &light).0
 }
 

@@ -29,7 +29,11 @@ fn render_still(bytes: &[u8], samples: u32) -> Image {
     let v = archive.view();
     let sol = distribute::distribute(&v, &DistributeOptions::default(), &NoProgress).unwrap();
     assert!(sol.balance.converged && sol.balance.imbalance().abs() < 1e-5, "{:?}", sol.balance);
-    render::render(&v, &render::frame_radiance(&v, 0, &sol), &RenderOptions { samples_per_axis: samples })
+    render::render(
+        &v,
+        &render::frame_radiance(&v, 0, &sol),
+        &RenderOptions { samples_per_axis: samples, ..Default::default() },
+    )
 }
 
 /// [`render_still`] with the default shading: direct light and glossy
@@ -40,7 +44,7 @@ fn render_direct(bytes: &[u8], samples: u32) -> Image {
     let sol = distribute::distribute(&v, &DistributeOptions::default(), &NoProgress).unwrap();
     assert!(sol.balance.converged && sol.balance.imbalance().abs() < 1e-5, "{:?}", sol.balance);
     let light = render::DirectLight::new(&v, &sol, render::direct::DEFAULT_LIGHT_SAMPLES);
-    let mut renderer = render::Renderer::new(&v, RenderOptions { samples_per_axis: samples });
+    let mut renderer = render::Renderer::new(&v, RenderOptions { samples_per_axis: samples, ..Default::default() });
     renderer.frame_direct(0, &render::indirect_frame_radiance(&v, 0, &sol), &light).0
 }
 

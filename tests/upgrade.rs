@@ -35,7 +35,7 @@ fn images(a: &Archive) -> Vec<Vec<f32>> {
     let v = a.view();
     let opts = DistributeOptions { tolerance: 1e-7, ..Default::default() };
     let frames = v.sequence.map_or(1, |s| s.frames());
-    let mut renderer = Renderer::new(&v, RenderOptions { samples_per_axis: 2 });
+    let mut renderer = Renderer::new(&v, RenderOptions { samples_per_axis: 2, ..Default::default() });
     (0..frames)
         .map(|k| {
             let s: Solution = distribute::distribute_frame(&v, k, &opts, &NoProgress).unwrap();

@@ -204,14 +204,15 @@ do not edit by hand: edit the script.*
 
 Reference: `tests/data/cornell_box_ref.exr`, Mitsuba 3.9.1 `path`
 integrator (unbounded depth, box pixel filter, emitters visible,
-`llvm_ad_rgb`), the mean of two independent renders of 16 384 samples per
-pixel of `scenes/cornell_box.toml` (`tools/reference/README.md`).
+`llvm_ad_rgb`), the mean of six independent renders of 16 384 samples per
+pixel of `scenes/cornell_box.toml`, 98 304 in all (`tools/reference/README.md`).
 
 Measure: relative L2 error ‖ours − ref‖ / ‖ref‖ on linear RGB radiance over
 the pixels whose reference is below 1.0 in every channel (emitters seen
 directly left out), as `illumnet compare OURS.exr REF.exr` prints it. The
-reference's own noise by this measure is 0.49% (half the difference of its
-two halves), included in quadrature in every figure.
+reference's own noise by this measure is 0.28% (the spread of its three
+parts of 32 768 spp, `tools/reference/mean.py`), included in quadrature in
+every figure.
 For scale, Mitsuba needs about 64 spp (≈1 s) for 11%, 256 (≈4 s) for 5.6%,
 1 024 (≈16 s) for 2.8%.
 

@@ -7,6 +7,8 @@
 #        SHADING=inet tools/bench_animation.sh   (both sides; default direct)
 #        GATHER=256 tools/bench_animation.sh     (--gather on both sides; default 0,
 #          what a sequence renders with, while a single frame gathers 256 rays by default)
+#        EDGE=16 tools/bench_animation.sh        (--edge-samples on both sides; default 0,
+#          what a sequence renders with, while a single frame samples edges 16x16 by default)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 cargo build --release --quiet
@@ -15,7 +17,7 @@ scene=scenes/fan_room.toml
 frames=${1:-60}
 shading=${SHADING:-direct}
 gather=()
-[[ $shading == direct ]] && gather=(--gather "${GATHER:-0}")
+[[ $shading == direct ]] && gather=(--gather "${GATHER:-0}" --edge-samples "${EDGE:-0}")
 out=$(mktemp -d)
 trap 'rm -rf "$out"' EXIT
 now() { date +%s.%N; }
@@ -48,7 +50,8 @@ print(f"  per frame: delta apply {delta / frames:.3f} s, distribution {dist / fr
       f"image writing and rest {(t2 - t1 - delta - dist - rend) / frames:.3f} s")
 print(f"from scratch: {frames} x (build + render) = {scratch:.1f} s ({scratch / frames:.2f} s/frame)")
 shading = os.environ.get('SHADING', 'direct')
-gather = f", --gather {os.environ.get('GATHER', '0')}" if shading == 'direct' else ''
+gather = (f", --gather {os.environ.get('GATHER', '0')} --edge-samples {os.environ.get('EDGE', '0')}"
+          if shading == 'direct' else '')
 print(f"speedup: {scratch / seq:.1f}x (shading {shading}{gather} on both sides)")
 print(f"archive: sequence {size_seq / 1e6:.1f} MB vs one still frame {size_still / 1e6:.1f} MB "
       f"(+{(size_seq - size_still) / 1e6:.1f} MB for temporal objects and deltas)")

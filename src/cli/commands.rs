@@ -547,8 +547,12 @@ pub fn render(
     let distributor = distribute::Distributor::new(&view, &opts, &lighting)?;
     let t_setup = t_s.elapsed().as_secs_f64();
     let mut previous: Option<distribute::Solution> = None;
-    let mut renderer = render::Renderer::new(&view, RenderOptions { samples_per_axis: args.samples })
-        .with_cache_budget(memory.cache_bytes);
+    let edge_samples = args.edge_samples.unwrap_or(match sequence_output || !direct_shading {
+        true => 0,
+        false => illumnet::render::DEFAULT_EDGE_SAMPLES,
+    });
+    let render_opts = RenderOptions { samples_per_axis: args.samples, edge_samples_per_axis: edge_samples };
+    let mut renderer = render::Renderer::new(&view, render_opts).with_cache_budget(memory.cache_bytes);
     let keep_images = extras.gif.is_some() || extras.contact_sheet.is_some();
     let mut images = Vec::new();
     let mut iterations = 0;

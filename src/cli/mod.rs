@@ -98,6 +98,13 @@ struct RenderArgs {
     /// Samples per pixel along each axis (N×N per pixel, box filter).
     #[arg(long, default_value_t = 4, value_name = "N")]
     samples: u32,
+    /// Samples per axis of pixels on an edge (a corner, a silhouette: their
+    /// samples see surfaces that are not one plane), traced again N×N
+    /// (0: off). Default: 16 for one frame with `--shading direct`; 0 for
+    /// several (a sequence or a walkthrough: each frame's cost counts) and
+    /// for the paper's shading.
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(0..=64))]
+    edge_samples: Option<u32>,
     /// Multiply radiance by this before tone mapping and sRGB encoding the
     /// PNG (the EXR keeps radiance as it is).
     #[arg(long, default_value_t = 1.0, value_name = "X")]

@@ -78,17 +78,63 @@ pub struct SamplePatches {
     pub patches: Vec<u32>,
 }
 
+/// Samples per axis of an edge pixel in a single frame rendered by the
+/// command line ([`RenderOptions::edge_samples_per_axis`]): the Cornell
+/// box's error at edges fell as the grid grew, to 16 (`docs/GATHER.md`).
+pub const DEFAULT_EDGE_SAMPLES: u32 = 16;
+
 /// Options for [`render`].
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct RenderOptions {
     /// Samples per pixel along each axis (`n×n` per pixel; clamped to 1..=256).
     pub samples_per_axis: u32,
+    /// Samples per axis of pixels on an edge (their samples see a miss and
+    /// a surface, or surfaces that are not one plane), traced again in an
+    /// `m×m` grid; 0 (or not above `samples_per_axis`): off. A few samples
+    /// put a corner or a silhouette at the same place in every pixel along
+    /// it, so the pixels' cover of the two sides errs the same way along
+    /// the whole line: the Cornell box's edges were half its direct
+    /// light's error at 4×4 (`docs/GATHER.md`).
+    pub edge_samples_per_axis: u32,
 }
 
 impl Default for RenderOptions {
     fn default() -> Self {
-        Self { samples_per_axis: 4 }
+        Self { samples_per_axis: 4, edge_samples_per_axis: 0 }
     }
+}
+
+/// Whether the samples `hits` of a pixel lie across an edge: one sees
+/// nothing (or a back face) and another a front face, or two see
+/// primitives turned more than 18° apart, or the second's point lies off
+/// the first's plane by more than 0.35 of their distance (a step in depth:
+/// a surface behind another). Neighbouring triangles of a smooth mesh, or
+/// coplanar quads, are not an edge. `point(k)`: where sample k's ray met
+/// its primitive.
+fn on_edge(hits: &[SampleHit], normals: &[Vec3], point: impl Fn(usize) -> Vec3) -> bool {
+    let Some(first) = hits.first() else { return false };
+    let front = |h: &SampleHit| h.primitive != u32::MAX && h.vertices != [NO_VERTEX; 4];
+    let mut first_point = None;
+    for (k, h) in hits.iter().enumerate().skip(1) {
+        if h.primitive == first.primitive {
+            continue;
+        }
+        match (front(first), front(h)) {
+            (true, true) => {}
+            (false, false) => continue,
+            _ => return true,
+        }
+        let (na, nb) = (normals[first.primitive as usize], normals[h.primitive as usize]);
+        if na.dot(nb) < 0.95 {
+            return true;
+        }
+        let pa = *first_point.get_or_insert_with(|| point(0));
+        let pb = point(k);
+        if na.dot(pb - pa).abs() > 0.35 * (pb - pa).length() + 1e-6 * h.t.max(first.t) {
+            return true;
+        }
+    }
+    false
 }
 
 /// Radiance at every patch vertex: area-weighted mean of adjacent patches
@@ -227,9 +273,10 @@ impl SampleHit {
     }
 }
 
-/// Where image sample `k` of pixel `(x, y)`, which saw `hit`, lies, when it
+/// Where image sample `k` of the `count` of pixel `(x, y)` (a square grid:
+/// `n × n`, or an edge pixel's finer grid), which saw `hit`, lies, when it
 /// is on a front face (back faces are black and take no light).
-type SamplePoint<'f> = dyn Fn(u32, u32, u32, &SampleHit) -> Option<Vec3> + Sync + 'f;
+type SamplePoint<'f> = dyn Fn(u32, u32, (u32, u32), &SampleHit) -> Option<Vec3> + Sync + 'f;
 
 /// What a ray from a point along a unit direction meets in the frame.
 type RayHit<'f> = dyn Fn(Vec3, Vec3) -> SampleHit + Sync + 'f;
@@ -397,7 +444,7 @@ fn pixel_reach(hits: &[SampleHit], pl: &PixelLight<'_>, (x, y): (u32, u32), scra
     for (k, hit) in hits.iter().enumerate() {
         if hit.vertices != [NO_VERTEX; 4]
             && pl.light.gather_for(hit.primitive).is_some()
-            && let Some(p) = (pl.point)(x, y, k as u32, hit)
+            && let Some(p) = (pl.point)(x, y, (k as u32, hits.len() as u32), hit)
         {
             scratch.lit.push((hit.primitive, p, Vec2::from(hit.uv)));
         }
@@ -427,7 +474,7 @@ fn gathered(
     emitters: &mut Vec<(u32, f32)>,
 ) -> Option<Vec3> {
     let (gather, kd) = pl.light.gather_for(hit.primitive)?;
-    let point = (pl.point)(x, y, k, hit)?;
+    let point = (pl.point)(x, y, (k, count), hit)?;
     let face = pl.normals[hit.primitive as usize];
     let uv = Vec2::from(hit.uv);
     let (n, scale) = if pl.detail.any() {
@@ -457,7 +504,7 @@ fn pixel_direct(
     scratch.lit.clear();
     for (k, hit) in hits.iter().enumerate() {
         if hit.primitive != u32::MAX
-            && let Some(p) = (pl.point)(x, y, k as u32, hit)
+            && let Some(p) = (pl.point)(x, y, (k as u32, hits.len() as u32), hit)
         {
             scratch.lit.push((hit.primitive, p, Vec2::from(hit.uv)));
         }
@@ -657,11 +704,18 @@ impl<'a> Renderer<'a> {
         let v = &self.v;
         let (w, h) = (camera.width, camera.height);
         let per_pixel = (n * n) as usize;
-        // Sample (sx, sy) of the n×n grid in pixel (x, y).
-        let sample_ray = |x: u32, y: u32, sx: u32, sy: u32| {
-            let s = Vec2::new((sx as f32 + 0.5) / n as f32, (sy as f32 + 0.5) / n as f32);
+        // Edge pixels' finer grid (0: none).
+        let m = match self.opts.edge_samples_per_axis.min(256) {
+            m if m > n => m,
+            _ => 0,
+        };
+        // Sample (sx, sy) of the g×g grid in pixel (x, y).
+        let grid_ray = |x: u32, y: u32, (sx, sy): (u32, u32), g: u32| {
+            let s = Vec2::new((sx as f32 + 0.5) / g as f32, (sy as f32 + 0.5) / g as f32);
             camera.ray(x as f32 + s.x, y as f32 + s.y)
         };
+        // Sample (sx, sy) of the n×n grid in pixel (x, y).
+        let sample_ray = |x: u32, y: u32, sx: u32, sy: u32| grid_ray(x, y, (sx, sy), n);
         let hit_at = |o: Vec3, d: Vec3| -> SampleHit {
             let Some(hit) = bvh.closest_hit(o, d, 0.0) else {
                 return NO_HIT;
@@ -692,10 +746,30 @@ impl<'a> Renderer<'a> {
             let (o, d) = sample_ray(x, y, sx, sy);
             hit_at(o, d)
         };
-        // Where sample k of pixel (x, y), which saw `hit`, lies.
-        let sample_point = |x: u32, y: u32, k: u32, hit: &SampleHit| -> Option<Vec3> {
-            let (o, d) = sample_ray(x, y, k % n, k / n);
+        // The side of a pixel's grid of `count` samples.
+        let side = |count: u32| if count == n * n || m == 0 { n } else { m };
+        // Where sample k of the `count` of pixel (x, y), which saw `hit`, lies.
+        let sample_point = |x: u32, y: u32, (k, count): (u32, u32), hit: &SampleHit| -> Option<Vec3> {
+            let g = side(count);
+            let (o, d) = grid_ray(x, y, (k % g, k / g), g);
             (self.normals[hit.primitive as usize].dot(d) < 0.0).then(|| o + d * hit.t)
+        };
+        // Edge pixels' samples replaced by the finer grid's.
+        let refine_edges = |x: u32, y: u32, buf: &mut Vec<SampleHit>| {
+            if m == 0 {
+                return;
+            }
+            let point = |k: usize| {
+                let (o, d) = grid_ray(x, y, (k as u32 % n, k as u32 / n), n);
+                o + d * buf[k].t
+            };
+            if on_edge(buf, &self.normals, point) {
+                buf.clear();
+                buf.extend((0..m * m).map(|k| {
+                    let (o, d) = grid_ray(x, y, (k % m, k / m), m);
+                    hit_at(o, d)
+                }));
+            }
         };
         let grids = &self.grids;
         // The side of the patch at surface point uv of a primitive (a
@@ -733,6 +807,7 @@ impl<'a> Renderer<'a> {
             let hits_of = |x: u32, y: u32, buf: &mut Vec<SampleHit>| {
                 buf.clear();
                 buf.extend((0..per_pixel as u32).map(|k| trace(x, y, k % n, k / n)));
+                refine_edges(x, y, buf);
             };
             let (image, direct, back) = shade_image((w, h), &hits_of, &vrad, &self.detail, pixel_light.as_ref());
             self.back_faces = back;
@@ -817,11 +892,53 @@ impl<'a> Renderer<'a> {
             let at = (y as usize * w as usize + x as usize) * per_pixel;
             buf.clear();
             buf.extend_from_slice(&samples[at..at + per_pixel]);
+            refine_edges(x, y, buf);
         };
         let (image, direct_image, back) = shade_image((w, h), &hits_of, &vrad, &self.detail, pixel_light.as_ref());
         self.back_faces = back;
         let images = (image, direct_image);
         self.cache = Some((record, samples));
         images
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A front-face sample of primitive `p` at distance `t`.
+    fn seen(p: u32, t: f32) -> SampleHit {
+        SampleHit { t, primitive: p, vertices: [0, 1, 2, 3], weights: [0.25; 4], ..NO_HIT }
+    }
+
+    #[test]
+    fn edges_are_corners_silhouettes_and_steps_not_seams_in_a_plane() {
+        let up = Vec3::Y;
+        let tilted = |deg: f32| Vec3::new(deg.to_radians().sin(), deg.to_radians().cos(), 0.0);
+        // Primitives: 0 and 1 the same floor plane, 2 a wall at 90°, 3 a
+        // floor 0.3 below, 4 a facet 10° off the floor, 5 one 25° off.
+        let normals = [up, up, Vec3::X, up, tilted(10.0), tilted(25.0)];
+        // Sample 0 at the origin, the other a pixel's width (1 cm) away at
+        // a distance of 2 m, on the plane each primitive is said to be in.
+        let points = |second: Vec3| move |k: usize| if k == 0 { Vec3::ZERO } else { second };
+        let pair = |p: u32| [seen(0, 2.0), seen(p, 2.0)];
+        let across = Vec3::new(0.01, 0.0, 0.0);
+        assert!(!on_edge(&pair(0), &normals, points(across)), "one primitive");
+        assert!(!on_edge(&pair(1), &normals, points(across)), "a seam between coplanar quads");
+        assert!(on_edge(&pair(2), &normals, points(across)), "a corner");
+        assert!(on_edge(&pair(3), &normals, points(Vec3::new(0.01, -0.3, 0.0))), "a step down to a parallel floor");
+        let facet = Vec3::new(0.01, 0.01 * 10f32.to_radians().tan(), 0.0);
+        assert!(!on_edge(&pair(4), &normals, points(facet)), "neighbouring facets of a smooth mesh");
+        assert!(on_edge(&pair(5), &normals, points(facet)), "a crease");
+        // Misses and back faces against a front face are edges; among
+        // themselves they are not.
+        let back = SampleHit { t: 2.0, primitive: 2, ..NO_HIT };
+        assert!(on_edge(&[seen(0, 2.0), NO_HIT], &normals, points(across)), "a silhouette against nothing");
+        assert!(on_edge(&[NO_HIT, seen(0, 2.0)], &normals, points(across)));
+        assert!(on_edge(&[seen(0, 2.0), back], &normals, points(across)), "a back face");
+        assert!(!on_edge(&[NO_HIT, back, NO_HIT], &normals, points(across)));
+        // Every sample is compared with the first.
+        let hits = [seen(0, 2.0), seen(1, 2.0), seen(0, 2.0), seen(2, 2.0)];
+        assert!(on_edge(&hits, &normals, |k| if k == 0 { Vec3::ZERO } else { across }));
     }
 }
