@@ -310,7 +310,7 @@ impl LinkStream {
     /// own windows, where a reader thread beside the workers handed every
     /// window over: a stage that one core ran for all, and three threads
     /// contending for two cores. Holds one window's buffers per worker
-    /// ([`Self::parallel_pass_bytes`]).
+    /// (the memory plan counts `max(2, threads)` windows).
     pub(super) fn for_each_window_par<T: Send, E: From<ArchiveError> + Send>(
         &self,
         columns: Columns,
@@ -338,12 +338,6 @@ impl LinkStream {
             }
             done
         })
-    }
-
-    /// The most heap a [`Self::for_each_window_par`] pass reading
-    /// `columns` holds: one window's buffers per worker of rayon's pool.
-    pub fn parallel_pass_bytes(&self, columns: Columns) -> usize {
-        rayon::current_num_threads().max(1) * self.capacity * bytes_per_end(columns)
     }
 
     /// Window `i` over the buffers `read_window` filled (and checked).
