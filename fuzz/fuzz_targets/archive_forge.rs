@@ -78,7 +78,7 @@ fuzz_target!(|data: &[u8]| {
     let opts = DistributeOptions { max_iterations: 6, ..Default::default() };
     let Ok(d) = Distributor::new(&v, &opts, &Lighting::from_view(&v)) else { return };
     let small = (v.camera.width as u64 * v.camera.height as u64) <= 64 * 64;
-    let mut renderer = small.then(|| Renderer::new(&v, RenderOptions { samples_per_axis: 1 }));
+    let mut renderer = small.then(|| Renderer::new(&v, RenderOptions { samples_per_axis: 1, ..Default::default() }));
     for f in 0..v.sequence.map_or(1, |s| s.frames().min(3)) {
         let Ok(s) = d.frame(f, None, &NoProgress) else { return };
         assert!(s.radiance.iter().flatten().all(|c| c.is_finite()), "a non-finite radiance was handed out");
