@@ -229,8 +229,9 @@ impl LinkStream {
         self.capacity
     }
 
-    /// The most heap a pass reading `columns` holds (two windows'
-    /// buffers: one in use, one being read).
+    /// The most heap a sequential pass reading `columns`
+    /// holds (two windows' buffers: one in use, one being read; the
+    /// gather's parallel passes hold one per worker).
     pub fn pass_bytes(&self, columns: Columns) -> usize {
         2 * self.capacity * bytes_per_end(columns)
     }

@@ -102,7 +102,8 @@ struct RenderArgs {
     /// samples see surfaces that are not one plane), traced again N×N
     /// (0: off). Default: 16 for one frame with `--shading direct`; 0 for
     /// several (a sequence or a walkthrough: each frame's cost counts) and
-    /// for the paper's shading.
+    /// for the paper's shading. Edges are found among the pixel's --samples
+    /// (none with one sample per pixel).
     #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(0..=64))]
     edge_samples: Option<u32>,
     /// Multiply radiance by this before tone mapping and sRGB encoding the

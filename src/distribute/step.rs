@@ -322,8 +322,13 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
         let (d, nb) = (self.d, self.d.nb);
         let (offsets, shoot, recv) = (d.v.link_offsets, &self.shoot, &mut self.recv);
         // Resident ends are one window, split over the workers; streamed
-        // windows are each one worker's.
-        let parallel = !d.v.links.is_streamed();
+        // windows are each one worker's, unless there are fewer windows
+        // than workers (then a window's patches are split too: a worker
+        // holding a window can only pick up another of those few).
+        let parallel = match d.v.links {
+            crate::archive::Links::Resident(_) => true,
+            crate::archive::Links::Streamed(s) => s.window_count() < rayon::current_num_threads(),
+        };
         d.v.links.for_each_window_par(Columns::GATHER, d.v.patch_count(), recv, nb, |w, out| {
             match &d.bucket_runs {
                 Some(runs) => gather_buckets(&w, offsets, runs, nb, present, shoot, out, parallel),

@@ -90,7 +90,11 @@ pub struct RenderOptions {
     pub samples_per_axis: u32,
     /// Samples per axis of pixels on an edge (their samples see a miss and
     /// a surface, or surfaces that are not one plane), traced again in an
-    /// `m×m` grid; 0 (or not above `samples_per_axis`): off. A few samples
+    /// `m×m` grid (m at most 256); 0 (or not above `samples_per_axis`):
+    /// off. Edges are found among a pixel's `n × n` samples, so with one
+    /// sample per pixel none are. An edge pixel's one-bounce gather
+    /// traces at least one ray per sample (m² where that exceeds its
+    /// rays). A few samples
     /// put a corner or a silhouette at the same place in every pixel along
     /// it, so the pixels' cover of the two sides errs the same way along
     /// the whole line: the Cornell box's edges were half its direct
@@ -323,7 +327,9 @@ const REFINE_RADIUS: u32 = 2;
 
 /// The box-filtered image of `w × h` pixels whose samples `hits_of`
 /// gives: interpolated vertex radiance plus, when `direct` is given,
-/// direct light; and the direct light alone.
+/// direct light; the direct light alone; and the pixels' summed shares of
+/// samples that saw a back face (an edge pixel's finer grid counts as one
+/// pixel, like the others).
 ///
 /// Direct light takes two passes. The first gives every pixel a cheap
 /// unbiased estimate (four rays, [`DirectLight::estimate`]) and notes, per
@@ -343,8 +349,10 @@ fn shade_image(
     vrad: &[[f32; 3]],
     detail: &SurfaceDetail<'_>,
     direct: Option<&PixelLight<'_>>,
-) -> (Image, Option<Image>, usize) {
-    let back_faces = std::sync::atomic::AtomicUsize::new(0);
+) -> (Image, Option<Image>, f64) {
+    // In 2⁻¹⁶ of a pixel.
+    const ONE: u64 = 1 << 16;
+    let back_faces = std::sync::atomic::AtomicU64::new(0);
     let mut pixels = vec![[0.0f32; 3]; (w * h) as usize];
     let mut direct_pixels = vec![[0.0f32; 3]; (w * h) as usize];
     // Glossy highlights: taken once, in the first pass.
@@ -387,7 +395,8 @@ fn shade_image(
                 back += usize::from(hit.primitive != u32::MAX && hit.vertices == [NO_VERTEX; 4]);
             }
             if back > 0 {
-                back_faces.fetch_add(back, std::sync::atomic::Ordering::Relaxed);
+                let share = back as u64 * ONE / hits.len() as u64;
+                back_faces.fetch_add(share, std::sync::atomic::Ordering::Relaxed);
             }
             let inv = 1.0 / hits.len().max(1) as f32;
             *px = (acc * inv).to_array();
@@ -400,7 +409,7 @@ fn shade_image(
             }
         }
     });
-    let back_faces = back_faces.into_inner();
+    let back_faces = back_faces.into_inner() as f64 / ONE as f64;
     let Some(pl) = direct else {
         return (Image { width: w, height: h, pixels }, None, back_faces);
     };
@@ -579,10 +588,13 @@ pub struct Renderer<'a> {
     cache_budget: u64,
     /// The camera given at render time, replacing the archive's.
     camera: Option<crate::archive::layout::CameraRecord>,
-    /// Samples traced against the whole scene in the last frame.
+    /// Samples of the `n × n` grids traced against the whole scene in the
+    /// last frame (edge pixels' finer grids are traced besides, every
+    /// frame, and not counted).
     pub retraced: usize,
     /// Samples of the last frame that saw a back face (shown black:
-    /// surfaces are one-sided).
+    /// surfaces are one-sided), in units of the `n × n` grid: an edge
+    /// pixel's finer samples count by their share of the pixel.
     pub back_faces: usize,
 }
 
@@ -810,7 +822,7 @@ impl<'a> Renderer<'a> {
                 refine_edges(x, y, buf);
             };
             let (image, direct, back) = shade_image((w, h), &hits_of, &vrad, &self.detail, pixel_light.as_ref());
-            self.back_faces = back;
+            self.back_faces = (back * per_pixel as f64).round() as usize;
             return (image, direct);
         }
         // Reuse what the samples saw last frame when the camera is the same.
@@ -895,7 +907,7 @@ impl<'a> Renderer<'a> {
             refine_edges(x, y, buf);
         };
         let (image, direct_image, back) = shade_image((w, h), &hits_of, &vrad, &self.detail, pixel_light.as_ref());
-        self.back_faces = back;
+        self.back_faces = (back * per_pixel as f64).round() as usize;
         let images = (image, direct_image);
         self.cache = Some((record, samples));
         images

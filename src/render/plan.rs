@@ -207,7 +207,7 @@ pub fn plan(s: &ArchiveSummary, job: &RenderJob, budget: MemoryBudget) -> Result
     let base_total = sum(&base);
     let least = {
         let mut parts = base.clone();
-        parts.push(("link windows", window_bytes(MIN_WINDOW_ENDS)));
+        parts.push(("link windows (one per worker thread, at least two)", window_bytes(MIN_WINDOW_ENDS)));
         parts
     };
     if !fits(&least) {
@@ -219,7 +219,7 @@ pub fn plan(s: &ArchiveSummary, job: &RenderJob, budget: MemoryBudget) -> Result
     let per_window = (room - cache) / (windows * WINDOW_BYTES_PER_END);
     let window = per_window.saturating_sub(2 * CHUNK_ENDS as u64).clamp(MIN_WINDOW_ENDS, MAX_WINDOW_ENDS);
     let mut parts = base;
-    parts.push(("link windows", window_bytes(window)));
+    parts.push(("link windows (one per worker thread, at least two)", window_bytes(window)));
     parts.push(("sample cache", cache));
     Ok(MemoryPlan { access: LinkAccess::Streamed { window_ends: window as usize }, cache_bytes: cache, budget, parts })
 }
