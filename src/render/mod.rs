@@ -91,14 +91,13 @@ pub struct RenderOptions {
     /// Samples per axis of pixels on an edge (their samples see a miss and
     /// a surface, or surfaces that are not one plane), traced again in an
     /// `m×m` grid (m at most 256); 0 (or not above `samples_per_axis`):
-    /// off. Edges are found among a pixel's `n × n` samples, so with one
-    /// sample per pixel none are. An edge pixel's one-bounce gather
-    /// traces at least one ray per sample (m² where that exceeds its
-    /// rays). A few samples
-    /// put a corner or a silhouette at the same place in every pixel along
-    /// it, so the pixels' cover of the two sides errs the same way along
-    /// the whole line: the Cornell box's edges were half its direct
-    /// light's error at 4×4 (`docs/GATHER.md`).
+    /// off. A few samples put a corner or a silhouette at the same place
+    /// in every pixel along it, so the pixels' cover of the two sides errs
+    /// the same way along the whole line: the Cornell box's edges were
+    /// half its direct light's error at 4×4 (`docs/GATHER.md`). Edges are
+    /// found among a pixel's `n × n` samples, so with one sample per pixel
+    /// none are. An edge pixel's one-bounce gather traces at least one ray
+    /// per sample (m² where that exceeds its rays).
     pub edge_samples_per_axis: u32,
 }
 
