@@ -10,7 +10,12 @@
 //!   patches (256 KiB of state, in the core's cache), with the stream
 //!   prefetched 4 KiB ahead (x86-64), and with both;
 //! - the masked gather over the first rows holding ~14 M ends (70 MB,
-//!   which stay in a large L3), repeated to the same count of ends.
+//!   which stay in a large L3), repeated to the same count of ends;
+//! - the same gather over the ends re-laid in memory in blocks of
+//!   (receiver chunk, sender chunk) with 16-bit ids local to the sender
+//!   chunk (issue 11, item 4's layout, tried before it goes into the
+//!   format), per receiver in runs, or sorted by sender with each end's
+//!   receiver beside it.
 //!
 //! Numbers for `docs/PERFORMANCE.md`:
 //!
@@ -51,6 +56,15 @@ fn main() {
     let patches = offsets.len() - 1;
     let shoot: Vec<[f32; 4]> = (0..patches).map(|i| [i as f32 * 1e-6, 1.0, 2.0, 0.0]).collect();
     let mut recv = vec![[0f32; 4]; patches];
+    let mut recv2 = vec![[0f32; 4]; patches];
+    let t = Instant::now();
+    let blocked: std::collections::HashMap<(u32, usize), Blocked> = BLOCKINGS
+        .iter()
+        .map(|&(bits, chunk)| ((bits, chunk), Blocked::new(offsets, other, count, bits, chunk, false)))
+        .collect();
+    let scatter: Vec<Blocked> =
+        SCATTERS.iter().map(|&(bits, chunk)| Blocked::new(offsets, other, count, bits, chunk, true)).collect();
+    eprintln!("blocked layouts made in {:.1} s", t.elapsed().as_secs_f64());
     let ends = (other.len() * PASSES) as f64;
     println!(
         "{path}: {patches} patches, {} link ends ({:.1} ends a patch)",
@@ -99,6 +113,209 @@ fn main() {
             }
             let n = offsets[sub] as f64 * (PASSES * reps) as f64;
             line(&format!("gather, masked, first {sub} patches x{reps}"), n / t.elapsed().as_secs_f64());
+            let t = Instant::now();
+            for _ in 0..PASSES {
+                rows(offsets, other, count, &shoot, &mut recv2);
+            }
+            line("gather, rows, the blocked kernel", ends / t.elapsed().as_secs_f64());
+            for &(bits, chunk) in &BLOCKINGS {
+                let b = &blocked[&(bits, chunk)];
+                let t = Instant::now();
+                for _ in 0..PASSES {
+                    b.gather(&shoot, &mut recv2);
+                }
+                let rate = ends / t.elapsed().as_secs_f64();
+                let mut err = 0f64;
+                gather(offsets, other, count, &shoot, u32::MAX, false, &mut recv);
+                for (a, b) in recv.iter().zip(&recv2) {
+                    for c in 0..3 {
+                        err = err.max(((a[c] - b[c]) as f64).abs() / (a[c] as f64).abs().max(1e-30));
+                    }
+                }
+                line(&format!("blocked 2^{bits} x {chunk} ({:.2} B/end, rel {err:.1e})", b.bytes_per_end()), rate);
+            }
+            for b in &scatter {
+                let t = Instant::now();
+                for _ in 0..PASSES {
+                    b.gather(&shoot, &mut recv2);
+                }
+                let rate = ends / t.elapsed().as_secs_f64();
+                let mut err = 0f64;
+                for (a, b) in recv.iter().zip(&recv2) {
+                    for c in 0..3 {
+                        err = err.max(((a[c] - b[c]) as f64).abs() / (a[c] as f64).abs().max(1e-30));
+                    }
+                }
+                let what =
+                    format!("by sender 2^{} x {} ({:.2} B/end, rel {err:.1e})", b.bits, b.chunk, b.bytes_per_end());
+                line(&what, rate);
+            }
+        });
+    }
+}
+
+/// The blocked kernel's loop over rows of u32 ids.
+fn rows(offsets: &[u64], other: &[u32], count: &[u8], shoot: &[[f32; 4]], recv: &mut [[f32; 4]]) {
+    recv.par_chunks_mut(BLOCK).enumerate().for_each(|(block, out)| {
+        for (i, r) in out.iter_mut().enumerate() {
+            let q = block * BLOCK + i;
+            let row = offsets[q] as usize..offsets[q + 1] as usize;
+            let (o, w) = (&other[row.clone()], &count[row]);
+            let mut acc = [[0f32; 4]; 4];
+            for (o4, w4) in o.chunks(4).zip(w.chunks(4)) {
+                for (j, (&o, &w)) in o4.iter().zip(w4).enumerate() {
+                    let s = shoot[o as usize];
+                    for c in 0..4 {
+                        acc[j][c] += w as f32 * s[c];
+                    }
+                }
+            }
+            *r = [0, 1, 2, 3].map(|c| (acc[0][c] + acc[1][c]) + (acc[2][c] + acc[3][c]));
+        }
+    });
+}
+
+/// Sender-chunk bits and receiver-chunk sizes tried.
+const BLOCKINGS: [(u32, usize); 3] = [(15, 1024), (16, 1024), (16, 4096)];
+
+/// Sender-chunk bits and receiver-chunk sizes tried with ends sorted by sender.
+const SCATTERS: [(u32, usize); 2] = [(16, 2048), (16, 4096)];
+
+/// The link ends re-laid in blocks of (receiver chunk, sender chunk):
+/// within a receiver chunk, per sender chunk, each receiver's ends with
+/// 16-bit ids local to the sender chunk.
+struct Blocked {
+    bits: u32,
+    chunk: usize,
+    patches: usize,
+    /// Per receiver chunk, its blocks `block_start[c]..block_start[c + 1]`.
+    block_start: Vec<usize>,
+    /// Per block: sender chunk, first count index, first end.
+    blocks: Vec<(u32, usize, usize)>,
+    /// Per block, per receiver of the chunk, its ends in the block (empty
+    /// when sorted by sender).
+    counts: Vec<u16>,
+    /// Per end, its receiver within the chunk (when sorted by sender).
+    recv: Vec<u16>,
+    ids: Vec<u16>,
+    weights: Vec<u8>,
+}
+
+impl Blocked {
+    fn new(offsets: &[u64], other: &[u32], count: &[u8], bits: u32, chunk: usize, by_sender: bool) -> Self {
+        let patches = offsets.len() - 1;
+        let chunks = patches.div_ceil(chunk);
+        let parts: Vec<_> = (0..chunks)
+            .into_par_iter()
+            .map(|c| {
+                let (lo, hi) = (c * chunk, ((c + 1) * chunk).min(patches));
+                let mut e: Vec<(u32, u32, u32)> = Vec::new();
+                for q in lo..hi {
+                    let row = offsets[q] as usize..offsets[q + 1] as usize;
+                    for (k, &o) in row.clone().zip(&other[row]) {
+                        e.push((o >> bits, if by_sender { o } else { (q - lo) as u32 }, k as u32));
+                    }
+                }
+                e.sort_unstable();
+                let mut blocks = Vec::new();
+                let mut counts = Vec::new();
+                let mut recv = Vec::new();
+                let (mut ids, mut weights) = (Vec::with_capacity(e.len()), Vec::with_capacity(e.len()));
+                let owner = |k: u32| offsets.partition_point(|&o| o <= k as u64) - 1 - lo;
+                for run in e.chunk_by(|a, b| a.0 == b.0) {
+                    blocks.push((run[0].0, counts.len(), ids.len()));
+                    let mut n = vec![0u16; chunk];
+                    for &(_, r, k) in run {
+                        if by_sender {
+                            recv.push(owner(k) as u16);
+                        } else {
+                            n[r as usize] += 1;
+                        }
+                        ids.push((other[k as usize] & ((1 << bits) - 1)) as u16);
+                        weights.push(count[k as usize]);
+                    }
+                    if !by_sender {
+                        counts.extend_from_slice(&n);
+                    }
+                }
+                (blocks, counts, recv, ids, weights)
+            })
+            .collect();
+        let mut b = Blocked {
+            bits,
+            chunk,
+            patches,
+            block_start: vec![0],
+            blocks: Vec::new(),
+            counts: Vec::new(),
+            recv: Vec::new(),
+            ids: Vec::new(),
+            weights: Vec::new(),
+        };
+        for (blocks, counts, recv, ids, weights) in parts {
+            let (c0, e0) = (b.counts.len(), b.ids.len());
+            b.blocks.extend(blocks.into_iter().map(|(s, c, e)| (s, c + c0, e + e0)));
+            b.block_start.push(b.blocks.len());
+            b.counts.extend(counts);
+            b.recv.extend(recv);
+            b.ids.extend(ids);
+            b.weights.extend(weights);
+        }
+        b
+    }
+
+    fn bytes_per_end(&self) -> f64 {
+        (self.ids.len() * 3 + self.recv.len() * 2 + self.counts.len() * 2 + self.blocks.len() * 16) as f64
+            / self.ids.len() as f64
+    }
+
+    fn gather(&self, shoot: &[[f32; 4]], recv: &mut [[f32; 4]]) {
+        recv[..self.patches].par_chunks_mut(self.chunk).enumerate().for_each(|(c, out)| {
+            for r in out.iter_mut() {
+                *r = [0.0; 4];
+            }
+            let blocks = self.block_start[c]..self.block_start[c + 1];
+            if !self.recv.is_empty() {
+                for i in blocks {
+                    let (s, _, e0) = self.blocks[i];
+                    let e1 = self.blocks.get(i + 1).map_or(self.ids.len(), |b| b.2);
+                    let base = (s as usize) << self.bits;
+                    let slice = &shoot[base..(base + (1 << self.bits)).min(shoot.len())];
+                    for ((&o, &w), &r) in self.ids[e0..e1].iter().zip(&self.weights[e0..e1]).zip(&self.recv[e0..e1]) {
+                        let s = slice[o as usize];
+                        let a = &mut out[r as usize];
+                        for c in 0..4 {
+                            a[c] += w as f32 * s[c];
+                        }
+                    }
+                }
+                return;
+            }
+            for &(s, c0, e0) in &self.blocks[blocks] {
+                let base = (s as usize) << self.bits;
+                let slice = &shoot[base..(base + (1 << self.bits)).min(shoot.len())];
+                let mut e = e0;
+                for (r, &n) in out.iter_mut().zip(&self.counts[c0..c0 + self.chunk]) {
+                    let n = n as usize;
+                    if n == 0 {
+                        continue;
+                    }
+                    let (o, w) = (&self.ids[e..e + n], &self.weights[e..e + n]);
+                    e += n;
+                    let mut acc = [[0f32; 4]; 4];
+                    for (o4, w4) in o.chunks(4).zip(w.chunks(4)) {
+                        for (j, (&o, &w)) in o4.iter().zip(w4).enumerate() {
+                            let s = slice[o as usize];
+                            for c in 0..4 {
+                                acc[j][c] += w as f32 * s[c];
+                            }
+                        }
+                    }
+                    for c in 0..4 {
+                        r[c] += (acc[0][c] + acc[1][c]) + (acc[2][c] + acc[3][c]);
+                    }
+                }
+            }
         });
     }
 }
