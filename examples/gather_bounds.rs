@@ -65,6 +65,16 @@ fn main() {
     let scatter: Vec<Blocked> =
         SCATTERS.iter().map(|&(bits, chunk)| Blocked::new(offsets, other, count, bits, chunk, true)).collect();
     eprintln!("blocked layouts made in {:.1} s", t.elapsed().as_secs_f64());
+    for &(bits, chunk) in &BLOCKINGS {
+        let b = &blocked[&(bits, chunk)];
+        let runs = b.counts.iter().filter(|&&n| n > 0).count();
+        println!(
+            "blocked 2^{bits} x {chunk}: {:.1} blocks a receiver chunk, {:.1} runs a receiver, {:.1} ends a run",
+            b.blocks.len() as f64 / (b.block_start.len() - 1) as f64,
+            runs as f64 / patches as f64,
+            b.ids.len() as f64 / runs as f64
+        );
+    }
     let ends = (other.len() * PASSES) as f64;
     println!(
         "{path}: {patches} patches, {} link ends ({:.1} ends a patch)",
