@@ -169,3 +169,70 @@ fn a_streamed_sequence_reads_its_frames_from_disk_and_notices_changes() {
     let err = a.view().frame_links(frame).unwrap_err().to_string();
     assert!(err.contains("ended early"), "{err}");
 }
+
+#[test]
+fn a_pass_holds_no_more_windows_than_its_limit_whatever_the_workers() {
+    // Four workers, two windows at a time: the same light bit for bit, and
+    // no more than two windows' buffers ever made (a budget with room for
+    // two windows on a machine of many cores).
+    let scene = Scene::cornell_box();
+    let hints = BuildHints { patch_size: Some(0.1), frequency: Some(6), ray_spacing: Some(0.02), buckets: None };
+    let dir = tempfile::tempdir().unwrap();
+    let path = write(&scene, hints, dir.path());
+    let want = solve_all(&Archive::open(&path).unwrap());
+    let pool = rayon::ThreadPoolBuilder::new().num_threads(4).build().unwrap();
+    pool.install(|| {
+        for limit in [1, 2, 3] {
+            let streamed = Archive::open_streamed(&path, 300).unwrap();
+            let s = streamed.link_stream().expect("streamed");
+            s.limit_windows_in_flight(limit);
+            assert!(s.window_count() > 4 * limit, "{} windows", s.window_count());
+            assert_eq!(s.windows_in_flight(), limit);
+            assert_same(&want, &solve_all(&streamed), &format!("{limit} windows at a time on 4 workers"));
+            // Sequential passes hold two (one in use, one being read).
+            let most = limit.max(2) * s.window_capacity() * 10;
+            assert!(s.pooled_bytes() <= most, "{} bytes of windows kept, at most {most}", s.pooled_bytes());
+        }
+    });
+}
+
+#[test]
+fn the_least_a_streamed_render_needs_does_not_grow_with_the_cores() {
+    use illumnet::memory::{BudgetSource, MemoryBudget};
+    use illumnet::render::plan::{LinkAccess, RenderJob, plan};
+    let scene = Scene::cornell_box();
+    let hints = BuildHints { patch_size: Some(0.1), frequency: Some(6), ray_spacing: Some(0.02), buckets: None };
+    let dir = tempfile::tempdir().unwrap();
+    let path = write(&scene, hints, dir.path());
+    let mut summary = Archive::summary(&path).unwrap();
+    // As if the file were 1 TB: it is never mapped whole (the plan reads
+    // the sizes of the sections held, not of the link ends).
+    summary.file_length = 1 << 40;
+    let job = |threads| RenderJob {
+        width: 64,
+        height: 64,
+        samples_per_axis: 2,
+        frames: 1,
+        keep_images: false,
+        anderson_depth: 5,
+        buckets: true,
+        threads,
+    };
+    let budget = |bytes| MemoryBudget { bytes, source: BudgetSource::Given };
+    // The least, from the refusal of a budget far too small: the same on
+    // 2 and on 64 workers.
+    let least = |threads| plan(&summary, &job(threads), budget(1 << 20)).unwrap_err().needed();
+    assert_eq!(least(2), least(64));
+    for (threads, extra_windows, want) in [(64, 0, 2), (64, 3, 5), (2, 3, 2), (4, 100, 4)] {
+        // A smallest window: (2¹⁶ + 2 × 2¹⁶ ends) × 10 bytes.
+        let bytes = least(threads) + extra_windows * 3 * 65_536 * 10;
+        let p = plan(&summary, &job(threads), budget(bytes)).unwrap();
+        match p.access {
+            LinkAccess::Streamed { in_flight, .. } => {
+                assert_eq!(in_flight as u64, want, "{threads} threads, {bytes} bytes")
+            }
+            other => panic!("{threads} threads, {bytes} bytes: {other:?}"),
+        }
+        assert!(p.total() <= bytes, "{threads} threads: planned {} of {bytes}", p.total());
+    }
+}

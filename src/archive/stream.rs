@@ -1,7 +1,7 @@
 //! Streaming frame 0's link ends from disk: the columns of §5.10 read in
 //! windows of consecutive patches into reused buffers, so that memory
-//! holds a few windows (one per worker, at least two), not the archive,
-//! whatever its size.
+//! holds a few windows (one per worker, or as many as the memory plan
+//! allows, at least two), not the archive, whatever its size.
 //!
 //! Reads are `pread`s into owned buffers, not a mapping: a file truncated
 //! or rewritten under a running render is an error (a short read, a
@@ -15,7 +15,7 @@ use std::fs::File;
 use std::ops::Range;
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::mpsc::sync_channel;
 
 use xxhash_rust::xxh3::{Xxh3, xxh3_64};
@@ -67,6 +67,8 @@ pub struct LinkStream {
     pool: Mutex<Vec<Buffers>>,
     /// Drop the file's cached pages before every full pass (measurement).
     evict: AtomicBool,
+    /// The most windows a parallel pass holds at once.
+    in_flight: AtomicUsize,
 }
 
 struct Window {
@@ -192,6 +194,7 @@ impl LinkStream {
             capacity,
             pool: Mutex::new(Vec::new()),
             evict: AtomicBool::new(false),
+            in_flight: AtomicUsize::new(usize::MAX),
         })
     }
 
@@ -201,6 +204,22 @@ impl LinkStream {
     /// archive larger than memory do. Linux only; elsewhere a no-op.
     pub fn evict_each_pass(&self, on: bool) {
         self.evict.store(on, Ordering::Relaxed);
+    }
+
+    /// Lets a parallel pass hold at most `n` windows at once (at least
+    /// one), so that the memory it takes does not grow with the cores: a
+    /// budget that has room for a few windows holds them, and the workers
+    /// beyond share each window's patches. Unlimited by default (one
+    /// window per worker).
+    pub fn limit_windows_in_flight(&self, n: usize) {
+        self.in_flight.store(n.max(1), Ordering::Relaxed);
+    }
+
+    /// The windows a parallel pass holds at once: one per worker, at most
+    /// the limit ([`Self::limit_windows_in_flight`]) and the window count.
+    pub fn windows_in_flight(&self) -> usize {
+        let limit = self.in_flight.load(Ordering::Relaxed);
+        rayon::current_num_threads().min(limit).min(self.windows.len()).max(1)
     }
 
     /// Heap bytes held for the whole pass: `LCNX` and the chunk checksums
@@ -231,7 +250,7 @@ impl LinkStream {
 
     /// The most heap a sequential pass reading `columns`
     /// holds (two windows' buffers: one in use, one being read; the
-    /// gather's parallel passes hold one per worker).
+    /// gather's parallel passes hold [`Self::windows_in_flight`]).
     pub fn pass_bytes(&self, columns: Columns) -> usize {
         2 * self.capacity * bytes_per_end(columns)
     }
@@ -303,15 +322,17 @@ impl LinkStream {
         })
     }
 
-    /// Calls `f` on every window, several at once: each of rayon's
-    /// workers reads a window into a buffer of its own, checks it as
-    /// [`Self::for_each_window`] does, and calls `f` with it and the
+    /// Calls `f` on every window, several at once: each of
+    /// [`Self::windows_in_flight`] lanes (rayon tasks) takes the next
+    /// window not yet taken, reads it into a buffer of its own, checks it
+    /// as [`Self::for_each_window`] does, and calls `f` with it and the
     /// window's part of `out` (`per_patch` entries a patch, `out` having
     /// them for every patch). Each core then copies, checks and uses its
     /// own windows, where a reader thread beside the workers handed every
     /// window over: a stage that one core ran for all, and three threads
-    /// contending for two cores. Holds one window's buffers per worker
-    /// (the memory plan counts `max(2, threads)` windows).
+    /// contending for two cores. Holds one window's buffers per lane (the
+    /// memory plan counts them); with fewer lanes than workers, `f` is
+    /// expected to split its window's work among them.
     pub(super) fn for_each_window_par<T: Send, E: From<ArchiveError> + Send>(
         &self,
         columns: Columns,
@@ -324,16 +345,28 @@ impl LinkStream {
         if self.evict.load(Ordering::Relaxed) {
             drop_cached(&self.file);
         }
+        // Each window's part of `out`, taken by the lane that takes the window.
         let mut parts = Vec::with_capacity(self.windows.len());
         let mut rest = out;
         for w in &self.windows {
             let (part, tail) = std::mem::take(&mut rest).split_at_mut(w.patches.len() * per_patch);
-            parts.push(part);
+            parts.push(Mutex::new(Some(part)));
             rest = tail;
         }
-        parts.into_par_iter().enumerate().with_max_len(1).try_for_each(|(i, part)| {
+        let next = AtomicUsize::new(0);
+        (0..self.windows_in_flight()).into_par_iter().with_max_len(1).try_for_each(|_| {
             let mut b = self.pool.lock().ok().and_then(|mut p| p.pop()).unwrap_or_default();
-            let done = self.read_window(i, columns, &mut b).map_err(E::from).and_then(|()| f(self.window(i, &b), part));
+            let mut done = Ok(());
+            loop {
+                let i = next.fetch_add(1, Ordering::Relaxed);
+                let Some(part) = parts.get(i).and_then(|p| p.lock().ok()?.take()) else { break };
+                done = self.read_window(i, columns, &mut b).map_err(E::from).and_then(|()| f(self.window(i, &b), part));
+                if done.is_err() {
+                    // The other lanes stop at their next window.
+                    next.store(parts.len(), Ordering::Relaxed);
+                    break;
+                }
+            }
             if let Ok(mut pool) = self.pool.lock() {
                 pool.push(b);
             }

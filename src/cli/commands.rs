@@ -498,10 +498,13 @@ pub fn render(
             )
         }
         plan::LinkAccess::Mapped => open_archive(path)?,
-        plan::LinkAccess::Streamed { window_ends } => opened(path, Archive::open_streamed(path, window_ends))?,
+        plan::LinkAccess::Streamed { window_ends, .. } => opened(path, Archive::open_streamed(path, window_ends))?,
     };
     if let Some(stream) = archive.link_stream() {
         stream.evict_each_pass(args.evict_each_pass);
+        if let plan::LinkAccess::Streamed { in_flight, .. } = memory.access {
+            stream.limit_windows_in_flight(in_flight);
+        }
     }
     if budget.source == BudgetSource::Given || memory.access != plan::LinkAccess::Mapped {
         println!("memory: {memory}");

@@ -322,12 +322,12 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
         let (d, nb) = (self.d, self.d.nb);
         let (offsets, shoot, recv) = (d.v.link_offsets, &self.shoot, &mut self.recv);
         // Resident ends are one window, split over the workers; streamed
-        // windows are each one worker's, unless there are fewer windows
-        // than workers (then a window's patches are split too: a worker
-        // holding a window can only pick up another of those few).
+        // windows are each one worker's, unless fewer are held at once
+        // than there are workers (few windows, or a budget with room for
+        // few): then a window's patches are split too.
         let parallel = match d.v.links {
             crate::archive::Links::Resident(_) => true,
-            crate::archive::Links::Streamed(s) => s.window_count() < rayon::current_num_threads(),
+            crate::archive::Links::Streamed(s) => s.windows_in_flight() < rayon::current_num_threads(),
         };
         d.v.links.for_each_window_par(Columns::GATHER, d.v.patch_count(), recv, nb, |w, out| {
             match &d.bucket_runs {

@@ -50,7 +50,8 @@ pub struct RenderJob {
     pub anderson_depth: u32,
     /// Whether the distribution uses the archive's buckets.
     pub buckets: bool,
-    /// Worker threads: a streamed gather holds a window per worker.
+    /// Worker threads: a streamed gather reads a window per worker, as
+    /// many at once as the budget has room for (at least two).
     pub threads: u32,
 }
 
@@ -60,10 +61,15 @@ pub enum LinkAccess {
     /// The file mapped whole ([`crate::archive::Archive::open`]).
     Mapped,
     /// Read in windows of about this many ends
-    /// ([`crate::archive::Archive::open_streamed`]).
+    /// ([`crate::archive::Archive::open_streamed`]), at most
+    /// `in_flight` of them held at once
+    /// ([`crate::archive::LinkStream::limit_windows_in_flight`]).
     Streamed {
         /// Link ends per window.
         window_ends: usize,
+        /// Windows read and used at once: one per worker thread where the
+        /// budget has room, fewer (at least two) where it has not.
+        in_flight: usize,
     },
 }
 
@@ -97,7 +103,9 @@ impl fmt::Display for MemoryPlan {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self.access {
             LinkAccess::Mapped => write!(f, "archive mapped whole")?,
-            LinkAccess::Streamed { window_ends } => write!(f, "link ends streamed in windows of {window_ends} ends")?,
+            LinkAccess::Streamed { window_ends, in_flight } => {
+                write!(f, "link ends streamed in windows of {window_ends} ends, {in_flight} at a time")?
+            }
         }
         write!(f, ", {} planned of a budget of {}", Bytes(self.total()), self.budget)?;
         if self.cache_bytes == 0 {
@@ -201,13 +209,17 @@ pub fn plan(s: &ArchiveSummary, job: &RenderJob, budget: MemoryBudget) -> Result
     let sums = ends.div_ceil(CHUNK_ENDS as u64) * 32;
     // `DELT` stays on disk: one frame's stored bytes at a time.
     let held = s.held_bytes() + sums + OPEN_BUFFER + s.max_delta_stored;
-    let windows = job.threads.max(2) as u64;
-    let window_bytes = |w: u64| windows * (w + 2 * CHUNK_ENDS as u64) * WINDOW_BYTES_PER_END;
+    // One window per worker where there is room, else as many as fit at
+    // the smallest size, and never fewer than two: the least a streamed
+    // render needs does not grow with the machine's cores.
+    let workers = job.threads.max(2) as u64;
+    let one_window = |w: u64| (w + 2 * CHUNK_ENDS as u64) * WINDOW_BYTES_PER_END;
+    const WINDOWS: &str = "link windows (one per worker thread where there is room, at least two)";
     let base = with(vec![("archive sections held", held)]);
     let base_total = sum(&base);
     let least = {
         let mut parts = base.clone();
-        parts.push(("link windows (one per worker thread, at least two)", window_bytes(MIN_WINDOW_ENDS)));
+        parts.push((WINDOWS, 2 * one_window(MIN_WINDOW_ENDS)));
         parts
     };
     if !fits(&least) {
@@ -215,11 +227,13 @@ pub fn plan(s: &ArchiveSummary, job: &RenderJob, budget: MemoryBudget) -> Result
     }
     let room = budget.bytes - base_total;
     // The cache only where it leaves room for the largest windows.
-    let cache = if cache > 0 && room >= cache + window_bytes(MAX_WINDOW_ENDS) { cache } else { 0 };
-    let per_window = (room - cache) / (windows * WINDOW_BYTES_PER_END);
+    let cache = if cache > 0 && room >= cache + workers * one_window(MAX_WINDOW_ENDS) { cache } else { 0 };
+    let in_flight = ((room - cache) / one_window(MIN_WINDOW_ENDS)).clamp(2, workers);
+    let per_window = (room - cache) / (in_flight * WINDOW_BYTES_PER_END);
     let window = per_window.saturating_sub(2 * CHUNK_ENDS as u64).clamp(MIN_WINDOW_ENDS, MAX_WINDOW_ENDS);
     let mut parts = base;
-    parts.push(("link windows (one per worker thread, at least two)", window_bytes(window)));
+    parts.push((WINDOWS, in_flight * one_window(window)));
     parts.push(("sample cache", cache));
-    Ok(MemoryPlan { access: LinkAccess::Streamed { window_ends: window as usize }, cache_bytes: cache, budget, parts })
+    let access = LinkAccess::Streamed { window_ends: window as usize, in_flight: in_flight as usize };
+    Ok(MemoryPlan { access, cache_bytes: cache, budget, parts })
 }
