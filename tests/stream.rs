@@ -28,6 +28,14 @@ fn write(scene: &Scene, hints: BuildHints, dir: &Path) -> PathBuf {
     path
 }
 
+/// The Cornell box at coarse settings (more than one 2¹⁶-end chunk of
+/// link ends, so windows of a few hundred ends are hundreds), written
+/// into `dir`.
+fn coarse_cornell_box(dir: &Path) -> PathBuf {
+    let hints = BuildHints { patch_size: Some(0.1), frequency: Some(6), ray_spacing: Some(0.02), buckets: None };
+    write(&Scene::cornell_box(), hints, dir)
+}
+
 /// Every frame of the archive, each warm-started from the last, as one
 /// distributor does them.
 fn solve_all(a: &Archive) -> Vec<Solution> {
@@ -98,10 +106,8 @@ fn section_offset(path: &Path, t: archive::layout::Tag) -> u64 {
 
 #[test]
 fn a_link_column_cut_or_rewritten_under_a_distribution_is_an_error() {
-    let scene = Scene::cornell_box();
-    let hints = BuildHints { patch_size: Some(0.1), frequency: Some(6), ray_spacing: Some(0.02), buckets: None };
     let dir = tempfile::tempdir().unwrap();
-    let path = write(&scene, hints, dir.path());
+    let path = coarse_cornell_box(dir.path());
     let opts = DistributeOptions::default();
     let run = |a: &Archive| {
         let v = a.view();
@@ -175,10 +181,8 @@ fn a_pass_holds_no_more_windows_than_its_limit_whatever_the_workers() {
     // Four workers, two windows at a time: the same light bit for bit, and
     // no more than two windows' buffers ever made (a budget with room for
     // two windows on a machine of many cores).
-    let scene = Scene::cornell_box();
-    let hints = BuildHints { patch_size: Some(0.1), frequency: Some(6), ray_spacing: Some(0.02), buckets: None };
     let dir = tempfile::tempdir().unwrap();
-    let path = write(&scene, hints, dir.path());
+    let path = coarse_cornell_box(dir.path());
     let want = solve_all(&Archive::open(&path).unwrap());
     let pool = rayon::ThreadPoolBuilder::new().num_threads(4).build().unwrap();
     pool.install(|| {
@@ -200,10 +204,8 @@ fn a_pass_holds_no_more_windows_than_its_limit_whatever_the_workers() {
 fn the_least_a_streamed_render_needs_does_not_grow_with_the_cores() {
     use illumnet::memory::{BudgetSource, MemoryBudget};
     use illumnet::render::plan::{LinkAccess, RenderJob, plan};
-    let scene = Scene::cornell_box();
-    let hints = BuildHints { patch_size: Some(0.1), frequency: Some(6), ray_spacing: Some(0.02), buckets: None };
     let dir = tempfile::tempdir().unwrap();
-    let path = write(&scene, hints, dir.path());
+    let path = coarse_cornell_box(dir.path());
     let mut summary = Archive::summary(&path).unwrap();
     // As if the file were 1 TB: it is never mapped whole (the plan reads
     // the sizes of the sections held, not of the link ends).
