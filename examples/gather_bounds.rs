@@ -15,7 +15,9 @@
 //!   (receiver chunk, sender chunk) with 16-bit ids local to the sender
 //!   chunk (issue 11, item 4's layout, tried before it goes into the
 //!   format), per receiver in runs, or sorted by sender with each end's
-//!   receiver beside it.
+//!   receiver beside it;
+//! - the distribution's loop over rows, asking for the state of the end
+//!   0, 16, 32 or 64 ends ahead (software prefetch).
 //!
 //! Numbers for `docs/PERFORMANCE.md`:
 //!
@@ -128,6 +130,13 @@ fn main() {
                 rows(offsets, other, count, &shoot, &mut recv2);
             }
             line("gather, rows, the blocked kernel", ends / t.elapsed().as_secs_f64());
+            for ahead in [0, 16, 32, 64] {
+                let t = Instant::now();
+                for _ in 0..PASSES {
+                    rows_prefetched(offsets, other, count, &shoot, ahead, &mut recv2);
+                }
+                line(&format!("gather, state prefetched {ahead} ends ahead"), ends / t.elapsed().as_secs_f64());
+            }
             for &(bits, chunk) in &BLOCKINGS {
                 let b = &blocked[&(bits, chunk)];
                 let t = Instant::now();
@@ -184,6 +193,66 @@ fn rows(offsets: &[u64], other: &[u32], count: &[u8], shoot: &[[f32; 4]], recv: 
         }
     });
 }
+
+/// The distribution's gather over rows (unchecked state reads, four
+/// partial sums), asking for the state of the end `ahead` ends on.
+fn rows_prefetched(
+    offsets: &[u64],
+    other: &[u32],
+    count: &[u8],
+    shoot: &[[f32; 4]],
+    ahead: usize,
+    recv: &mut [[f32; 4]],
+) {
+    let last = shoot.len() - 1;
+    recv.par_chunks_mut(BLOCK).enumerate().for_each(|(block, out)| {
+        let hi = offsets[block * BLOCK + out.len()] as usize;
+        for (i, r) in out.iter_mut().enumerate() {
+            let q = block * BLOCK + i;
+            let row = offsets[q] as usize..offsets[q + 1] as usize;
+            let (o, w) = (&other[row.clone()], &count[row.clone()]);
+            let mut acc = [[0f32; 4]; 4];
+            let (o4, w4) = (o.chunks_exact(4), w.chunks_exact(4));
+            let (o_rest, w_rest) = (o4.remainder(), w4.remainder());
+            for (k, (o, w)) in o4.zip(w4).enumerate() {
+                if ahead > 0 {
+                    let at = row.start + 4 * k + ahead;
+                    if at + 4 <= hi {
+                        for &p in &other[at..at + 4] {
+                            prefetch(&shoot[(p as usize).min(last)]);
+                        }
+                    }
+                }
+                for j in 0..4 {
+                    let s = shoot[(o[j] as usize).min(last)];
+                    let wj = w[j] as f32;
+                    for c in 0..4 {
+                        acc[j][c] += wj * s[c];
+                    }
+                }
+            }
+            for (j, (&o, &w)) in o_rest.iter().zip(w_rest).enumerate() {
+                let s = shoot[(o as usize).min(last)];
+                for c in 0..4 {
+                    acc[j][c] += w as f32 * s[c];
+                }
+            }
+            *r = [0, 1, 2, 3].map(|c| (acc[0][c] + acc[1][c]) + (acc[2][c] + acc[3][c]));
+        }
+    });
+}
+
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+fn prefetch(x: &[f32; 4]) {
+    use std::arch::x86_64::{_MM_HINT_T0, _mm_prefetch};
+    // SAFETY: a prefetch is a hint that reads no memory and faults on no
+    // address.
+    unsafe { _mm_prefetch::<_MM_HINT_T0>((x as *const [f32; 4]).cast()) }
+}
+
+#[cfg(not(target_arch = "x86_64"))]
+fn prefetch(_: &[f32; 4]) {}
 
 /// Sender-chunk bits and receiver-chunk sizes tried.
 const BLOCKINGS: [(u32, usize); 3] = [(15, 1024), (16, 1024), (16, 4096)];

@@ -14,3 +14,27 @@ static GLOBAL: mimalloc::MiMalloc = mimalloc::MiMalloc;
 fn main() -> std::process::ExitCode {
     cli::main()
 }
+
+#[cfg(test)]
+mod tests {
+    unsafe extern "C" {
+        /// mimalloc's option getter (`mimalloc.h`), from the static library
+        /// the `mimalloc` crate links.
+        fn mi_option_get(option: std::ffi::c_int) -> std::ffi::c_long;
+    }
+
+    /// `mi_option_arena_eager_commit` in mimalloc's option enum (v2 and v3).
+    const ARENA_EAGER_COMMIT: std::ffi::c_int = 4;
+
+    #[test]
+    fn mimalloc_commits_its_arenas_on_demand() {
+        // SAFETY: a plain getter of a C library that is linked and
+        // initialised (this process allocates through it).
+        let value = unsafe { mi_option_get(ARENA_EAGER_COMMIT) };
+        assert_eq!(
+            value, 0,
+            "mimalloc was built without .cargo/config.toml's CFLAGS (a CFLAGS in the environment replaces it, \
+             and `cargo install` does not read it): builds fault in huge pages they never fill"
+        );
+    }
+}

@@ -148,11 +148,13 @@ impl<'a> Links<'a> {
     }
 
     /// Like [`Self::for_each_window`], but windows are taken several at
-    /// once, each by one of rayon's workers, which reads it (streamed) and
-    /// calls `f` with it and its patches' part of `out` (`per_patch`
-    /// entries a patch): for the gather, whose windows are independent.
-    /// Resident ends are one window, given all of `out`; `f` should then
-    /// split its work over the workers itself, and need not when streamed.
+    /// once (streamed: [`LinkStream::windows_in_flight`] at a time, each
+    /// read by the worker that uses it), calling `f` with each and its
+    /// patches' part of `out` (`per_patch` entries a patch): for the
+    /// gather, whose windows are independent. Resident ends are one
+    /// window, given all of `out`; `f` should then split its work over the
+    /// workers itself, and so when streamed with fewer windows in flight
+    /// than workers.
     pub fn for_each_window_par<T: Send, E: From<ArchiveError> + Send>(
         &self,
         columns: Columns,

@@ -255,6 +255,11 @@ impl LinkStream {
         2 * self.capacity * bytes_per_end(columns)
     }
 
+    /// Buffers kept between passes (each holds one window).
+    pub fn pooled_buffers(&self) -> usize {
+        self.pool.lock().map_or(0, |p| p.len())
+    }
+
     /// Heap held now by buffers kept between passes.
     pub fn pooled_bytes(&self) -> usize {
         self.pool.lock().map_or(0, |p| p.iter().map(Buffers::bytes).sum())
@@ -359,7 +364,9 @@ impl LinkStream {
             let mut done = Ok(());
             loop {
                 let i = next.fetch_add(1, Ordering::Relaxed);
-                let Some(part) = parts.get(i).and_then(|p| p.lock().ok()?.take()) else { break };
+                let Some(slot) = parts.get(i) else { break };
+                let part = slot.lock().unwrap_or_else(std::sync::PoisonError::into_inner).take();
+                let part = part.expect("each window is taken once");
                 done = self.read_window(i, columns, &mut b).map_err(E::from).and_then(|()| f(self.window(i, &b), part));
                 if done.is_err() {
                     // The other lanes stop at their next window.

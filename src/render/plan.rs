@@ -6,8 +6,9 @@
 //!
 //! Everything resident counts: a mapped archive's pages (all of them: a
 //! distribution reads every link end each iteration), or a streamed one's
-//! copied sections, chunk checksums and a window per worker (at least
-//! two); the distribution's
+//! copied sections, chunk checksums and its link windows (one per worker
+//! where the budget has room, else as many as fit, at least two); the
+//! distribution's
 //! state ([`crate::distribute::memory`]); the images, vertex radiance,
 //! primitives and the sample cache of the renderer.
 
@@ -203,8 +204,7 @@ pub fn plan(s: &ArchiveSummary, job: &RenderJob, budget: MemoryBudget) -> Result
         }
     }
     // Streamed: the copied sections, a checksum per column per chunk, the
-    // open's read buffer, a window per worker (at least two: the other
-    // passes read one while using another).
+    // open's read buffer, and the link windows.
     let ends = s.build.link_end_count;
     let sums = ends.div_ceil(CHUNK_ENDS as u64) * 32;
     // `DELT` stays on disk: one frame's stored bytes at a time.
@@ -226,7 +226,9 @@ pub fn plan(s: &ArchiveSummary, job: &RenderJob, budget: MemoryBudget) -> Result
         return Err(BudgetError { budget, parts: least });
     }
     let room = budget.bytes - base_total;
-    // The cache only where it leaves room for the largest windows.
+    // The cache only where it leaves room for the largest windows, one
+    // per worker (so on many cores the cache needs a larger budget: 250
+    // MB of windows on 64).
     let cache = if cache > 0 && room >= cache + workers * one_window(MAX_WINDOW_ENDS) { cache } else { 0 };
     let in_flight = ((room - cache) / one_window(MIN_WINDOW_ENDS)).clamp(2, workers);
     let per_window = (room - cache) / (in_flight * WINDOW_BYTES_PER_END);
