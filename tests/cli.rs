@@ -202,6 +202,18 @@ fn sequence_archives_render_frame_ranges() {
     let a = dir.path().join("anim.inet");
     let (s, a) = (scene.to_str().unwrap(), a.to_str().unwrap());
     illumnet(&["build", "-q", s, "-o", a, "--frequency", "4", "--patch-size", "0.25"]);
+    // `inspect` counts the lamp once (its instance at frame 0), not once per
+    // frame: a 0.4 × 0.2 × 0.4 m box, 0.64 m², emitting π·4·0.64 W in each
+    // of three channels.
+    let text = String::from_utf8(illumnet(&["inspect", a]).stdout).unwrap();
+    let lamp = text.lines().find(|l| l.trim_start().starts_with("lamp:")).unwrap_or_else(|| panic!("{text}"));
+    assert!(lamp.contains("6 primitives") && lamp.contains("over 0.6400 m²"), "{lamp}");
+    let watts: f64 = lamp.rsplit(": ").next().unwrap().trim_end_matches(" W").parse().unwrap();
+    assert!((watts - std::f64::consts::PI * 4.0 * 0.64 * 3.0).abs() < 1e-3, "{lamp}");
+    let json: serde_json::Value =
+        serde_json::from_slice(&illumnet(&["inspect", a, "--surface", "lamp", "--json"]).stdout).unwrap();
+    assert!((json["area_m2"].as_f64().unwrap() - 0.64).abs() < 1e-5, "{json}");
+    assert_eq!(json["primitives"], 6, "{json}");
     let pattern = dir.path().join("f_%03d.png");
     let gif = dir.path().join("preview.gif");
     let sheet = dir.path().join("sheet.png");

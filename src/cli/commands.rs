@@ -842,8 +842,17 @@ fn explain(
 
 /// What `inspect` says of one surface: its patches, area and emitted
 /// power (π·L·area per channel, W).
-fn surface_summary(v: &archive::InetView<'_>, sf: &archive::layout::SurfaceRecord) -> (u64, f64, [f64; 3]) {
-    let prims = &v.primitives[sf.first_primitive as usize..][..sf.primitive_count as usize];
+/// A surface's primitives, patches, area and emitted power (W per channel)
+/// at frame 0: in a sequence, only the instances present then (the others
+/// are the same surface at other frames).
+fn surface_summary(
+    v: &archive::InetView<'_>,
+    sf: &archive::layout::SurfaceRecord,
+    present: &[bool],
+) -> (u64, u64, f64, [f64; 3]) {
+    let range = sf.first_primitive as usize..(sf.first_primitive + sf.primitive_count) as usize;
+    let prims: Vec<&archive::layout::PrimitiveRecord> =
+        range.filter(|&i| present.get(i).copied().unwrap_or(false)).map(|i| &v.primitives[i]).collect();
     // A group of grouped triangles (consecutive, one patch) counts once.
     let patches: u64 = prims
         .iter()
@@ -855,6 +864,7 @@ fn surface_summary(v: &archive::InetView<'_>, sf: &archive::layout::SurfaceRecor
             _ => (p.grid_u as u64) * (p.grid_v as u64),
         })
         .sum();
+    let primitives = prims.len() as u64;
     let area: f64 = prims
         .iter()
         .map(|p| {
@@ -862,7 +872,7 @@ fn surface_summary(v: &archive::InetView<'_>, sf: &archive::layout::SurfaceRecor
             geometry::Primitive { kind, p: p.corners.map(glam::Vec3::from) }.area() as f64
         })
         .sum();
-    (patches, area, sf.emission.map(|e| std::f64::consts::PI * e as f64 * area))
+    (primitives, patches, area, sf.emission.map(|e| std::f64::consts::PI * e as f64 * area))
 }
 
 /// The scene-format name of a material model code.
@@ -904,17 +914,18 @@ pub fn inspect(path: &Path, json: bool) -> Result<()> {
             })
             .collect();
         let mut emitted_w = 0.0f64;
+        let present = v.presence(0).primitives;
         let details: Vec<serde_json::Value> = v
             .surfaces
             .iter()
             .enumerate()
             .map(|(i, sf)| {
-                let (patches, area, watts) = surface_summary(&v, sf);
+                let (primitives, patches, area, watts) = surface_summary(&v, sf, &present);
                 emitted_w += watts.iter().sum::<f64>();
                 serde_json::json!({
                     "name": meta.surface_names.get(i),
                     "material": sf.material,
-                    "primitives": sf.primitive_count,
+                    "primitives": primitives,
                     "patches": patches,
                     "area_m2": area,
                     "emission": sf.emission,
@@ -1002,10 +1013,12 @@ pub fn inspect(path: &Path, json: bool) -> Result<()> {
     if v.materials.len() > LIST_LIMIT {
         println!("    … and {} more (--json lists all)", v.materials.len() - LIST_LIMIT);
     }
-    println!("  surfaces (material, primitives, patches; emitters with their power, π·L·area):");
+    let at_frame_0 = if v.sequence.is_some() { " at frame 0" } else { "" };
+    println!("  surfaces (material, primitives, patches{at_frame_0}; emitters with their power, π·L·area):");
     let (mut emitters, mut power) = (0usize, [0.0f64; 3]);
+    let present = v.presence(0).primitives;
     for (i, sf) in v.surfaces.iter().enumerate() {
-        let (patches, area, watts) = surface_summary(&v, sf);
+        let (primitives, patches, area, watts) = surface_summary(&v, sf, &present);
         let emits = sf.emission.iter().any(|&e| e > 0.0);
         if emits {
             emitters += 1;
@@ -1021,8 +1034,8 @@ pub fn inspect(path: &Path, json: bool) -> Result<()> {
                 "    {}: {}, {} primitive{}, {patches} patches{light}",
                 name_or(&meta.surface_names, i),
                 name_or(&meta.material_names, sf.material as usize),
-                sf.primitive_count,
-                if sf.primitive_count == 1 { "" } else { "s" },
+                primitives,
+                if primitives == 1 { "" } else { "s" },
             );
         }
     }

@@ -109,7 +109,14 @@ pub fn inspect_surface(path: &Path, name: &str, json: bool) -> Result<()> {
     let record = &v.surfaces[s];
     let material = meta.material_names.get(record.material as usize).cloned().unwrap_or_default();
     let surface_of = |p: usize| v.primitives[v.patch_primitive[p] as usize].surface as usize;
-    let patches: Vec<u32> = (0..v.patch_count()).filter(|&p| surface_of(p) == s).map(|p| p as u32).collect();
+    // At frame 0: a sequence's other instances of the surface are the same
+    // surface at other frames.
+    let present = v.presence(0);
+    let patches: Vec<u32> =
+        (0..v.patch_count()).filter(|&p| surface_of(p) == s && present.patch(p)).map(|p| p as u32).collect();
+    let primitives = (record.first_primitive..record.first_primitive + record.primitive_count)
+        .filter(|&i| present.primitives.get(i as usize).copied().unwrap_or(false))
+        .count();
     let area: f64 = patches.iter().map(|&p| v.patch_area[p as usize] as f64).sum();
     let hits: u64 = patches.iter().map(|&p| v.patch_hits[p as usize] as u64).sum();
     let expected: f64 = patches.iter().map(|&p| v.patch_expected_hits[p as usize] as f64).sum();
@@ -140,7 +147,7 @@ pub fn inspect_surface(path: &Path, name: &str, json: bool) -> Result<()> {
             "material": material,
             "emission": record.emission,
             "power_w": power,
-            "primitives": record.primitive_count,
+            "primitives": primitives,
             "patches": patches.len(),
             "area_m2": area,
             "bounds_of_patch_centres": if patches.is_empty() { serde_json::Value::Null } else { serde_json::json!([lo, hi]) },
@@ -155,11 +162,12 @@ pub fn inspect_surface(path: &Path, name: &str, json: bool) -> Result<()> {
         println!("{}", serde_json::to_string_pretty(&out)?);
         return Ok(());
     }
-    println!("{} surface `{name}` (#{s} of {})", path.display(), v.surfaces.len());
+    let at_frame_0 = if v.sequence.is_some() { ", at frame 0" } else { "" };
+    println!("{} surface `{name}` (#{s} of {}{at_frame_0})", path.display(), v.surfaces.len());
     let plural = |n: usize, word: &str| format!("{n} {word}{}", if n == 1 { "" } else { "s" });
     println!(
         "  material {material}, {}, {}, {area:.4} m²",
-        plural(record.primitive_count as usize, "primitive"),
+        plural(primitives, "primitive"),
         plural(patches.len(), "patch").replace("patchs", "patches")
     );
     if record.emission.iter().any(|&e| e > 0.0) {
