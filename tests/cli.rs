@@ -383,7 +383,16 @@ fn a_new_users_mistakes_get_plain_answers() {
     std::fs::copy(scene, path("room.txt")).unwrap();
     let (code, err) = failing(&["inspect", &path("room.txt")]);
     assert!(code == 3 && err.contains("is a scene"), "{err}");
+    // And to verify.
+    let (code, err) = failing(&["verify", scene]);
+    assert!(code == 3 && err.contains("is a scene, not an archive"), "{err}");
     illumnet(&["build", "-q", scene, "-o", &path("box.inet"), "--frequency", "4", "--patch-size", "0.1"]);
+    // An archive given to build: say what to do with it.
+    let (code, err) = failing(&["build", &path("box.inet"), "-o", &path("again.inet")]);
+    assert!(code == 3 && err.contains("is an archive, not a scene"), "{err}");
+    // A missing archive: the OS error, naming the file once.
+    let (code, err) = failing(&["inspect", &path("nope.inet")]);
+    assert!(code == 5 && err.matches("nope.inet").count() == 1, "{err}");
     // Image formats follow the option, not the file name: refused, not mislabelled.
     let (code, err) = failing(&["render", &path("box.inet"), "-o", &path("x.exr")]);
     assert!(code == 3 && err.contains("--exr"), "{err}");

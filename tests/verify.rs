@@ -172,6 +172,14 @@ fn each_class_of_damage_gives_its_precise_finding() {
         "{json}"
     );
     assert_eq!(json["findings"][0]["record"].as_u64(), Some(e as u64));
+    assert!(json["gb_per_s"].as_f64().unwrap() > 0.0, "an archive that opened was read: {json}");
+    // A file that does not open as an archive was not read: no rate.
+    let (code, out) = cli(d, &good[..64], true);
+    assert_eq!(code, Some(4));
+    let json: serde_json::Value =
+        serde_json::from_str(out.lines().take_while(|l| !l.starts_with("illumnet:")).collect::<String>().as_str())
+            .unwrap();
+    assert!(json["findings"][0]["section"] == "file" && json["gb_per_s"].is_null(), "{json}");
 
     // A weight changed at one end only: the ends do not pair up.
     // (One ray fewer, so that no patch carries more rays than cross it.)

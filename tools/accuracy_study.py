@@ -47,7 +47,7 @@ def point(tmp: str, build_args: list[str], render_args: list[str] | None = None)
     r = run([BIN, "render", "-q", archive, "-o", os.path.join(tmp, "s.png"), "--exr", exr, *render_args])
     t_render = time.perf_counter() - t0
     c = run([BIN, "compare", exr, REF])
-    m = re.search(r"(\d+) patches, (\d+) directions, (\d+) rays .*?, (\d+) links \((\d+) ends\), ([\d.]+) MB", b)
+    m = re.search(r"(\d+) patches, (\d+) directions, (\d+) rays .*?, (\d+) links \((\d+) ends[;)].*?, ([\d.]+) MB", b)
     e = re.search(r"relative L2 ([\d.]+)", c)
     d = re.search(r"distribution ([\d.]+) s", r)
     if not (m and e and d):

@@ -94,15 +94,17 @@ fn build_scene(scene: &Scene, output: &Path, args: &BuildArgs, progress: &dyn Pr
     let t_write = t_w.elapsed().as_secs_f64();
     let secs = t.elapsed().as_secs_f64();
     println!(
-        "built {}: {} patches, {} directions, {} rays ({:.1} M rays/s), {} links ({} ends), {:.1} MB, {:.2} s \
+        "built {}: {} patches, {} directions, {} rays ({:.1} M rays/s), {} links ({} ends; {} before merging \
+         parallel rays), {:.1} MB, {:.2} s \
          (setup {:.2} s, trace {:.2} s, links {:.2} s, write {:.2} s)",
         output.display(),
         stats.patches,
         stats.directions,
         stats.rays,
         stats.rays as f64 / stats.trace_s.max(1e-9) / 1e6,
-        stats.links,
+        stats.link_ends / 2,
         stats.link_ends,
+        stats.links,
         bytes as f64 / 1e6,
         secs,
         stats.setup_s,
@@ -148,7 +150,15 @@ pub fn build(
     if !is_gltf && *gltf != GltfOptions::default() {
         bail_input!("--camera, --light-radius and --fps are for glTF scenes; a TOML scene states them itself");
     }
-    let mut scene = Scene::from_file_with(scene_path, gltf)?;
+    let mut scene = match Scene::from_file_with(scene_path, gltf) {
+        Ok(s) => s,
+        Err(_) if is_archive(scene_path) => bail_input!(
+            "{} is an archive, not a scene: render it (`illumnet render {} -o image.png`) or inspect it",
+            scene_path.display(),
+            scene_path.display()
+        ),
+        Err(e) => return Err(e.into()),
+    };
     for note in &scene.notes {
         eprintln!("illumnet: warning: {}: {note}", scene_path.display());
     }
@@ -243,8 +253,17 @@ pub(super) fn opened<T>(path: &Path, result: Result<T, illumnet::archive::Archiv
                 path.display()
             )
         }
+        // The OS error names the file already.
+        Err(e @ illumnet::archive::ArchiveError::Io { .. }) => Err(anyhow::Error::new(e)),
         Err(e) => Err(anyhow::Error::new(e)).with_context(|| format!("cannot open {}", path.display())),
     }
+}
+
+/// Whether `path` starts with the archive magic (§3).
+fn is_archive(path: &Path) -> bool {
+    let mut head = [0u8; 8];
+    std::fs::File::open(path).and_then(|mut f| std::io::Read::read_exact(&mut f, &mut head)).is_ok()
+        && head == archive::layout::MAGIC
 }
 
 /// Whether `path` holds a TOML scene rather than an archive: no archive
@@ -254,7 +273,7 @@ fn looks_like_scene(path: &Path) -> bool {
     let mut head = [0u8; 256];
     let n = std::fs::File::open(path).and_then(|mut f| std::io::Read::read(&mut f, &mut head)).unwrap_or(0);
     let head = &head[..n];
-    if head.starts_with(b"ILLUMNET") {
+    if head.starts_with(&archive::layout::MAGIC) {
         return false;
     }
     if path.extension().is_some_and(|e| e.eq_ignore_ascii_case("toml")) {
@@ -1260,6 +1279,16 @@ pub fn inspect_patch(path: &Path, p: u32, json: bool) -> Result<()> {
 
 pub fn verify(path: &Path, json: bool) -> Result<()> {
     let r = archive::verify::verify(path)?;
+    // Whether the file opened as an archive (else its one finding says why).
+    let opened_at_all = !r.findings.first().is_some_and(|f| f.section == "file");
+    if !opened_at_all && looks_like_scene(path) {
+        let stem = path.file_stem().and_then(|s| s.to_str()).unwrap_or("scene");
+        bail_input!(
+            "{} is a scene, not an archive: build it first with `illumnet build {} -o {stem}.inet`",
+            path.display(),
+            path.display()
+        );
+    }
     let rate = r.bytes as f64 / r.seconds.max(1e-9) / 1e9;
     if json {
         let findings: Vec<serde_json::Value> = r
@@ -1277,7 +1306,7 @@ pub fn verify(path: &Path, json: bool) -> Result<()> {
             "link_ends": r.link_ends,
             "frames": r.frames,
             "seconds": r.seconds,
-            "gb_per_s": rate,
+            "gb_per_s": if opened_at_all { serde_json::json!(rate) } else { serde_json::Value::Null },
         });
         println!("{}", serde_json::to_string_pretty(&out)?);
     } else if r.sound() {

@@ -176,7 +176,7 @@ struct RenderArgs {
     allow_unconverged: bool,
     /// Resident memory to stay within, e.g. 512M or 4G (powers of 1024;
     /// default: 75% of the cgroup memory limit, else of physical memory).
-    /// An archive larger than it fits has its link ends streamed from
+    /// An archive that does not fit whole has its link ends streamed from
     /// disk; a job that cannot fit is refused before work starts (exit 6).
     /// Peak memory stays below the budget plus 64 MiB.
     #[arg(long, value_name = "SIZE", value_parser = illumnet::memory::parse_size)]

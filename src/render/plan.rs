@@ -82,6 +82,8 @@ pub struct MemoryPlan {
     pub access: LinkAccess,
     /// The sample cache's budget (0: trace every sample every frame).
     pub cache_bytes: u64,
+    /// Frames the job renders (a cache serves only later frames).
+    pub frames: u32,
     /// The budget planned against.
     pub budget: MemoryBudget,
     /// Planned resident bytes, by part.
@@ -105,12 +107,12 @@ impl fmt::Display for MemoryPlan {
         match self.access {
             LinkAccess::Mapped => write!(f, "archive mapped whole")?,
             LinkAccess::Streamed { window_ends, in_flight } => {
-                write!(f, "link ends streamed in windows of {window_ends} ends, {in_flight} at a time")?
+                write!(f, "link ends streamed from disk in windows of {window_ends} ends, {in_flight} held at once")?
             }
         }
         write!(f, ", {} planned of a budget of {}", Bytes(self.total()), self.budget)?;
-        if self.cache_bytes == 0 {
-            write!(f, ", no sample cache")?;
+        if self.cache_bytes == 0 && self.frames > 1 {
+            write!(f, ", no sample cache (every frame traces all its image samples)")?;
         }
         Ok(())
     }
@@ -200,7 +202,13 @@ pub fn plan(s: &ArchiveSummary, job: &RenderJob, budget: MemoryBudget) -> Result
     for cache in [cache, 0] {
         let parts = with(vec![("archive (mapped)", s.file_length), ("sample cache", cache)]);
         if fits(&parts) {
-            return Ok(MemoryPlan { access: LinkAccess::Mapped, cache_bytes: cache, budget, parts });
+            return Ok(MemoryPlan {
+                access: LinkAccess::Mapped,
+                cache_bytes: cache,
+                frames: job.frames,
+                budget,
+                parts,
+            });
         }
     }
     // Streamed: the copied sections, a checksum per column per chunk, the
@@ -237,5 +245,5 @@ pub fn plan(s: &ArchiveSummary, job: &RenderJob, budget: MemoryBudget) -> Result
     parts.push((WINDOWS, in_flight * one_window(window)));
     parts.push(("sample cache", cache));
     let access = LinkAccess::Streamed { window_ends: window as usize, in_flight: in_flight as usize };
-    Ok(MemoryPlan { access, cache_bytes: cache, budget, parts })
+    Ok(MemoryPlan { access, cache_bytes: cache, frames: job.frames, budget, parts })
 }
