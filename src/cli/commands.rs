@@ -1280,7 +1280,7 @@ pub fn inspect_patch(path: &Path, p: u32, json: bool) -> Result<()> {
 pub fn verify(path: &Path, json: bool) -> Result<()> {
     let r = archive::verify::verify(path)?;
     // Whether the file opened as an archive (else its one finding says why).
-    let opened_at_all = !r.findings.first().is_some_and(|f| f.section == "file");
+    let opened_at_all = r.findings.first().is_none_or(|f| f.section != "file");
     if !opened_at_all && looks_like_scene(path) {
         let stem = path.file_stem().and_then(|s| s.to_str()).unwrap_or("scene");
         bail_input!(
