@@ -99,6 +99,14 @@ fn a_budget_too_small_is_refused_before_work_with_what_the_job_needs() {
     assert_eq!(out.status.code(), Some(6), "{stderr}");
     assert!(stderr.contains("needs at least") && stderr.contains("2.0 MiB (--memory-budget)"), "{stderr}");
     assert!(!Path::new(&png).exists(), "nothing is written");
+    // The advice follows the largest part: a large image can shrink, the
+    // rest cannot.
+    let large = illumnet(&["render", &archive, "-q", "-o", &png, "--memory-budget", "30M", "--size", "2048x2048"]);
+    let stderr = String::from_utf8_lossy(&large.stderr);
+    assert!(large.status.code() == Some(6) && stderr.contains("render a smaller image"), "{stderr}");
+    let small = illumnet(&["render", &archive, "-q", "-o", &png, "--memory-budget", "2M", "--size", "8x8"]);
+    let stderr = String::from_utf8_lossy(&small.stderr);
+    assert!(small.status.code() == Some(6) && stderr.contains("does not shrink with the image"), "{stderr}");
     let out = illumnet(&["render", &archive, "-q", "-o", &png, "--memory-budget", "lots"]);
     assert_eq!(out.status.code(), Some(2), "{}", String::from_utf8_lossy(&out.stderr));
 }

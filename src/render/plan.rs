@@ -145,7 +145,19 @@ impl fmt::Display for BudgetError {
         for (i, (name, b)) in self.parts.iter().filter(|p| p.1 > 0).enumerate() {
             write!(f, "{}{name} {}", if i > 0 { ", " } else { "" }, Bytes(*b))?;
         }
-        write!(f, "); raise --memory-budget, or render a smaller image or fewer samples")
+        // Advice for the largest part: only the images shrink with the job.
+        let (largest, bytes) = self.parts.iter().max_by_key(|p| p.1).copied().unwrap_or(("", 0));
+        if largest == IMAGES {
+            write!(f, "); raise --memory-budget, or render a smaller image or fewer samples")
+        } else {
+            write!(
+                f,
+                "); raise --memory-budget to at least {} (the largest part, {largest} {}, does not shrink with \
+                 the image)",
+                Bytes(self.needed()),
+                Bytes(bytes)
+            )
+        }
     }
 }
 
@@ -185,6 +197,9 @@ fn renderer_bytes(s: &ArchiveSummary, job: &RenderJob) -> u64 {
     images + radiance + primitives
 }
 
+/// The part of a plan that the image size and samples set.
+const IMAGES: &str = "images and radiance";
+
 /// Plans rendering `job` from the archive `s` summarises within `budget`.
 pub fn plan(s: &ArchiveSummary, job: &RenderJob, budget: MemoryBudget) -> Result<MemoryPlan, BudgetError> {
     let distribution = distribution_bytes(s, job);
@@ -192,7 +207,7 @@ pub fn plan(s: &ArchiveSummary, job: &RenderJob, budget: MemoryBudget) -> Result
     let samples = job.width as u64 * job.height as u64 * (job.samples_per_axis as u64).pow(2);
     // The cache pays off only when a later frame reuses the samples.
     let cache = if job.frames > 1 { (samples * SAMPLE_BYTES).min(MAX_CACHE) } else { 0 };
-    let fixed = [("distribution", distribution), ("images and radiance", renderer)];
+    let fixed = [("distribution", distribution), (IMAGES, renderer)];
     let with = |mut parts: Vec<(&'static str, u64)>| {
         parts.extend(fixed);
         parts
@@ -222,7 +237,7 @@ pub fn plan(s: &ArchiveSummary, job: &RenderJob, budget: MemoryBudget) -> Result
     // render needs does not grow with the machine's cores.
     let workers = job.threads.max(2) as u64;
     let one_window = |w: u64| (w + 2 * CHUNK_ENDS as u64) * WINDOW_BYTES_PER_END;
-    const WINDOWS: &str = "link windows (one per worker thread where there is room, at least two)";
+    const WINDOWS: &str = "link windows";
     let base = with(vec![("archive sections held", held)]);
     let base_total = sum(&base);
     let least = {
