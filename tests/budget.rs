@@ -59,7 +59,7 @@ fn an_archive_over_four_times_the_budget_renders_within_it_to_the_same_image() {
     };
     let (full_out, full_png, full_exr) = render("full", &[]);
     let (out, png, exr) = render("budget", &["--memory-budget", "32M"]);
-    assert!(out.contains("link ends streamed in windows of"), "{out}");
+    assert!(out.contains("link ends streamed from disk in windows of"), "{out}");
     let (full_peak, budget_peak) = (peak(&full_out), peak(&out));
     eprintln!(
         "archive {:.1} MiB; peak {:.1} MiB unbudgeted, {:.1} MiB under a budget of {:.0} MiB",

@@ -123,7 +123,7 @@ def render(archive, budget, log, extra):
     return {"iterations": it, "distribution_s": dist, "per_iteration_s": dist / it if it else None,
             "ends_per_s": rate * 1e6 if rate else None, "gather_ends_per_s": gather * 1e6 if gather else None,
             "peak_mib": peak_mib(text), "wall_s": wall,
-            "streamed": "streamed in windows" in text}
+            "streamed": "streamed from disk in windows" in text}
 
 
 def baseline(work, log):
