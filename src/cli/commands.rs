@@ -859,17 +859,17 @@ fn explain(
     Ok(false_colour::picture(&renderer.sample_patches(af), &values, q, &scale))
 }
 
-/// What `inspect` says of one surface: its patches, area and emitted
-/// power (π·L·area per channel, W).
-/// A surface's primitives, patches, area and emitted power (W per channel)
-/// at frame 0: in a sequence, only the instances present then (the others
-/// are the same surface at other frames).
+/// What `inspect` says of one surface: its primitives, patches, area and
+/// emitted power (π·L·area per channel, W) at frame 0 (in a sequence, only
+/// the instances present then: the others are the same surface at other
+/// frames).
 fn surface_summary(
     v: &archive::InetView<'_>,
     sf: &archive::layout::SurfaceRecord,
     present: &[bool],
 ) -> (u64, u64, f64, [f64; 3]) {
-    let range = sf.first_primitive as usize..(sf.first_primitive + sf.primitive_count) as usize;
+    let first = sf.first_primitive as usize;
+    let range = first..first + sf.primitive_count as usize;
     let prims: Vec<&archive::layout::PrimitiveRecord> =
         range.filter(|&i| present.get(i).copied().unwrap_or(false)).map(|i| &v.primitives[i]).collect();
     // A group of grouped triangles (consecutive, one patch) counts once.

@@ -114,8 +114,9 @@ pub fn inspect_surface(path: &Path, name: &str, json: bool) -> Result<()> {
     let present = v.presence(0);
     let patches: Vec<u32> =
         (0..v.patch_count()).filter(|&p| surface_of(p) == s && present.patch(p)).map(|p| p as u32).collect();
-    let primitives = (record.first_primitive..record.first_primitive + record.primitive_count)
-        .filter(|&i| present.primitives.get(i as usize).copied().unwrap_or(false))
+    let first = record.first_primitive as usize;
+    let primitives = (first..first + record.primitive_count as usize)
+        .filter(|&i| present.primitives.get(i).copied().unwrap_or(false))
         .count();
     let area: f64 = patches.iter().map(|&p| v.patch_area[p as usize] as f64).sum();
     let hits: u64 = patches.iter().map(|&p| v.patch_hits[p as usize] as u64).sum();
