@@ -201,7 +201,9 @@ fn sequence_archives_render_frame_ranges() {
     .unwrap();
     let a = dir.path().join("anim.inet");
     let (s, a) = (scene.to_str().unwrap(), a.to_str().unwrap());
-    illumnet(&["build", "-q", s, "-o", a, "--frequency", "4", "--patch-size", "0.25"]);
+    let built = illumnet(&["build", "-q", s, "-o", a, "--frequency", "4", "--patch-size", "0.25"]);
+    let built = String::from_utf8_lossy(&built.stdout);
+    assert!(built.contains("sequence: 4 frames, 4 instances of moving surfaces"), "{built}");
     // `inspect` counts the lamp once (its instance at frame 0), not once per
     // frame: a 0.4 × 0.2 × 0.4 m box, 0.64 m², emitting π·4·0.64 W in each
     // of three channels.

@@ -112,6 +112,15 @@ fn build_scene(scene: &Scene, output: &Path, args: &BuildArgs, progress: &dyn Pr
         stats.assemble_s,
         t_write,
     );
+    if let Some(q) = &contents.sequence {
+        let frames = q.record.frames;
+        let moving = q.instances.iter().filter(|i| i.frame_first > 0 || i.frame_last + 1 < frames).count();
+        println!(
+            "sequence: {frames} frames, {moving} instances of moving surfaces (each present in some frames), {} of \
+             per-frame link changes",
+            Bytes(q.deltas.stored_length())
+        );
+    }
     if let Some(b) = memory::peak_resident() {
         println!("peak memory {}", Bytes(b));
     }
