@@ -12,6 +12,25 @@ use illumnet::progress::NoProgress;
 use illumnet::render::{self, RenderOptions, image_io};
 use illumnet::scene::{BuildHints, Scene};
 
+/// The Cornell box's path-traced reference (`tests/data`) and its archive
+/// at default settings.
+fn cornell_box_at_defaults() -> (render::Image, illumnet::archive::Archive) {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/cornell_box_ref.exr");
+    (image_io::read_exr(&path).unwrap(), default_archive(&Scene::cornell_box()))
+}
+
+/// Asserts that the 8 × 8 pixels round the middle of the Cornell box's
+/// back wall (far from every edge and other surface, as `camera` sees it)
+/// are the same in `a` and `b`, bit for bit.
+fn assert_back_wall_middle_same(camera: &render::PinholeCamera, a: &render::Image, b: &render::Image) {
+    let (cx, cy) = camera.project(Vec3::new(0.278, 0.3, 0.5592)).unwrap();
+    for y in cy as u32 - 4..cy as u32 + 4 {
+        for x in cx as u32 - 4..cx as u32 + 4 {
+            assert_eq!(a.at(x, y), b.at(x, y), "pixel ({x}, {y})");
+        }
+    }
+}
+
 /// An archive built from `scene` at default settings, in memory.
 fn default_archive(scene: &Scene) -> illumnet::archive::Archive {
     let settings = BuildSettings::resolve(scene, BuildHints::default());
@@ -90,9 +109,7 @@ fn the_bunny_is_close_to_the_path_traced_reference_with_either_shading() {
 /// does not apply: those pixels are the interpolated ones, bit for bit.
 #[test]
 fn the_gather_follows_the_cornell_box_corners() {
-    let reference =
-        image_io::read_exr(&Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/cornell_box_ref.exr")).unwrap();
-    let archive = default_archive(&Scene::cornell_box());
+    let (reference, archive) = cornell_box_at_defaults();
     let view = archive.view();
     let sol = distribute::distribute(&view, &DistributeOptions::default(), &NoProgress).unwrap();
     let indirect = render::indirect_frame_radiance(&view, 0, &sol);
@@ -140,12 +157,7 @@ fn the_gather_follows_the_cornell_box_corners() {
         "whole image {gathered_all:.4} vs {plain_all:.4}"
     );
     // The middle of the back wall is far from everything: untouched.
-    let (cx, cy) = camera.project(Vec3::new(0.278, 0.3, 0.5592)).unwrap();
-    for y in cy as u32 - 4..cy as u32 + 4 {
-        for x in cx as u32 - 4..cx as u32 + 4 {
-            assert_eq!(plain.at(x, y), gathered.at(x, y), "pixel ({x}, {y})");
-        }
-    }
+    assert_back_wall_middle_same(&camera, &plain, &gathered);
 }
 
 /// Edge pixels sampled again 16×16 (`render --edge-samples`, a single
@@ -156,9 +168,7 @@ fn the_gather_follows_the_cornell_box_corners() {
 /// splits the error). Pixels far from any edge do not change.
 #[test]
 fn finer_samples_at_edges_bring_the_cornell_box_closer() {
-    let reference =
-        image_io::read_exr(&Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/cornell_box_ref.exr")).unwrap();
-    let archive = default_archive(&Scene::cornell_box());
+    let (reference, archive) = cornell_box_at_defaults();
     let view = archive.view();
     let sol = distribute::distribute(&view, &DistributeOptions::default(), &NoProgress).unwrap();
     let indirect = render::indirect_frame_radiance(&view, 0, &sol);
@@ -181,11 +191,5 @@ fn finer_samples_at_edges_bring_the_cornell_box_closer() {
     // included): with it removed 1.34% and 1.12%.
     assert!(e_fine < e_plain - 0.0015 && e_fine < 0.0125, "{e_fine:.4} vs {e_plain:.4}");
     // The middle of the back wall is far from every edge: untouched.
-    let camera = render::PinholeCamera::from_record(&view.camera_at(0));
-    let (cx, cy) = camera.project(Vec3::new(0.278, 0.3, 0.5592)).unwrap();
-    for y in cy as u32 - 4..cy as u32 + 4 {
-        for x in cx as u32 - 4..cx as u32 + 4 {
-            assert_eq!(plain.at(x, y), fine.at(x, y), "pixel ({x}, {y})");
-        }
-    }
+    assert_back_wall_middle_same(&render::PinholeCamera::from_record(&view.camera_at(0)), &plain, &fine);
 }
