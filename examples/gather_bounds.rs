@@ -54,7 +54,8 @@ fn main() {
         eprintln!("gather_bounds: {path}: the link ends are not resident");
         std::process::exit(1);
     };
-    let (other, count, offsets) = (links.other.ids(), links.weight.counts(), v.link_offsets);
+    let decoded = links.window().other_ids();
+    let (other, count, offsets) = (&decoded[..], links.weight.counts(), v.link_offsets);
     let patches = offsets.len() - 1;
     let shoot: Vec<[f32; 4]> = (0..patches).map(|i| [i as f32 * 1e-6, 1.0, 2.0, 0.0]).collect();
     let mut recv = vec![[0f32; 4]; patches];

@@ -173,7 +173,7 @@ fn frame_radiance_from_the_sequence_archive_equals_from_scratch() {
     let (seq, settings) = sequence(&scene, hints);
     let bytes = archive::write_to_vec(&seq.contents).unwrap();
     let arch = Archive::from_bytes(&bytes).unwrap();
-    assert_eq!(arch.header().version_read, 7, "archives need a reader of version 7");
+    assert_eq!(arch.header().version_read, 10, "archives need a reader of version 10");
     let v = arch.view();
     let opts = DistributeOptions { tolerance: 1e-7, ..Default::default() };
     let mut worst = 0.0f64;
@@ -348,7 +348,7 @@ fn glossy_movers_radiance_from_the_sequence_equals_from_scratch() {
     let seq = build::build_sequence_with_links(&scene, &settings, &NoProgress).unwrap();
     let arch = Archive::from_bytes(&archive::write_to_vec(&seq.contents).unwrap()).unwrap();
     let v = arch.view();
-    assert_eq!(arch.header().version_read, 7, "every archive needs a reader of version 7");
+    assert_eq!(arch.header().version_read, 10, "every archive needs a reader of version 10");
     let r = v.reflectance.unwrap();
     assert!(r.orientations.len() > 6, "moving glossy boxes have one orientation per face and turn");
     let opts = DistributeOptions { tolerance: 1e-7, ..Default::default() };

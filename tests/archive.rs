@@ -31,7 +31,8 @@ fn round_trip_through_a_file_and_memory() {
         let v = a.view();
         assert_eq!(*v.build, contents.build);
         let l = v.links.resident().expect("open and from_bytes hold the link ends");
-        assert_eq!(l.other.ids(), &contents.link_other[..]);
+        assert_eq!(l.window().other_ids(), contents.link_other);
+        assert_eq!(l.window().buckets(), contents.link_bucket);
         assert_eq!(l.weight.to_vec(), contents.link_weight);
         assert_eq!(v.link_offsets, &contents.link_offsets[..]);
         assert_eq!(v.patch_hits, &contents.patch_hits[..]);
@@ -87,12 +88,12 @@ fn truncated_and_garbage_files_are_errors() {
 #[test]
 fn newer_reader_version_is_refused_with_a_clear_message() {
     let mut bytes = archive::write_to_vec(&small_contents()).unwrap();
-    bytes[8..12].copy_from_slice(&9u32.to_le_bytes()); // version_write
-    bytes[12..16].copy_from_slice(&9u32.to_le_bytes()); // version_read
+    bytes[8..12].copy_from_slice(&11u32.to_le_bytes()); // version_write
+    bytes[12..16].copy_from_slice(&11u32.to_le_bytes()); // version_read
     let sum = xxhash_rust::xxh3::xxh3_64(&bytes[..120]);
     bytes[120..128].copy_from_slice(&sum.to_le_bytes());
     let err = Archive::from_bytes(&bytes).err().unwrap();
-    assert!(matches!(err, ArchiveError::UnsupportedVersion { needs: 9, supports: 8 }), "{err}");
+    assert!(matches!(err, ArchiveError::UnsupportedVersion { needs: 11, supports: 10 }), "{err}");
 }
 
 #[test]
@@ -109,13 +110,13 @@ fn archive_bytes_do_not_depend_on_thread_count() {
 
 #[test]
 fn versions_follow_the_compatibility_rule() {
-    // Version 7 changed the link weights' column: every archive needs a
-    // reader of version 7 (geodesic stills were readable by version 1
-    // before).
+    // Version 10 changed the link ends' ids to 16 bits in runs: every
+    // archive needs a reader of version 10 (7 before, for the one-byte
+    // weights; geodesic stills were readable by version 1 before that).
     let bytes = archive::write_to_vec(&small_contents()).unwrap();
     let a = Archive::from_bytes(&bytes).unwrap();
-    assert_eq!((a.header().version_write, a.header().version_read), (9, 7));
-    assert!(a.view().links.has_bucket());
+    assert_eq!((a.header().version_write, a.header().version_read), (10, 10));
+    assert!(a.view().build.max_bucket > 0 && a.view().links.runs().records().iter().any(|r| r.bucket > 0));
     // Ray-space baseline archives (version_read 2 before version 7).
     let scene = Scene::cornell_box();
     let hints = BuildHints { patch_size: Some(0.08), frequency: Some(4), ray_spacing: Some(0.02), buckets: None };
@@ -123,7 +124,7 @@ fn versions_follow_the_compatibility_rule() {
     settings.direction_set = illumnet::geodesic::DirectionSetKind::RaySpace;
     let contents = build::build(&scene, &settings, &NoProgress).unwrap().0;
     let a = Archive::from_bytes(&archive::write_to_vec(&contents).unwrap()).unwrap();
-    assert_eq!((a.header().version_write, a.header().version_read), (9, 7));
+    assert_eq!((a.header().version_write, a.header().version_read), (10, 10));
     // f = 4 gives 162 geodesic directions; m = round(√(162/6)) = 5 gives 150.
     assert_eq!(a.view().directions.len(), 6 * 5 * 5);
 }
@@ -142,26 +143,28 @@ fn absurd_resolutions_are_errors_not_overflows() {
 #[test]
 fn link_ends_to_missing_patches_cannot_reach_the_distributor() {
     // The gather reads per-patch state without a bounds check per end, over
-    // indices checked once: the only way to hand it link ends (`PatchIds`)
-    // checks them, so a view that did not come through validation cannot
-    // carry an out-of-range patch.
-    use illumnet::archive::{LinkSlices, Links, PatchIds};
-    use illumnet::distribute::{DistributeOptions, Distributor, Lighting};
+    // ids checked against their runs once: the only ways to hand it link
+    // ends (an opened archive's, or `LinkWindow::checked`) check them, so
+    // ends that did not come through validation cannot carry an
+    // out-of-range patch.
+    use illumnet::archive::LinkWindow;
     let bytes = archive::write_to_vec(&small_contents()).unwrap();
     let a = Archive::from_bytes(&bytes).unwrap();
     let v = a.view();
-    let opts = DistributeOptions::default();
-    assert!(Distributor::new(&v, &opts, &Lighting::from_view(&v)).is_ok());
     let l = *v.links.resident().unwrap();
-    let mut other = l.other.ids().to_vec();
+    let runs = l.runs;
+    let window = |ids: &[u16]| {
+        let ids = ids.to_vec();
+        LinkWindow::checked(0..v.patch_count(), &ids, l.weight, l.direction, runs).is_some()
+    };
+    let mut other = l.local_ids().to_vec();
+    assert!(window(&other));
     let middle = other.len() / 2;
-    other[middle] = v.patch_count() as u32;
-    assert!(PatchIds::check(&other, v.patch_count()).is_none());
-    other[middle] = v.patch_count() as u32 - 1;
-    let checked = PatchIds::check(&other, v.patch_count()).unwrap();
-    let mut changed = v;
-    changed.links = Links::Resident(LinkSlices { other: checked, ..l });
-    assert!(Distributor::new(&changed, &opts, &Lighting::from_view(&changed)).is_ok());
+    other[middle] = v.patch_count() as u16;
+    assert!(!window(&other), "an id past the last patch");
+    other[middle] = v.patch_count() as u16 - 1;
+    assert!(window(&other));
+    assert!(!window(&other[1..]), "fewer ids than the runs hold");
 }
 
 #[test]

@@ -60,8 +60,8 @@ fn build_inspect_render_with_json() {
     illumnet(&["build", "-q", scene.to_str().unwrap(), "-o", a, "--frequency", "6", "--patch-size", "0.05"]);
     let out = illumnet(&["inspect", a, "--json"]);
     let json: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
-    assert_eq!(json["format_version"], 9);
-    assert_eq!(json["version_read"], 7);
+    assert_eq!(json["format_version"], 10);
+    assert_eq!(json["version_read"], 10);
     assert_eq!(json["directions"], 362);
     assert!(json["patches"].as_u64().unwrap() > 500);
     assert!(json["links"].as_u64().unwrap() > 1000);
@@ -339,7 +339,7 @@ fn brushed_plate_turns_relights_and_reports_its_reflectance() {
     let out = illumnet(&["build", "-q", s, "-o", a, "--turn", "plate=45", "--prototype-library", l]);
     assert!(String::from_utf8_lossy(&out.stdout).contains("(1 from the library)"));
     let json: serde_json::Value = serde_json::from_slice(&illumnet(&["inspect", a, "--json"]).stdout).unwrap();
-    assert_eq!((json["format_version"].as_u64(), json["version_read"].as_u64()), (Some(9), Some(7)));
+    assert_eq!((json["format_version"].as_u64(), json["version_read"].as_u64()), (Some(10), Some(10)));
     assert_eq!((json["prototype_tables"].as_u64(), json["nondiffuse_patches"].as_u64()), (Some(1), Some(364)));
     // Its rays per glossy patch and direction pair: one count for each of
     // the 364 patches × N/2 pairs, and as many rays as NDHC holds in all.

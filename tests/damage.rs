@@ -329,7 +329,7 @@ fn flipped_zeroed_misdeclared_and_cut_archives_are_errors() {
         for (what, at, value) in [
             ("version_write 0", 8, 0u32),
             ("version_read 0", 12, 0),
-            ("version_read 9", 12, 9),
+            ("version_read 11", 12, 11),
             ("version_write 6", 8, 6),
         ] {
             let mut b = good.clone();
@@ -417,13 +417,12 @@ fn deltas_that_drive_a_weight_negative_or_huge_are_refused_naming_frame_and_reco
     let v = a.view();
     let records = v.sequence.unwrap().frame_delta(1).unwrap();
     let l = *v.links.resident().unwrap();
+    let w = l.window();
     let base = |q: u32, direction: u32, other: u32, bucket: u8| -> f64 {
-        let r = v.link_offsets[q as usize] as usize..v.link_offsets[q as usize + 1] as usize;
-        r.filter(|&e| {
-            l.direction[e] == direction && l.other.ids()[e] == other && l.bucket.map_or(0, |b| b[e]) == bucket
-        })
-        .map(|e| l.weight.get(e) as f64)
-        .sum()
+        w.ends_of(q as usize)
+            .filter(|&(e, o, k)| l.direction[e] == direction && o == other && k == bucket)
+            .map(|(e, _, _)| l.weight.get(e) as f64)
+            .sum()
     };
     let k = records
         .iter()

@@ -252,15 +252,15 @@ fn mesh_archive_bytes(group_triangles: bool) -> (Vec<u8>, Vec<PrimitiveRecord>) 
 
 #[test]
 fn grouped_triangles_round_trip_and_forgeries_are_refused() {
-    // One patch per triangle: a version 7 file, no TVTX.
+    // One patch per triangle: no TVTX.
     let (plain, _) = mesh_archive_bytes(false);
     let a = Archive::from_bytes(&plain).unwrap();
-    assert_eq!((a.header().version_write, a.header().version_read), (9, 7));
+    assert_eq!((a.header().version_write, a.header().version_read), (10, 10));
     assert!(a.sections().iter().all(|e| e.tag != tag::GROUPED_TRIANGLE_VERTICES));
     assert_eq!((grouped_count(&a.view()), a.view().patch_count()), (0, 288 + 25));
     let (good, prims) = mesh_archive_bytes(true);
     let a = Archive::from_bytes(&good).unwrap();
-    assert_eq!((a.header().version_write, a.header().version_read), (9, 8));
+    assert_eq!((a.header().version_write, a.header().version_read), (10, 10));
     let v = a.view();
     let n = grouped_count(&v);
     assert_eq!(n, 288);

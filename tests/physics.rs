@@ -214,10 +214,9 @@ fn a_two_sided_sheet_receives_what_its_lit_side_would() {
     let v = archive.view();
     let surface = patch_surface(&v);
     let mut self_links = 0;
+    let w = v.links.resident().unwrap().window();
     for p in 0..v.patch_count() {
-        let ends = v.link_offsets[p] as usize..v.link_offsets[p + 1] as usize;
-        let links = v.links.resident().unwrap();
-        self_links += ends.filter(|&e| surface[links.other.ids()[e] as usize] == surface[p]).count();
+        self_links += w.ends_of(p).filter(|&(_, q, _)| surface[q as usize] == surface[p]).count();
     }
     eprintln!("sheet: one-sided receives {one:.5} W, two-sided {two:.5} W; {self_links} ends between its copies");
     assert_eq!(self_links, 0);

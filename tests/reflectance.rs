@@ -387,7 +387,7 @@ ray_spacing = 0.05
 #[test]
 fn reflectance_sections_are_validated() {
     let good = contents(&glossy_square(), BuildHints::default());
-    assert_eq!(Archive::from_bytes(&archive::write_to_vec(&good).unwrap()).unwrap().header().version_read, 7);
+    assert_eq!(Archive::from_bytes(&archive::write_to_vec(&good).unwrap()).unwrap().header().version_read, 10);
     let expect = |c: &ArchiveContents, what: &str| {
         let err = Archive::from_bytes(&archive::write_to_vec(c).unwrap()).err().expect("must be rejected");
         assert!(err.to_string().contains(what), "{err} (expected {what})");

@@ -225,8 +225,8 @@ fn the_least_a_streamed_render_needs_does_not_grow_with_the_cores() {
     let least = |threads| plan(&summary, &job(threads), budget(1 << 20)).unwrap_err().needed();
     assert_eq!(least(2), least(64));
     for (threads, extra_windows, want) in [(64, 0, 2), (64, 3, 5), (2, 3, 2), (4, 100, 4)] {
-        // A smallest window: (2¹⁶ + 2 × 2¹⁶ ends) × 10 bytes.
-        let bytes = least(threads) + extra_windows * 3 * 65_536 * 10;
+        // A smallest window: (2¹⁶ + 2 × 2¹⁶ ends) × 7 bytes.
+        let bytes = least(threads) + extra_windows * 3 * 65_536 * 7;
         let p = plan(&summary, &job(threads), budget(bytes)).unwrap();
         match p.access {
             LinkAccess::Streamed { in_flight, .. } => {

@@ -1,7 +1,9 @@
-//! `illumnet upgrade`: version 6 archives (written by the version 6
-//! illumnet, `tests/data/v6/README.md`) rewritten as version 7 keep every
-//! section but the weights byte for byte, the same weights exactly, and
-//! render what a fresh build renders.
+//! `illumnet upgrade`: archives of format versions 6 and 9 (written by
+//! those versions of illumnet, `tests/data/v6/README.md`,
+//! `tests/data/v9/README.md`) rewritten as version 10 keep every section
+//! but the link ends byte for byte, the same link ends in each row (by
+//! bucket, then sender chunk, stably), and render what a fresh build
+//! renders.
 
 mod common;
 
@@ -29,6 +31,77 @@ fn sections(bytes: &[u8]) -> Vec<(SectionEntry, &[u8])> {
             (e, &bytes[e.offset as usize..(e.offset + e.stored_length) as usize])
         })
         .collect()
+}
+
+/// Per patch, its link ends as the file at `bytes` (version 6 to 9)
+/// stores them: (other, weight, direction, bucket), in row order.
+fn old_rows(bytes: &[u8]) -> Vec<Vec<(u32, f32, u32, u8)>> {
+    let s = sections(bytes);
+    let find = |t: layout::Tag| s.iter().find(|(e, _)| e.tag == t).map(|(_, b)| *b);
+    let u32s =
+        |b: &[u8]| -> Vec<u32> { b.chunks_exact(4).map(|x| u32::from_le_bytes(x.try_into().unwrap())).collect() };
+    let offsets: Vec<u64> =
+        find(tag::LINK_OFFSETS).unwrap().chunks_exact(8).map(|x| u64::from_le_bytes(x.try_into().unwrap())).collect();
+    let other = u32s(find(tag::LINK_OTHER).unwrap());
+    let direction = u32s(find(tag::LINK_DIRECTION).unwrap());
+    let weight: Vec<f32> = match find(tag::LINK_WEIGHT_V6) {
+        Some(w) => u32s(w).into_iter().map(f32::from_bits).collect(),
+        None => {
+            let mut w: Vec<f32> = find(tag::LINK_COUNT).unwrap().iter().map(|&c| c as f32).collect();
+            for x in find(tag::LINK_ESCAPES).unwrap().chunks_exact(16) {
+                let end = u64::from_le_bytes(x[..8].try_into().unwrap()) as usize;
+                w[end] = f32::from_le_bytes(x[8..12].try_into().unwrap());
+            }
+            w
+        }
+    };
+    let bucket = find(tag::LINK_BUCKET_V9).map_or_else(|| vec![0; other.len()], <[u8]>::to_vec);
+    (0..offsets.len() - 1)
+        .map(|q| {
+            (offsets[q] as usize..offsets[q + 1] as usize)
+                .map(|e| (other[e], weight[e], direction[e], bucket[e]))
+                .collect()
+        })
+        .collect()
+}
+
+/// Per patch, the link ends of the version 10 archive `a`, decoded.
+fn new_rows(a: &Archive) -> Vec<Vec<(u32, f32, u32, u8)>> {
+    let v = a.view();
+    let l = *v.links.resident().unwrap();
+    let w = l.window();
+    (0..v.patch_count())
+        .map(|q| w.ends_of(q).map(|(e, o, k)| (o, l.weight.get(e), l.direction[e], k)).collect())
+        .collect()
+}
+
+/// Checks that the upgraded `new` (open as `a`) holds `old`'s sections but
+/// the link ends byte for byte, and its link ends re-ordered by (bucket,
+/// sender chunk) within each row, stably.
+fn same_but_link_order(name: &str, old: &[u8], new: &[u8], a: &Archive) {
+    let links = [
+        tag::LINK_OTHER,
+        tag::LINK_WEIGHT_V6,
+        tag::LINK_COUNT,
+        tag::LINK_ESCAPES,
+        tag::LINK_DIRECTION,
+        tag::LINK_BUCKET_V9,
+    ];
+    let (old_s, new_s) = (sections(old), sections(new));
+    for (e, bytes) in old_s.iter().filter(|(e, _)| !links.contains(&e.tag)) {
+        let (_, b) = new_s.iter().find(|(n, _)| n.tag == e.tag).unwrap();
+        assert_eq!(bytes, b, "{name}: section {}", illumnet::archive::tag_name(e.tag));
+    }
+    let mut want = old_rows(old);
+    for row in &mut want {
+        row.sort_by_key(|&(o, _, _, k)| (k, o as usize / layout::CHUNK_PATCHES));
+    }
+    let got = new_rows(a);
+    assert_eq!(got.len(), want.len());
+    for (q, (g, w)) in got.iter().zip(&want).enumerate() {
+        assert!(g == w, "{name}: patch {q}'s link ends differ");
+    }
+    assert!(got.iter().map(Vec::len).sum::<usize>() > 100, "{name}: links");
 }
 
 fn images(a: &Archive) -> Vec<Vec<f32>> {
@@ -70,23 +143,12 @@ fn version_6_archives_upgrade_to_the_same_sections_and_light() {
         let new = std::fs::read(&out).unwrap();
         assert_eq!(done.bytes_after, new.len() as u64);
         let a = Archive::open(&out).unwrap();
-        assert_eq!((a.header().version_write, a.header().version_read), (9, 7));
-        // Every section but the weights byte for byte; the weights exact.
-        let (old_s, new_s) = (sections(&old), sections(&new));
-        for (e, bytes) in &old_s {
-            if e.tag == tag::LINK_WEIGHT_V6 {
-                let want: Vec<f32> =
-                    bytes.chunks_exact(4).map(|x| f32::from_le_bytes([x[0], x[1], x[2], x[3]])).collect();
-                let got = a.view().links.resident().unwrap().weight.to_vec();
-                assert_eq!(got, want, "{name}: weights");
-                continue;
-            }
-            let (_, b) = new_s.iter().find(|(n, _)| n.tag == e.tag).unwrap();
-            assert_eq!(bytes, b, "{name}: section {}", illumnet::archive::tag_name(e.tag));
-        }
-        assert!(new.len() < old.len(), "{name}: 3 bytes fewer per link end");
+        assert_eq!((a.header().version_write, a.header().version_read), (10, 10));
+        assert_eq!(done.version_before, 6);
+        same_but_link_order(name, &old, &new, &a);
+        assert!(new.len() < old.len(), "{name}: 6 bytes fewer per link end");
 
-        // The light of a fresh version 7 build of the same scene (whose
+        // The light of a fresh build of the same scene (whose
         // patches are numbered in tiles, so sums run in another order).
         let scene = Scene::from_file(&scene).unwrap();
         let hints = BuildHints { patch_size: Some(patch), ray_spacing: Some(rays), frequency: Some(3), buckets: None };
@@ -95,6 +157,65 @@ fn version_6_archives_upgrade_to_the_same_sections_and_light() {
             assert!(want.iter().any(|&x| x > 0.0), "{name} frame {k}: black");
             let e = relative_l2(got, &want);
             assert!(e < 1e-4, "{name} frame {k}: relative L2 {e:e} against a fresh build");
+        }
+    }
+}
+
+#[test]
+fn version_9_archives_upgrade_to_the_bytes_of_a_fresh_build() {
+    // Written by the version 9 illumnet (`tests/data/v9/README.md`): a
+    // still of 120 253 patches (two sender chunks: rows re-ordered) and a
+    // 4-frame sequence with buckets.
+    use illumnet::archive::{self, layout::CHUNK_PATCHES};
+    use illumnet::build::{self, BuildSettings};
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let v9 = |name: &str| root.join("tests/data/v9").join(name);
+    let dir = tempfile::tempdir().unwrap();
+    let chunks = dir.path().join("v9_chunks.inet");
+    let packed = std::fs::File::open(v9("v9_chunks.inet.zst")).unwrap();
+    std::fs::write(&chunks, zstd::decode_all(packed).unwrap()).unwrap();
+    let hints = |patch, rays, frequency| BuildHints {
+        patch_size: Some(patch),
+        ray_spacing: Some(rays),
+        frequency: Some(frequency),
+        buckets: None,
+    };
+    let cases = [
+        ("chunks", chunks, root.join("scenes/cornell_box.toml"), hints(0.004, 0.012, 2)),
+        ("moving box", v9("v9_moving_box.inet"), data("moving_box.toml"), hints(0.4, 0.1, 3)),
+    ];
+    for (name, path, scene, hints) in cases {
+        let old = std::fs::read(&path).unwrap();
+        let err = Archive::open(&path).err().unwrap();
+        assert!(matches!(err, ArchiveError::Outdated { written: 9 }), "{err}");
+        assert!(err.to_string().contains("illumnet upgrade"), "{err}");
+        let out = dir.path().join("up.inet");
+        let done = upgrade::upgrade(&path, &out).unwrap();
+        assert_eq!((done.version_before, done.already_current), (9, false));
+        let new = std::fs::read(&out).unwrap();
+        let a = Archive::open(&out).unwrap();
+        same_but_link_order(name, &old, &new, &a);
+        // What a version 10 build of the same scene writes, byte for byte.
+        let scene = Scene::from_file(&scene).unwrap();
+        let mut settings = BuildSettings::resolve(&scene, hints);
+        settings.prototype_library = None;
+        let fresh = match scene.animation.is_some() {
+            true => build::build_sequence(&scene, &settings, &NoProgress).unwrap().contents,
+            false => build::build(&scene, &settings, &NoProgress).unwrap().0,
+        };
+        assert!(archive::write_to_vec(&fresh).unwrap() == new, "{name}: not the bytes of a fresh build");
+        if name == "chunks" {
+            // Rows with ends in both chunks, re-ordered by the upgrade.
+            let v = a.view();
+            assert!(v.patch_count() > CHUNK_PATCHES);
+            let runs = v.links.runs();
+            let both = (0..v.patch_count()).filter(|&q| {
+                let r = runs.of(q);
+                r.iter().any(|x| x.chunk == 0) && r.iter().any(|x| x.chunk == 1)
+            });
+            assert!(both.count() > 100, "{name}: rows across chunks");
+            let moved = old_rows(&old).iter().zip(new_rows(&a)).filter(|(o, n)| **o != *n).count();
+            assert!(moved > 100, "{name}: {moved} rows re-ordered");
         }
     }
 }
@@ -143,7 +264,7 @@ fn the_cli_says_to_upgrade_and_upgrades() {
     assert!(err.contains("format version 6") && err.contains("illumnet upgrade"), "{err}");
     let out = std::process::Command::new(bin).args(["upgrade", path.to_str().unwrap()]).output().unwrap();
     let text = String::from_utf8_lossy(&out.stdout);
-    assert!(out.status.success() && text.contains("to format version 9"), "{text}");
+    assert!(out.status.success() && text.contains("to format version 10"), "{text}");
     let out = render();
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     assert!(dir.path().join("f_3.png").exists());

@@ -6,7 +6,7 @@ by the same run.
 
 Per rung: archive size, build time, peak RSS (VmHWM, as the command
 reports it) and spilled runs; the distribution's time per iteration, link
-ends/s and bytes/s of the gather's stream (5 bytes per end: LOTH + LCNT)
+ends/s and bytes/s of the gather's stream (3 bytes per end: LOTH + LCNT)
 with the archive in the page cache, and again with its pages dropped
 before every pass (render --evict-each-pass), as fractions of the
 sequential memory and disk read rates measured here.
@@ -41,8 +41,8 @@ RUNGS = [
     ("5e8", (4, 4), 3, 8, 0.036, 0.018, 5.0e8, "1900M", "960M"),
     ("2e9", (4, 4), 3, 16, 0.036, 0.018, 2.0e9, "1900M", "960M"),
 ]
-HOT_BYTES_PER_END = 5  # LOTH (4) + LCNT (1)
-DISK_BYTES_PER_END = 10  # + LDIR (4) + LBKT (1)
+HOT_BYTES_PER_END = 3  # LOTH (2) + LCNT (1); LRUN adds 8 bytes a run
+DISK_BYTES_PER_END = 7.2  # + LDIR (4) and the runs (format 10)
 SPILL_BYTES_PER_END = 13
 
 
@@ -182,7 +182,7 @@ def main():
             "frequency": f,
             "patches": number(r"built \S+: (\d+) patches", text, int),
             "primitives": None,
-            "ends": number(r"\((\d+) ends\)", text, int),
+            "ends": number(r"\((\d+) ends[;)]", text, int),
             "archive_bytes": os.path.getsize(archive),
             "build_s": wall,
             "build_peak_mib": peak_mib(text),

@@ -149,13 +149,15 @@ fn removal_error(
 ) -> Option<(usize, String)> {
     let q = mine[0].0.0;
     // Frame 0's weight of each removed end, found by binary search: a row
-    // is ordered by bucket, direction pair and the link's patch pair
-    // (§5.10), that is by `order_key`.
+    // is ordered by bucket, sender chunk, direction pair and the link's
+    // patch pair (§5.10), that is by `order_key`.
     let r = w.local(offsets[q as usize] as usize..offsets[q as usize + 1] as usize);
+    debug_assert_eq!(r, w.row(q as usize));
+    let row: Vec<(u32, u8)> = w.ends_of(q as usize).map(|(_, other, bucket)| (other, bucket)).collect();
     let order_key = |e: usize| {
-        let (d, other) = (w.direction[e], w.other.ids()[e]);
+        let (d, (other, bucket)) = (w.direction[e], row[e - r.start]);
         let link = if d.is_multiple_of(2) { (q, other) } else { (other, q) };
-        (w.bucket.get(e).copied().unwrap_or(0), d / 2, link, d)
+        (bucket, chunk_of(other), d / 2, link, d)
     };
     // The removed keys in row order, each with its net count and its
     // place in `mine`, so that each search starts where the last ended
@@ -168,7 +170,7 @@ fn removal_error(
             let link = if direction.is_multiple_of(2) { (q, other) } else { (other, q) };
             let place = *at;
             *at += run.len();
-            Some(((bucket, direction / 2, link, direction), net, place))
+            Some(((bucket, chunk_of(other), direction / 2, link, direction), net, place))
         })
         .collect();
     wanted.sort_unstable_by_key(|w| w.0);
@@ -179,7 +181,7 @@ fn removal_error(
         let base =
             (from..r.end).take_while(|&e| order_key(e) == key).map(|e| w.weight.get(e) as f64).sum::<f64>() + 0.0;
         if base + (net as f64) < 0.0 && worst.is_none_or(|w| place < w.0) {
-            worst = Some((place, key.3, if key.3.is_multiple_of(2) { key.2.1 } else { key.2.0 }, net, base));
+            worst = Some((place, key.4, if key.4.is_multiple_of(2) { key.3.1 } else { key.3.0 }, net, base));
         }
     }
     worst.map(|(place, direction, other, net, base)| {
@@ -192,6 +194,11 @@ fn removal_error(
             ),
         )
     })
+}
+
+/// The sender chunk of patch `p` (§5.10).
+fn chunk_of(p: u32) -> u16 {
+    (p as usize / super::layout::CHUNK_PATCHES) as u16
 }
 
 /// The first of `0..n` for which `before` is false, `before` being true

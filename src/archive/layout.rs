@@ -1,4 +1,4 @@
-//! On-disk records of the archive format (version 9).
+//! On-disk records of the archive format (version 10).
 //!
 //! Every type here is `#[repr(C)]`, made of little-endian `u32`/`u64`/`f32`
 //! fields with no implicit padding, and is read zero-copy with `bytemuck`
@@ -10,28 +10,30 @@ use bytemuck::{Pod, Zeroable};
 /// File magic, bytes 0..8 (§3).
 pub const MAGIC: [u8; 8] = *b"ILLUMNET";
 /// The format version this code writes (§3, `version_write`).
-pub const VERSION_WRITE: u32 = 9;
-/// `version_read` of the archives this code writes without grouped
-/// triangles: version 7 stores link-end weights as one byte (`LCNT`, with
-/// `LCNX` for the rest) where older readers expect `LWGT`, and numbers a
-/// quad's patches in tiles (`PRIM.cell_order`), which they would misplace.
-/// Such a file is a version 7 file in every byte but `version_write`.
-pub const VERSION_READ: u32 = 7;
-/// `version_read` of archives with grouped triangles (`PRIM.kind` 2 and
-/// `TVTX`, since version 8), which version 7 readers refuse.
-pub const VERSION_READ_GROUPED: u32 = 8;
-/// The oldest `version_write` this code reads: files written before
-/// version 7 hold `LWGT` and are rewritten by `illumnet upgrade`
-/// ([`super::upgrade`]).
-pub const OLDEST_READABLE: u32 = 7;
-/// The `version_write` of the files [`super::upgrade`] rewrites.
+pub const VERSION_WRITE: u32 = 10;
+/// `version_read` of the archives this code writes: version 10 stores a
+/// link end's other patch in 16 bits, local to the sender chunk of its
+/// run (`LOTH`, `LROF`, `LRUN`, §5.10), which older readers would take for
+/// 32-bit ids.
+pub const VERSION_READ: u32 = 10;
+/// The oldest `version_write` this code reads: older files are rewritten
+/// by `illumnet upgrade` ([`super::upgrade`]).
+pub const OLDEST_READABLE: u32 = 10;
+/// The `version_write` of the oldest files [`super::upgrade`] rewrites
+/// (every version from it to [`OLDEST_READABLE`] − 1).
 pub const UPGRADABLE: u32 = 6;
+/// Files written from this version on store link-end weights as `LCNT`
+/// and `LCNX`; older ones as `LWGT` (§8).
+pub const VERSION_COUNTS: u32 = 7;
+/// Patches per sender chunk: a link end's `LOTH` is its other patch minus
+/// its run's `chunk · 2¹⁶` (§5.10).
+pub const CHUNK_PATCHES: usize = 1 << 16;
 /// Files written before this version store each frame's delta as plain
 /// records in one zstd frame, checksummed after decompression; from it on,
 /// as blocks of columns, checksummed as stored (§5.13).
 pub const VERSION_DELTA_BLOCKS: u32 = 5;
 /// The highest `version_read` this code can read (§6).
-pub const READER_VERSION: u32 = 8;
+pub const READER_VERSION: u32 = 10;
 /// Header size in bytes (§3).
 pub const HEADER_SIZE: usize = 128;
 /// Section table entry size in bytes (§4).
@@ -124,8 +126,12 @@ pub mod tag {
     pub const ADJACENCY: Tag = *b"ADJI";
     /// Link-end offsets per patch (§5.10).
     pub const LINK_OFFSETS: Tag = *b"LOFF";
-    /// Link-end other patch (§5.10).
+    /// Link-end other patch, local to its run's sender chunk (§5.10).
     pub const LINK_OTHER: Tag = *b"LOTH";
+    /// Per patch, its first link-end run (§5.10, since version 10).
+    pub const LINK_RUN_OFFSETS: Tag = *b"LROF";
+    /// Link-end runs: a bucket and sender chunk each (§5.10, since version 10).
+    pub const LINK_RUNS: Tag = *b"LRUN";
     /// Link-end weight as f32, in files written before version 7 (§8;
     /// `illumnet upgrade` rewrites it as `LCNT` and `LCNX`).
     pub const LINK_WEIGHT_V6: Tag = *b"LWGT";
@@ -136,8 +142,9 @@ pub mod tag {
     pub const LINK_ESCAPES: Tag = *b"LCNX";
     /// Link-end outgoing direction (§5.10).
     pub const LINK_DIRECTION: Tag = *b"LDIR";
-    /// Link-end bucket (§5.12).
-    pub const LINK_BUCKET: Tag = *b"LBKT";
+    /// Link-end bucket, in files written before version 10 (§8; the
+    /// buckets are in `LRUN` since).
+    pub const LINK_BUCKET_V9: Tag = *b"LBKT";
     /// Names and provenance, rkyv + zstd (§5.11).
     pub const META: Tag = *b"META";
     /// Sequence parameters (§5.13).
@@ -384,6 +391,21 @@ pub struct WeightEscape {
     pub reserved: u32,
 }
 
+/// A run of a patch's link ends with one bucket and one sender chunk
+/// (§5.10): the ends' other patches are `chunk · 2¹⁶ + LOTH`.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Pod, Zeroable)]
+pub struct LinkRunRecord {
+    /// The sender chunk: the other patches' ids divided by 2¹⁶.
+    pub chunk: u16,
+    /// The bucket (§5.12) of the light the owner receives over the ends.
+    pub bucket: u8,
+    /// Reserved, zero.
+    pub reserved: u8,
+    /// Link ends in the run, at least one.
+    pub length: u32,
+}
+
 /// A direction of the geodesic set (§5.6).
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Default, Pod, Zeroable)]
@@ -583,4 +605,5 @@ const _: () = {
     assert!(size_of::<PrimitiveRecord>() == 80);
     assert!(size_of::<DirectionRecord>() == 40);
     assert!(size_of::<WeightEscape>() == 16);
+    assert!(size_of::<LinkRunRecord>() == 8);
 };

@@ -1,38 +1,40 @@
-//! Frame 0's link-end columns (`LOTH`, `LCNT` with `LCNX`, `LDIR`,
-//! `LBKT`, §5.10),
-//! resident (slices of a mapped archive) or streamed (read window by
-//! window into reused buffers, [`LinkStream`]), behind one interface: the
-//! distribution walks them in windows of consecutive patches and never
-//! needs to know which.
+//! Frame 0's link-end columns (`LOTH`, `LCNT` with `LCNX`, `LDIR`) and
+//! their runs (`LROF`, `LRUN`, §5.10), resident (slices of a mapped
+//! archive) or streamed (read window by window into reused buffers,
+//! [`LinkStream`]), behind one interface: the distribution walks them in
+//! windows of consecutive patches and never needs to know which.
+//!
+//! A link end's other patch is stored in 16 bits, local to the sender
+//! chunk of its run (`chunk · 2¹⁶ + LOTH`). The ids of a run are proved in
+//! range (below the patch count, chunk base added) when the run's window
+//! enters memory, so per-patch state is indexed with them unchecked; the
+//! proof travels with the run ([`EndRun::ids`]), never apart from it.
 
 use std::ops::Range;
 
 use super::ArchiveError;
+use super::layout::{CHUNK_PATCHES, LinkRunRecord};
 use super::stream::LinkStream;
 use super::weights::Weights;
 
 /// Patch indices proved below `bound` when made, so that per-patch state
 /// of at least `bound` entries can be indexed with them without a bounds
-/// check per link end (9% of the distribution's time, measured).
+/// check per link end (9% of the distribution's time, measured): 32-bit
+/// ids (overlays) or an archive run's 16-bit ones, whose state starts at
+/// the run's chunk base.
 #[derive(Clone, Copy)]
-pub struct PatchIds<'a> {
-    ids: &'a [u32],
+pub struct PatchIds<'a, I = u32> {
+    ids: &'a [I],
     bound: usize,
 }
 
-impl<'a> PatchIds<'a> {
+impl<'a, I: Copy + Into<u32>> PatchIds<'a, I> {
     /// `None` unless every index is below `bound`.
-    pub fn check(ids: &'a [u32], bound: usize) -> Option<Self> {
+    pub fn check(ids: &'a [I], bound: usize) -> Option<Self> {
         // The largest id, without an early exit: this vectorises (4× the
         // speed of `all`, which stops at the first failure).
-        let max = ids.iter().copied().fold(0u32, u32::max);
+        let max = ids.iter().map(|&x| x.into()).fold(0u32, u32::max);
         (ids.is_empty() || (max as usize) < bound).then_some(Self { ids, bound })
-    }
-
-    /// Indices validated when their archive was opened (§7, step 6), by
-    /// the code of this module only.
-    pub(super) fn validated(ids: &'a [u32], bound: usize) -> Self {
-        Self { ids, bound }
     }
 
     /// The indices in `range` (which must lie within them).
@@ -41,7 +43,7 @@ impl<'a> PatchIds<'a> {
     }
 
     /// The indices.
-    pub fn ids(&self) -> &'a [u32] {
+    pub fn ids(&self) -> &'a [I] {
         self.ids
     }
 
@@ -51,32 +53,279 @@ impl<'a> PatchIds<'a> {
     }
 }
 
-/// The four link-end columns of a resident archive, whole.
+/// Each patch's link ends as runs of one bucket and one sender chunk
+/// (`LROF`, `LRUN`, with `LOFF`), checked when the archive was opened
+/// (§7): a patch's runs cover its row exactly, in ascending (bucket,
+/// chunk), each chunk below the patch count's.
+#[derive(Clone, Copy)]
+pub struct LinkRuns<'a> {
+    link_offsets: &'a [u64],
+    run_offsets: &'a [u64],
+    runs: &'a [LinkRunRecord],
+}
+
+impl<'a> LinkRuns<'a> {
+    /// Runs validated by [`check_runs`], by the code of this module's
+    /// parent only.
+    pub(super) fn validated(link_offsets: &'a [u64], run_offsets: &'a [u64], runs: &'a [LinkRunRecord]) -> Self {
+        Self { link_offsets, run_offsets, runs }
+    }
+
+    /// Runs given by the caller (tests, tools), checked against
+    /// `link_offsets` (`LOFF`, itself checked: from 0, never decreasing)
+    /// and `max_bucket` by the rules of §7; `None` when one is broken.
+    pub fn checked(
+        link_offsets: &'a [u64],
+        run_offsets: &'a [u64],
+        runs: &'a [LinkRunRecord],
+        max_bucket: u8,
+    ) -> Option<Self> {
+        let ascending = link_offsets.first() == Some(&0) && link_offsets.windows(2).all(|w| w[0] <= w[1]);
+        (ascending && check_runs(link_offsets, run_offsets, runs, max_bucket).is_ok()).then_some(Self {
+            link_offsets,
+            run_offsets,
+            runs,
+        })
+    }
+
+    /// The runs of patch `q`, in row order.
+    pub fn of(&self, q: usize) -> &'a [LinkRunRecord] {
+        &self.runs[self.run_offsets[q] as usize..self.run_offsets[q + 1] as usize]
+    }
+
+    /// Every run, in file order.
+    pub fn records(&self) -> &'a [LinkRunRecord] {
+        self.runs
+    }
+
+    /// `LOFF`: per patch, its first link end (patches + 1 entries).
+    pub fn link_offsets(&self) -> &'a [u64] {
+        self.link_offsets
+    }
+
+    /// `LROF`: per patch, its first run (patches + 1 entries).
+    pub fn offsets(&self) -> &'a [u64] {
+        self.run_offsets
+    }
+}
+
+/// The content rules of §7 for `LROF` and `LRUN` against `LOFF`
+/// (`link_offsets`, already checked), `max_bucket` and the patch count:
+/// the first rule broken, if any.
+pub(super) fn check_runs(
+    link_offsets: &[u64],
+    run_offsets: &[u64],
+    runs: &[LinkRunRecord],
+    max_bucket: u8,
+) -> Result<(), String> {
+    let patches = link_offsets.len().saturating_sub(1);
+    if run_offsets.len() != patches + 1 {
+        return Err(format!("LROF: {} entries, expected {} (one per patch, and one)", run_offsets.len(), patches + 1));
+    }
+    if run_offsets[0] != 0 || run_offsets[patches] != runs.len() as u64 {
+        return Err(format!("LROF: must run from 0 to the {} runs of LRUN", runs.len()));
+    }
+    let chunks = patches.div_ceil(CHUNK_PATCHES);
+    for q in 0..patches {
+        let (a, b) = (run_offsets[q], run_offsets[q + 1]);
+        if b < a || b > runs.len() as u64 {
+            return Err(format!("LROF[{q}]: not ascending"));
+        }
+        let mut ends = 0u64;
+        let mut last: Option<(u8, u16)> = None;
+        for r in &runs[a as usize..b as usize] {
+            if r.length == 0 || r.reserved != 0 {
+                return Err(format!("LRUN: patch {q} has a run of no ends, or a reserved byte set"));
+            }
+            if r.bucket > max_bucket {
+                return Err(format!(
+                    "LRUN: patch {q} has a run of bucket {} above BILD.max_bucket {max_bucket}",
+                    r.bucket
+                ));
+            }
+            if r.chunk as usize >= chunks {
+                return Err(format!(
+                    "LRUN: patch {q} has a run of sender chunk {}, beyond the {chunks} chunks",
+                    r.chunk
+                ));
+            }
+            if last.is_some_and(|l| l >= (r.bucket, r.chunk)) {
+                return Err(format!("LRUN: patch {q}'s runs are not in ascending (bucket, chunk)"));
+            }
+            last = Some((r.bucket, r.chunk));
+            ends += r.length as u64;
+        }
+        let row = link_offsets[q + 1] - link_offsets[q];
+        if ends != row {
+            return Err(format!("LRUN: patch {q}'s runs hold {ends} link ends, its row (LOFF) {row}"));
+        }
+    }
+    Ok(())
+}
+
+/// Checks link-end ids read in file order against the runs they fall in:
+/// every id plus its run's chunk base below the patch count. Only runs of
+/// the last chunk need looking at (any 16-bit id of an earlier chunk is
+/// below it). Fed piece by piece, from the start of a run.
+pub(super) struct IdCheck<'r> {
+    runs: &'r [LinkRunRecord],
+    next: usize,
+    left: u32,
+    /// Ids of the current run must be below this.
+    bound: usize,
+    patches: usize,
+}
+
+impl<'r> IdCheck<'r> {
+    /// A check of the ids of `runs` (consecutive, in file order) among
+    /// `patches` patches.
+    pub(super) fn new(runs: &'r [LinkRunRecord], patches: usize) -> Self {
+        Self { runs, next: 0, left: 0, bound: 0, patches }
+    }
+
+    /// Whether the next `ids.len()` ids are in range (false, too, when
+    /// they run past the runs).
+    pub(super) fn add(&mut self, mut ids: &[u16]) -> bool {
+        while !ids.is_empty() {
+            while self.left == 0 {
+                let Some(r) = self.runs.get(self.next) else { return false };
+                self.next += 1;
+                self.left = r.length;
+                self.bound = self.patches.saturating_sub(r.chunk as usize * CHUNK_PATCHES);
+            }
+            let n = (self.left as usize).min(ids.len());
+            let (head, tail) = ids.split_at(n);
+            if self.bound < CHUNK_PATCHES && PatchIds::check(head, self.bound).is_none() {
+                return false;
+            }
+            self.left -= n as u32;
+            ids = tail;
+        }
+        true
+    }
+
+    /// Whether every id of the runs was given.
+    pub(super) fn done(&self) -> bool {
+        self.left == 0 && self.next == self.runs.len()
+    }
+}
+
+/// The link-end columns of a resident archive, whole.
 #[derive(Clone, Copy)]
 pub struct LinkSlices<'a> {
-    /// `LOTH`, each below the patch count (validated when the archive was
-    /// opened, §7).
-    pub other: PatchIds<'a>,
+    /// `LOTH`, checked against the runs when the archive was opened.
+    other: &'a [u16],
     /// `LCNT` with `LCNX`.
     pub weight: Weights<'a>,
     /// `LDIR`.
     pub direction: &'a [u32],
-    /// `LBKT`, when present.
-    pub bucket: Option<&'a [u8]>,
+    /// `LROF` and `LRUN`.
+    pub runs: LinkRuns<'a>,
+    patches: usize,
 }
 
+impl<'a> LinkSlices<'a> {
+    /// Columns validated when their archive was opened (§7, step 6), by
+    /// the code of this module's parent only.
+    pub(super) fn validated(
+        other: &'a [u16],
+        weight: Weights<'a>,
+        direction: &'a [u32],
+        runs: LinkRuns<'a>,
+        patches: usize,
+    ) -> Self {
+        Self { other, weight, direction, runs, patches }
+    }
+
+    /// `LOTH` as stored: ids local to their runs' chunks.
+    pub fn local_ids(&self) -> &'a [u16] {
+        self.other
+    }
+
+    /// Every link end at once, as one window.
+    pub fn window(&self) -> LinkWindow<'a> {
+        LinkWindow {
+            patches: 0..self.patches,
+            first_end: 0,
+            other: self.other,
+            weight: self.weight,
+            direction: self.direction,
+            runs: self.runs,
+            patch_count: self.patches,
+        }
+    }
+}
+
+/// A run of one patch's link ends in a window: one bucket, one sender
+/// chunk, ids proved in range.
+#[derive(Clone)]
+pub struct EndRun<'w> {
+    bucket: u8,
+    base: usize,
+    ends: Range<usize>,
+    ids: &'w [u16],
+    bound: usize,
+}
+
+impl<'w> EndRun<'w> {
+    /// The bucket of the light received over the run's ends.
+    pub fn bucket(&self) -> u8 {
+        self.bucket
+    }
+
+    /// The first patch of the sender chunk: an end's other patch is this
+    /// plus its id.
+    pub fn base(&self) -> usize {
+        self.base
+    }
+
+    /// The run's ends, as entries of the window's columns.
+    pub fn ends(&self) -> Range<usize> {
+        self.ends.clone()
+    }
+
+    /// The run's ids (when the window holds `LOTH`), below the patch count
+    /// less [`Self::base`]: per-patch state sliced from the base can be
+    /// indexed with them.
+    pub fn ids(&self) -> PatchIds<'w, u16> {
+        PatchIds { ids: &self.ids[self.ends.clone()], bound: self.bound }
+    }
+
+    /// The other patch of the run's `i`-th end.
+    pub fn other(&self, i: usize) -> u32 {
+        (self.base + self.ids[self.ends.start + i] as usize) as u32
+    }
+}
+
+/// Scratch of [`LinkWindow::runs_by_chunk`]: a cursor per receiver and
+/// bucket.
+#[derive(Default)]
+pub struct ChunkOrder {
+    cursors: Vec<Cursor>,
+}
+
+/// The next run of one receiver's bucket, and the end of its runs.
+struct Cursor {
+    q: usize,
+    run: usize,
+    last: usize,
+    start: usize,
+}
+
+/// Frame 0's link ends, wherever they are.
 /// Frame 0's link ends, wherever they are.
 #[derive(Clone, Copy)]
 pub enum Links<'a> {
     /// In memory (a mapped or owned archive): one window holds them all.
     Resident(LinkSlices<'a>),
     /// On disk, read a window at a time (an archive opened with
-    /// [`super::Archive::open_streamed`]).
-    Streamed(&'a LinkStream),
+    /// [`super::Archive::open_streamed`]), with the runs, held.
+    Streamed(&'a LinkStream, LinkRuns<'a>),
 }
 
 /// The columns a pass over the link ends reads (a streamed pass reads
-/// only these; the others are empty in its windows).
+/// only these; the others are empty in its windows). The runs (`LROF`,
+/// `LRUN`) are always held.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct Columns {
     /// `LOTH`.
@@ -85,15 +334,13 @@ pub struct Columns {
     pub weight: bool,
     /// `LDIR`.
     pub direction: bool,
-    /// `LBKT` (empty in archives without it).
-    pub bucket: bool,
 }
 
 impl Columns {
     /// `LOTH` and `LCNT`: what the diffuse gather reads.
-    pub const GATHER: Self = Self { other: true, weight: true, direction: false, bucket: false };
+    pub const GATHER: Self = Self { other: true, weight: true, direction: false };
     /// Every column.
-    pub const ALL: Self = Self { other: true, weight: true, direction: true, bucket: true };
+    pub const ALL: Self = Self { other: true, weight: true, direction: true };
 }
 
 /// The link ends of a run of consecutive patches: entry `i` of a column is
@@ -103,20 +350,165 @@ pub struct LinkWindow<'w> {
     pub patches: Range<usize>,
     /// The index of the first end (`LOFF[patches.start]`).
     pub first_end: usize,
-    /// `LOTH`.
-    pub other: PatchIds<'w>,
+    /// `LOTH`, checked against the runs as the window entered memory.
+    other: &'w [u16],
     /// `LCNT` with `LCNX`.
     pub weight: Weights<'w>,
     /// `LDIR`.
     pub direction: &'w [u32],
-    /// `LBKT`.
-    pub bucket: &'w [u8],
+    /// The runs of every patch (not only the window's).
+    pub runs: LinkRuns<'w>,
+    patch_count: usize,
 }
 
 impl<'w> LinkWindow<'w> {
+    /// A window over columns whose ids were checked against `runs` (by the
+    /// code of this module's parent only).
+    pub(super) fn validated(
+        patches: Range<usize>,
+        other: &'w [u16],
+        weight: Weights<'w>,
+        direction: &'w [u32],
+        runs: LinkRuns<'w>,
+    ) -> Self {
+        let patch_count = runs.link_offsets.len() - 1;
+        let first_end = runs.link_offsets[patches.start] as usize;
+        Self { patches, first_end, other, weight, direction, runs, patch_count }
+    }
+
+    /// A window over columns given by the caller (tests, tools), its ids
+    /// checked against `runs`; `None` when one is out of range, or there
+    /// are not as many as the window's patches' runs hold.
+    pub fn checked(
+        patches: Range<usize>,
+        other: &'w [u16],
+        weight: Weights<'w>,
+        direction: &'w [u32],
+        runs: LinkRuns<'w>,
+    ) -> Option<Self> {
+        let link_offsets = runs.link_offsets;
+        if patches.end >= link_offsets.len() || patches.start > patches.end {
+            return None;
+        }
+        let n = (link_offsets[patches.end] - link_offsets[patches.start]) as usize;
+        let window_runs = &runs.runs[runs.run_offsets[patches.start] as usize..runs.run_offsets[patches.end] as usize];
+        let mut ids = IdCheck::new(window_runs, link_offsets.len() - 1);
+        if other.len() != n || !ids.add(other) || !ids.done() {
+            return None;
+        }
+        Some(Self::validated(patches, other, weight, direction, runs))
+    }
+
     /// The window's entries of the ends `ends` (absolute indices).
     pub fn local(&self, ends: Range<usize>) -> Range<usize> {
         ends.start - self.first_end..ends.end - self.first_end
+    }
+
+    /// The entries of patch `q`'s row (a patch of the window).
+    pub fn row(&self, q: usize) -> Range<usize> {
+        self.local(self.runs.link_offsets[q] as usize..self.runs.link_offsets[q + 1] as usize)
+    }
+
+    /// The runs of patch `q` (a patch of the window), in row order.
+    pub fn runs_of(&self, q: usize) -> impl Iterator<Item = EndRun<'w>> + use<'w> {
+        let mut e = self.row(q).start;
+        let (other, patch_count) = (self.other, self.patch_count);
+        self.runs.of(q).iter().map(move |r| {
+            let base = r.chunk as usize * CHUNK_PATCHES;
+            let ends = e..e + r.length as usize;
+            e = ends.end;
+            EndRun { bucket: r.bucket, base, ends, ids: other, bound: patch_count - base }
+        })
+    }
+
+    /// Patch `q`'s runs as [`Self::runs_of`] gives them, but with
+    /// neighbouring runs of one sender chunk joined (their buckets
+    /// differ; the bucket given is the first's): for passes that do not
+    /// sort light into buckets, which then sum a row of an archive of one
+    /// chunk at once.
+    pub fn chunk_runs_of(&self, q: usize) -> impl Iterator<Item = EndRun<'w>> + use<'w> {
+        let mut runs = self.runs_of(q).peekable();
+        std::iter::from_fn(move || {
+            let mut run = runs.next()?;
+            while let Some(next) = runs.next_if(|n| n.base == run.base) {
+                run.ends.end = next.ends.end;
+            }
+            Some(run)
+        })
+    }
+
+    /// The runs of the window's patches `receivers`, sender chunk by
+    /// sender chunk (within a chunk, by receiver, then bucket), each given
+    /// to `f` with its receiver: for a gather whose reads of per-patch
+    /// state stay in one chunk's slice (1 MiB of `[f32; 4]`) for the
+    /// receivers' ends of that chunk, rather than range over all of it
+    /// for each receiver. A receiver's runs of one bucket come in row
+    /// order, so sums per (receiver, bucket) add in the order
+    /// [`Self::runs_of`] gives. `order` is scratch, kept between calls.
+    pub fn runs_by_chunk(&self, receivers: Range<usize>, order: &mut ChunkOrder, mut f: impl FnMut(usize, EndRun<'w>)) {
+        let cursors = &mut order.cursors;
+        cursors.clear();
+        for q in receivers {
+            let runs = self.runs.of(q);
+            let first = self.runs.run_offsets[q] as usize;
+            let mut start = self.row(q).start;
+            let mut k = 0;
+            while k < runs.len() {
+                let (bucket, segment) = (runs[k].bucket, k);
+                let segment_start = start;
+                while k < runs.len() && runs[k].bucket == bucket {
+                    start += runs[k].length as usize;
+                    k += 1;
+                }
+                cursors.push(Cursor { q, run: first + segment, last: first + k, start: segment_start });
+            }
+        }
+        // A bucket's runs of a patch have ascending chunks, one run each at
+        // most: a pass per chunk takes each run once.
+        for chunk in 0..self.patch_count.div_ceil(CHUNK_PATCHES) {
+            let base = chunk * CHUNK_PATCHES;
+            for c in cursors.iter_mut() {
+                if c.run < c.last && self.runs.runs[c.run].chunk as usize == chunk {
+                    let r = &self.runs.runs[c.run];
+                    let ends = c.start..c.start + r.length as usize;
+                    c.start = ends.end;
+                    c.run += 1;
+                    f(c.q, EndRun { bucket: r.bucket, base, ends, ids: self.other, bound: self.patch_count - base });
+                }
+            }
+        }
+    }
+
+    /// The sender chunks of the archive's patches.
+    pub fn chunk_count(&self) -> usize {
+        self.patch_count.div_ceil(CHUNK_PATCHES)
+    }
+
+    /// Patch `q`'s ends (a patch of the window) in row order: the entry,
+    /// the other patch (when the window holds `LOTH`) and the bucket.
+    pub fn ends_of(&self, q: usize) -> impl Iterator<Item = (usize, u32, u8)> + use<'w> {
+        let read = !self.other.is_empty();
+        self.runs_of(q).flat_map(move |r| {
+            let k = r.bucket();
+            let first = r.ends().start;
+            r.ends().map(move |e| (e, if read { r.other(e - first) } else { 0 }, k))
+        })
+    }
+
+    /// The other patch of every end of the window, decoded (for tools and
+    /// tests; the gather reads runs).
+    pub fn other_ids(&self) -> Vec<u32> {
+        self.patches.clone().flat_map(|q| self.ends_of(q).map(|e| e.1)).collect()
+    }
+
+    /// The bucket of every end of the window, decoded.
+    pub fn buckets(&self) -> Vec<u8> {
+        self.patches.clone().flat_map(|q| self.ends_of(q).map(|e| e.2)).collect()
+    }
+
+    /// `LOTH` as read: ids local to their runs' chunks.
+    pub fn local_ids(&self) -> &'w [u16] {
+        self.other
     }
 }
 
@@ -133,17 +525,11 @@ impl<'a> Links<'a> {
     ) -> Result<(), E> {
         match self {
             Links::Resident(s) => {
+                debug_assert_eq!(s.patches, patches);
                 let mut f = f;
-                f(LinkWindow {
-                    patches: 0..patches,
-                    first_end: 0,
-                    other: s.other,
-                    weight: s.weight,
-                    direction: s.direction,
-                    bucket: s.bucket.unwrap_or(&[]),
-                })
+                f(s.window())
             }
-            Links::Streamed(stream) => stream.for_each_window(columns, None, f),
+            Links::Streamed(stream, runs) => stream.for_each_window(columns, *runs, None, f),
         }
     }
 
@@ -165,7 +551,7 @@ impl<'a> Links<'a> {
     ) -> Result<(), E> {
         match self {
             Links::Resident(_) => self.for_each_window(columns, patches, |w| f(w, &mut *out)),
-            Links::Streamed(stream) => stream.for_each_window_par(columns, out, per_patch, f),
+            Links::Streamed(stream, runs) => stream.for_each_window_par(columns, *runs, out, per_patch, f),
         }
     }
 
@@ -181,113 +567,80 @@ impl<'a> Links<'a> {
     ) -> Result<(), E> {
         match self {
             Links::Resident(_) => self.for_each_window(columns, patches, f),
-            Links::Streamed(stream) => stream.for_each_window(columns, Some(wanted), f),
+            Links::Streamed(stream, runs) => stream.for_each_window(columns, *runs, Some(wanted), f),
         }
     }
 
-    /// The link ends of `patches` (in any order), every column, for passes
-    /// that revisit a few patches' ends many times: borrowed from resident
-    /// columns, copied out of a streamed archive in one pass.
-    pub fn rows(&self, offsets: &'a [u64], patches: &[u32]) -> Result<LinkRows<'a>, ArchiveError> {
-        match self {
-            Links::Resident(s) => {
-                // Weights decoded to f32: these rows are read many times.
-                let mut starts = vec![0usize];
-                let mut weight = Vec::new();
-                for &q in patches {
-                    let (a, b) = (offsets[q as usize] as usize, offsets[q as usize + 1] as usize);
-                    weight.extend(s.weight.slice(a..b).iter());
-                    starts.push(weight.len());
-                }
-                Ok(LinkRows {
-                    patches: patches.to_vec(),
-                    store: RowStore::Borrowed { offsets, slices: *s, weight, starts },
-                })
+    /// The link ends of `patches` (in any order), every column decoded
+    /// (other patches as 32-bit ids, weights as f32), for passes that
+    /// revisit a few patches' ends many times: copied out of resident
+    /// columns, or out of a streamed archive in one pass.
+    pub fn rows(&self, offsets: &'a [u64], patches: &[u32]) -> Result<LinkRows, ArchiveError> {
+        let mut order: Vec<usize> = (0..patches.len()).collect();
+        order.sort_by_key(|&k| patches[k]);
+        let mut row_of = vec![0u32; patches.len()];
+        let mut compact_offsets = vec![0u64];
+        let (mut other, mut weight, mut direction) = (Vec::new(), Vec::new(), Vec::new());
+        let wanted: Vec<u32> = order.iter().map(|&k| patches[k]).collect();
+        let mut next = 0;
+        let n = offsets.len() - 1;
+        self.for_each_window_of(Columns::ALL, n, &wanted, |w: LinkWindow<'_>| {
+            while next < order.len() && (wanted[next] as usize) < w.patches.end {
+                let q = wanted[next] as usize;
+                let r = w.row(q);
+                other.extend(w.ends_of(q).map(|e| e.1));
+                weight.extend(w.weight.slice(r.clone()).iter());
+                direction.extend_from_slice(&w.direction[r]);
+                row_of[order[next]] = (compact_offsets.len() - 1) as u32;
+                compact_offsets.push(other.len() as u64);
+                next += 1;
             }
-            Links::Streamed(stream) => {
-                let mut order: Vec<usize> = (0..patches.len()).collect();
-                order.sort_by_key(|&k| patches[k]);
-                let mut row_of = vec![0u32; patches.len()];
-                let mut compact_offsets = vec![0u64];
-                let (mut other, mut weight, mut direction) = (Vec::new(), Vec::new(), Vec::new());
-                let wanted: Vec<u32> = order.iter().map(|&k| patches[k]).collect();
-                let mut next = 0;
-                stream.for_each_window(Columns::ALL, Some(&wanted), |w: LinkWindow<'_>| {
-                    while next < order.len() && (wanted[next] as usize) < w.patches.end {
-                        let q = wanted[next] as usize;
-                        let r = w.local(offsets[q] as usize..offsets[q + 1] as usize);
-                        other.extend_from_slice(&w.other.ids()[r.clone()]);
-                        weight.extend(w.weight.slice(r.clone()).iter());
-                        direction.extend_from_slice(&w.direction[r]);
-                        row_of[order[next]] = (compact_offsets.len() - 1) as u32;
-                        compact_offsets.push(other.len() as u64);
-                        next += 1;
-                    }
-                    Ok::<(), ArchiveError>(())
-                })?;
-                Ok(LinkRows {
-                    patches: patches.to_vec(),
-                    store: RowStore::Owned { row_of, offsets: compact_offsets, other, weight, direction },
-                })
-            }
-        }
+            Ok::<(), ArchiveError>(())
+        })?;
+        Ok(LinkRows { row_of, offsets: compact_offsets, other, weight, direction })
     }
 
-    /// Whether the archive has `LBKT`.
-    pub fn has_bucket(&self) -> bool {
+    /// The runs of every patch (`LROF`, `LRUN`).
+    pub fn runs(&self) -> LinkRuns<'a> {
         match self {
-            Links::Resident(s) => s.bucket.is_some(),
-            Links::Streamed(stream) => stream.has_bucket(),
+            Links::Resident(s) => s.runs,
+            Links::Streamed(_, runs) => *runs,
         }
     }
 
     /// Whether the ends are streamed from disk.
     pub fn is_streamed(&self) -> bool {
-        matches!(self, Links::Streamed(_))
+        matches!(self, Links::Streamed(..))
     }
 
     /// The resident columns, if they are.
     pub fn resident(&self) -> Option<&LinkSlices<'a>> {
         match self {
             Links::Resident(s) => Some(s),
-            Links::Streamed(_) => None,
+            Links::Streamed(..) => None,
         }
     }
 }
 
 /// The link ends of chosen patches (see [`Links::rows`]).
-pub struct LinkRows<'a> {
-    patches: Vec<u32>,
-    store: RowStore<'a>,
+pub struct LinkRows {
+    row_of: Vec<u32>,
+    offsets: Vec<u64>,
+    other: Vec<u32>,
+    weight: Vec<f32>,
+    direction: Vec<u32>,
 }
 
-enum RowStore<'a> {
-    Borrowed { offsets: &'a [u64], slices: LinkSlices<'a>, weight: Vec<f32>, starts: Vec<usize> },
-    Owned { row_of: Vec<u32>, offsets: Vec<u64>, other: Vec<u32>, weight: Vec<f32>, direction: Vec<u32> },
-}
-
-impl LinkRows<'_> {
+impl LinkRows {
     /// The ends of the `k`-th patch asked for: `(other, weight, direction)`.
     pub fn ends(&self, k: usize) -> (&[u32], &[f32], &[u32]) {
-        match &self.store {
-            RowStore::Borrowed { offsets, slices, weight, starts } => {
-                let q = self.patches[k] as usize;
-                let (a, b) = (offsets[q] as usize, offsets[q + 1] as usize);
-                (&slices.other.ids()[a..b], &weight[starts[k]..starts[k + 1]], &slices.direction[a..b])
-            }
-            RowStore::Owned { row_of, offsets, other, weight, direction } => {
-                let r = row_of[k] as usize;
-                let (a, b) = (offsets[r] as usize, offsets[r + 1] as usize);
-                (&other[a..b], &weight[a..b], &direction[a..b])
-            }
-        }
+        let r = self.row_of[k] as usize;
+        let (a, b) = (self.offsets[r] as usize, self.offsets[r + 1] as usize);
+        (&self.other[a..b], &self.weight[a..b], &self.direction[a..b])
     }
 
-    /// Heap bytes held (zero when borrowed).
+    /// Heap bytes held.
     pub fn heap_bytes(&self) -> usize {
-        match &self.store {
-            RowStore::Borrowed { weight, starts, .. } => self.patches.len() * 4 + weight.len() * 4 + starts.len() * 8,
-            RowStore::Owned { other, .. } => self.patches.len() * 8 + other.len() * 12,
-        }
+        self.row_of.len() * 4 + self.offsets.len() * 8 + self.other.len() * 12
     }
 }

@@ -32,7 +32,7 @@ mod write;
 use std::fmt;
 use std::path::PathBuf;
 
-pub use links::{Columns, LinkRows, LinkSlices, LinkWindow, Links, PatchIds};
+pub use links::{ChunkOrder, Columns, EndRun, LinkRows, LinkRuns, LinkSlices, LinkWindow, Links, PatchIds};
 pub use read::{Archive, ArchiveSummary, DeltaBytes, InetView, OnDisk, ReflectanceView, SequenceView, ShadingView};
 pub use stream::{CHUNK_ENDS, LinkStream, bytes_per_end};
 pub use weights::Weights;
@@ -213,7 +213,7 @@ impl fmt::Display for ArchiveError {
                 f,
                 "archive needs reader version {needs}, this illumnet reads up to version {supports}: upgrade illumnet"
             ),
-            Self::Outdated { written } if *written == layout::UPGRADABLE => write!(
+            Self::Outdated { written } if (layout::UPGRADABLE..layout::OLDEST_READABLE).contains(written) => write!(
                 f,
                 "archive written in format version {written}; this illumnet reads version {}: rewrite it with \
                  `illumnet upgrade ARCHIVE` (the same light, a smaller file) or build it again",
@@ -222,9 +222,10 @@ impl fmt::Display for ArchiveError {
             Self::Outdated { written } => write!(
                 f,
                 "archive written in format version {written}; this illumnet reads version {} and upgrades \
-                 version {}: build it again",
+                 versions {} to {}: build it again",
                 layout::VERSION_WRITE,
-                layout::UPGRADABLE
+                layout::UPGRADABLE,
+                layout::OLDEST_READABLE - 1
             ),
         }
     }

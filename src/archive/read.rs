@@ -12,7 +12,7 @@ use super::layout::{
     InstanceRecord, MaterialRecord, NonDiffusePatchRecord, OrientationRecord, PrimitiveRecord, PrototypeRecord,
     SectionEntry, SurfaceRecord, Tag, WeightEscape, compression, tag,
 };
-use super::links::{LinkRows, LinkSlices, Links, PatchIds};
+use super::links::{IdCheck, LinkRows, LinkRuns, LinkSlices, Links, check_runs};
 use super::presence::{self, FramePresence, FrameSpan};
 use super::stream::{self, LinkStream};
 use super::weights::{self, Weights};
@@ -48,8 +48,9 @@ impl Storage {
     }
 }
 
-/// Tags of the link-end columns a streamed archive reads from disk.
-const LINK_COLUMNS: [Tag; 4] = [tag::LINK_OTHER, tag::LINK_COUNT, tag::LINK_DIRECTION, tag::LINK_BUCKET];
+/// Tags of the link-end columns a streamed archive reads from disk (it
+/// holds their runs, `LROF` and `LRUN`).
+const LINK_COLUMNS: [Tag; 3] = [tag::LINK_OTHER, tag::LINK_COUNT, tag::LINK_DIRECTION];
 
 /// An opened, fully validated archive.
 pub struct Archive {
@@ -415,7 +416,7 @@ impl<'a> InetView<'a> {
     }
 
     /// The link ends of `patches` (see [`Links::rows`]).
-    pub fn link_rows(&self, patches: &[u32]) -> Result<LinkRows<'a>, ArchiveError> {
+    pub fn link_rows(&self, patches: &[u32]) -> Result<LinkRows, ArchiveError> {
         self.links.rows(self.link_offsets, patches)
     }
 }
@@ -425,7 +426,7 @@ fn bad(msg: impl Into<String>) -> ArchiveError {
 }
 
 /// Required sections: tag, record size, compression.
-const REQUIRED: [(Tag, u32, u32); 22] = [
+const REQUIRED: [(Tag, u32, u32); 24] = [
     (tag::BUILD, size_of::<BuildRecord>() as u32, compression::NONE),
     (tag::CAMERA, size_of::<CameraRecord>() as u32, compression::NONE),
     (tag::MATERIALS, size_of::<MaterialRecord>() as u32, compression::NONE),
@@ -443,15 +444,17 @@ const REQUIRED: [(Tag, u32, u32); 22] = [
     (tag::ADJACENCY_OFFSETS, 4, compression::NONE),
     (tag::ADJACENCY, 4, compression::NONE),
     (tag::LINK_OFFSETS, 8, compression::NONE),
-    (tag::LINK_OTHER, 4, compression::NONE),
+    (tag::LINK_OTHER, 2, compression::NONE),
     (tag::LINK_COUNT, 1, compression::NONE),
+    (tag::LINK_RUN_OFFSETS, 8, compression::NONE),
+    (tag::LINK_RUNS, size_of::<layout::LinkRunRecord>() as u32, compression::NONE),
     (tag::LINK_ESCAPES, size_of::<WeightEscape>() as u32, compression::NONE),
     (tag::LINK_DIRECTION, 4, compression::NONE),
     (tag::META, 0, compression::ZSTD),
 ];
 
 /// Optional sections, when present: tag, record size, compression.
-const OPTIONAL: [(Tag, u32, u32); 21] = [
+const OPTIONAL: [(Tag, u32, u32); 20] = [
     (tag::GROUPED_TRIANGLE_VERTICES, 12, compression::NONE),
     (tag::SHADING, size_of::<layout::ShadingRecord>() as u32, compression::NONE),
     (tag::TEXTURES, size_of::<layout::TextureRecord>() as u32, compression::NONE),
@@ -466,7 +469,6 @@ const OPTIONAL: [(Tag, u32, u32); 21] = [
     (tag::ORIENTATION_MAPS, 4, compression::NONE),
     (tag::NONDIFFUSE_PATCHES, size_of::<NonDiffusePatchRecord>() as u32, compression::NONE),
     (tag::NONDIFFUSE_HITS, 4, compression::NONE),
-    (tag::LINK_BUCKET, 1, compression::NONE),
     (tag::ANIMATION, size_of::<AnimationRecord>() as u32, compression::NONE),
     (tag::INSTANCES, size_of::<InstanceRecord>() as u32, compression::NONE),
     (tag::DELTA_INDEX, size_of::<DeltaIndexRecord>() as u32, compression::NONE),
@@ -554,13 +556,13 @@ impl Archive {
         check(hits.len() == b.patch_count as usize, || {
             format!("section PHIT: {} records, expected {}", hits.len(), b.patch_count)
         })?;
-        let limits = stream::Limits {
-            hits,
-            patches: b.patch_count as usize,
-            directions: b.direction_count as usize,
-            max_bucket: b.max_bucket.min(255) as u8,
-        };
-        let columns = LINK_COLUMNS.map(|t| archive.entries.iter().find(|e| e.tag == t));
+        let limits = stream::Limits { hits, patches: b.patch_count as usize, directions: b.direction_count as usize };
+        let (run_offsets, runs): (&[u64], &[layout::LinkRunRecord]) =
+            (archive.column(tag::LINK_RUN_OFFSETS)?, archive.column(tag::LINK_RUNS)?);
+        check_runs(offsets, run_offsets, runs, b.max_bucket.min(255) as u8).map_err(bad)?;
+        let runs = LinkRuns::validated(offsets, run_offsets, runs);
+        let columns =
+            [archive.entry(tag::LINK_OTHER)?, archive.entry(tag::LINK_COUNT)?, archive.entry(tag::LINK_DIRECTION)?];
         let escapes: Vec<WeightEscape> = {
             let e = archive.entry(tag::LINK_ESCAPES)?;
             let mut records = vec![WeightEscape::default(); (e.stored_length as usize) / size_of::<WeightEscape>()];
@@ -570,7 +572,7 @@ impl Archive {
             check_sum(e, buf)?;
             records
         };
-        let links = LinkStream::open(file, path, columns, escapes, offsets, &limits, window_ends)?;
+        let links = LinkStream::open(file, path, columns, escapes, offsets, runs, &limits, window_ends)?;
         archive.stream = Some(links);
         validate_contents(&archive.view_unchecked()?, &archive.meta)?;
         Ok(archive)
@@ -746,22 +748,32 @@ impl Archive {
             adjacency: self.column(tag::ADJACENCY)?,
             link_offsets: self.column(tag::LINK_OFFSETS)?,
             links: match &self.stream {
-                Some(stream) => Links::Streamed(stream),
+                // Checked when the stream was opened.
+                Some(stream) => Links::Streamed(
+                    stream,
+                    LinkRuns::validated(
+                        self.column(tag::LINK_OFFSETS)?,
+                        self.column(tag::LINK_RUN_OFFSETS)?,
+                        self.column(tag::LINK_RUNS)?,
+                    ),
+                ),
                 None => {
                     let b: &BuildRecord = self.one(tag::BUILD)?;
-                    let other: &[u32] = self.column(tag::LINK_OTHER)?;
-                    Links::Resident(LinkSlices {
-                        // Checked below the patch count by
-                        // `validate_contents` before any view leaves `open`.
-                        other: PatchIds::validated(other, b.patch_count as usize),
+                    // Checked by `validate_contents` (runs against `LOFF`,
+                    // ids against runs) before any view leaves `open`.
+                    let runs = LinkRuns::validated(
+                        self.column(tag::LINK_OFFSETS)?,
+                        self.column(tag::LINK_RUN_OFFSETS)?,
+                        self.column(tag::LINK_RUNS)?,
+                    );
+                    Links::Resident(LinkSlices::validated(
+                        self.column(tag::LINK_OTHER)?,
                         // Every LCNX record, so that validation sees extras.
-                        weight: Weights::whole(self.column(tag::LINK_COUNT)?, self.column(tag::LINK_ESCAPES)?),
-                        direction: self.column(tag::LINK_DIRECTION)?,
-                        bucket: match self.entries.iter().any(|e| e.tag == tag::LINK_BUCKET) {
-                            true => Some(self.column(tag::LINK_BUCKET)?),
-                            false => None,
-                        },
-                    })
+                        Weights::whole(self.column(tag::LINK_COUNT)?, self.column(tag::LINK_ESCAPES)?),
+                        self.column(tag::LINK_DIRECTION)?,
+                        runs,
+                        b.patch_count as usize,
+                    ))
                 }
             },
             sequence: match self.entries.iter().any(|e| e.tag == tag::ANIMATION) {
@@ -847,13 +859,19 @@ fn read_structure(file: &std::fs::File, path: &Path) -> Result<(HeaderRecord, Ve
     read_structure_of(file, path, None)
 }
 
-/// The sections a version 6 file requires ([`crate::archive::upgrade`]
-/// rewrites them): version 7's, with `LWGT` for `LCNT` and `LCNX`.
-pub(super) fn required_v6() -> Vec<(Tag, u32, u32)> {
-    let mut r: Vec<_> =
-        REQUIRED.iter().copied().filter(|(t, _, _)| *t != tag::LINK_COUNT && *t != tag::LINK_ESCAPES).collect();
-    r.push((tag::LINK_WEIGHT_V6, 4, compression::NONE));
-    r
+/// The sections every file since version 6 requires but for the link-end
+/// columns and their runs (`LOFF` is among them): what
+/// [`crate::archive::upgrade`] checks an old file's table against.
+pub(super) fn required_common() -> Vec<(Tag, u32, u32)> {
+    let link = [
+        tag::LINK_OTHER,
+        tag::LINK_COUNT,
+        tag::LINK_ESCAPES,
+        tag::LINK_DIRECTION,
+        tag::LINK_RUN_OFFSETS,
+        tag::LINK_RUNS,
+    ];
+    REQUIRED.iter().copied().filter(|(t, _, _)| !link.contains(t)).collect()
 }
 
 /// [`read_structure`], or, given `required`, the same for a file of any
@@ -1290,12 +1308,15 @@ fn validate_contents(v: &InetView<'_>, meta: &ArchiveMeta) -> Result<(), Archive
     }
     match v.links {
         Links::Resident(l) => {
-            let ends = l.other.ids().len();
+            let ends = l.local_ids().len();
             count("LCNT", l.weight.len(), ends)?;
             count("LDIR", l.direction.len(), ends)?;
             check(b.link_end_count == ends as u64, || "BILD: link end count disagrees with LOTH".into())?;
             csr("LOFF", v.link_offsets.iter().copied(), ends)?;
-            check(l.other.ids().iter().all(|&o| (o as usize) < p), || "LOTH: patch id out of range".into())?;
+            let runs = l.runs.records();
+            check_runs(v.link_offsets, l.runs.offsets(), runs, b.max_bucket.min(255) as u8).map_err(bad)?;
+            let mut ids = IdCheck::new(runs, p);
+            check(ids.add(l.local_ids()) && ids.done(), || "LOTH: patch id out of range".into())?;
             let escapes = l.weight.escapes();
             let mut next = 0;
             weights::check(l.weight.counts(), 0, escapes, &mut next).map_err(ArchiveError::Corrupt)?;
@@ -1304,15 +1325,10 @@ fn validate_contents(v: &InetView<'_>, meta: &ArchiveMeta) -> Result<(), Archive
             })?;
             WeightSums::new(v.link_offsets, v.patch_hits).add(l.weight)?;
             check(l.direction.iter().all(|&d| (d as usize) < nd), || "LDIR: direction out of range".into())?;
-            if let Some(buckets) = l.bucket {
-                count("LBKT", buckets.len(), ends)?;
-                let max = b.max_bucket as u8;
-                check(buckets.iter().all(|&k| k <= max), || format!("LBKT: bucket above BILD.max_bucket {max}"))?;
-            }
         }
         // The stream checked its columns' lengths and content as it
         // opened them (`LinkStream::open`), and `LOFF` before that.
-        Links::Streamed(s) => {
+        Links::Streamed(s, _) => {
             check(b.link_end_count == s.ends() as u64, || "BILD: link end count disagrees with LOFF".into())?;
         }
     }

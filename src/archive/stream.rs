@@ -23,17 +23,17 @@ use xxhash_rust::xxh3::{Xxh3, xxh3_64};
 use super::ArchiveError;
 use super::invariants::WeightSums;
 use super::layout::{SectionEntry, WeightEscape};
-use super::links::{Columns, LinkWindow, PatchIds};
+use super::links::{Columns, IdCheck, LinkRuns, LinkWindow};
 use super::weights::{self, Weights};
 
 /// Link ends per checked chunk: windows are read in whole chunks.
 pub const CHUNK_ENDS: usize = 1 << 16;
 
-/// Bytes per link end of each column: `LOTH`, `LCNT`, `LDIR`, `LBKT`.
-const WIDTH: [usize; 4] = [4, 1, 4, 1];
+/// Bytes per link end of each column: `LOTH`, `LCNT`, `LDIR`.
+const WIDTH: [usize; 3] = [2, 1, 4];
 
 /// The columns' names, in that order.
-const NAMES: [&str; 4] = ["LOTH", "LCNT", "LDIR", "LBKT"];
+const NAMES: [&str; 3] = ["LOTH", "LCNT", "LDIR"];
 
 /// Chunks read per `pread` when opening (4 MiB of `LOTH`).
 const OPEN_READ_CHUNKS: usize = 16;
@@ -44,7 +44,6 @@ pub(super) struct Limits<'h> {
     pub hits: &'h [u32],
     pub patches: usize,
     pub directions: usize,
-    pub max_bucket: u8,
 }
 
 /// The link-end columns of an archive on disk, read window by window.
@@ -53,13 +52,12 @@ pub struct LinkStream {
     path: PathBuf,
     patches: usize,
     ends: usize,
-    /// File offset of each column (`LOTH`, `LCNT`, `LDIR`, `LBKT`), `None`
-    /// for an absent `LBKT`.
-    at: [Option<u64>; 4],
+    /// File offset of each column (`LOTH`, `LCNT`, `LDIR`).
+    at: [u64; 3],
     /// `LCNX`, held whole (weights that are not a count in 1..=255: rare).
     escapes: Vec<WeightEscape>,
     /// Per chunk, each column's XXH3-64.
-    sums: Vec<[u64; 4]>,
+    sums: Vec<[u64; 3]>,
     windows: Vec<Window>,
     /// The most ends a window's buffers hold (whole chunks).
     capacity: usize,
@@ -78,15 +76,14 @@ struct Window {
 
 #[derive(Default)]
 struct Buffers {
-    other: Vec<u32>,
+    other: Vec<u16>,
     weight: Vec<u8>,
     direction: Vec<u32>,
-    bucket: Vec<u8>,
 }
 
 impl Buffers {
     fn bytes(&self) -> usize {
-        self.other.capacity() * 4 + self.weight.capacity() + self.direction.capacity() * 4 + self.bucket.capacity()
+        self.other.capacity() * 2 + self.weight.capacity() + self.direction.capacity() * 4
     }
 }
 
@@ -120,28 +117,30 @@ pub(super) fn read_at(file: &File, mut buf: &mut [u8], mut offset: u64) -> std::
 
 impl LinkStream {
     /// Reads and checks the columns `entries` (`LOTH`, `LCNT`, `LDIR`,
-    /// optional `LBKT`, already checked to lie in the file) of the archive
-    /// open as `file`, with `escapes` (`LCNX`, checked against its
-    /// checksum), against their checksums and `limits`, and plans windows
-    /// of at most `window_ends` ends (more for a patch with more).
+    /// already checked to lie in the file) of the archive open as `file`,
+    /// with `escapes` (`LCNX`, checked against its checksum), against their
+    /// checksums, `runs` (checked) and `limits`, and plans windows of at
+    /// most `window_ends` ends (more for a patch with more).
+    #[allow(clippy::too_many_arguments)]
     pub(super) fn open(
         file: File,
         path: &Path,
-        entries: [Option<&SectionEntry>; 4],
+        entries: [&SectionEntry; 3],
         escapes: Vec<WeightEscape>,
         offsets: &[u64],
+        runs: LinkRuns<'_>,
         limits: &Limits<'_>,
         window_ends: usize,
     ) -> Result<Self, ArchiveError> {
         let ends = offsets.last().copied().unwrap_or(0) as usize;
         let chunks = ends.div_ceil(CHUNK_ENDS);
-        let mut sums = vec![[0u64; 4]; chunks];
+        let mut sums = vec![[0u64; 3]; chunks];
         let names = NAMES;
         let mut buf = Vec::new();
         let mut next_escape = 0;
+        let mut ids = IdCheck::new(runs.records(), limits.patches);
         for (c, e) in entries.iter().enumerate() {
             let mut sums_of_rows = WeightSums::new(offsets, limits.hits);
-            let Some(e) = e else { continue };
             if e.length != (ends * WIDTH[c]) as u64 {
                 return Err(ArchiveError::corrupt(format!(
                     "section {}: {} bytes, expected {} for {ends} link ends",
@@ -161,6 +160,9 @@ impl LinkStream {
                     sums[first + i][c] = xxh3_64(chunk);
                 }
                 check_column(c, &buf, limits)?;
+                if c == 0 && !ids.add(bytemuck::cast_slice(&buf)) {
+                    return Err(ArchiveError::corrupt("LOTH: patch id out of range"));
+                }
                 if c == 1 {
                     weights::check(&buf, a as u64, &escapes, &mut next_escape).map_err(ArchiveError::Corrupt)?;
                     sums_of_rows.add(Weights::new(&buf, &escapes, a as u64))?;
@@ -180,7 +182,10 @@ impl LinkStream {
                 escapes.len()
             )));
         }
-        let at = entries.map(|e| e.map(|e| e.offset));
+        if !ids.done() {
+            return Err(ArchiveError::corrupt("LOTH: fewer ids than the runs hold"));
+        }
+        let at = entries.map(|e| e.offset);
         let (windows, capacity) = plan(offsets, window_ends.max(1));
         Ok(Self {
             file,
@@ -233,11 +238,6 @@ impl LinkStream {
         self.ends
     }
 
-    /// Whether the archive has `LBKT`.
-    pub fn has_bucket(&self) -> bool {
-        self.at[3].is_some()
-    }
-
     /// Windows a full pass reads.
     pub fn window_count(&self) -> usize {
         self.windows.len()
@@ -271,6 +271,7 @@ impl LinkStream {
     pub(super) fn for_each_window<E: From<ArchiveError>>(
         &self,
         columns: Columns,
+        runs: LinkRuns<'_>,
         wanted: Option<&[u32]>,
         mut f: impl FnMut(LinkWindow<'_>) -> Result<(), E>,
     ) -> Result<(), E> {
@@ -303,7 +304,7 @@ impl LinkStream {
             let reader = scope.spawn(move || {
                 for &i in order {
                     let Ok(mut b) = free_rx.recv() else { break };
-                    let read = self.read_window(i, columns, &mut b).map(|()| b);
+                    let read = self.read_window(i, columns, runs, &mut b).map(|()| b);
                     let failed = read.is_err();
                     if full_tx.send(read).is_err() || failed {
                         break;
@@ -316,7 +317,7 @@ impl LinkStream {
                     path: self.path.clone(),
                     source: std::io::Error::other("the link reader stopped"),
                 })??;
-                f(self.window(i, &b))?;
+                f(self.window(i, &b, runs))?;
                 // Two buffers and room for two: this never blocks.
                 let _ = free_tx.send(b);
             }
@@ -341,6 +342,7 @@ impl LinkStream {
     pub(super) fn for_each_window_par<T: Send, E: From<ArchiveError> + Send>(
         &self,
         columns: Columns,
+        runs: LinkRuns<'_>,
         out: &mut [T],
         per_patch: usize,
         f: impl Fn(LinkWindow<'_>, &mut [T]) -> Result<(), E> + Sync,
@@ -367,7 +369,10 @@ impl LinkStream {
                 let Some(slot) = parts.get(i) else { break };
                 let part = slot.lock().unwrap_or_else(std::sync::PoisonError::into_inner).take();
                 let part = part.expect("each window is taken once");
-                done = self.read_window(i, columns, &mut b).map_err(E::from).and_then(|()| f(self.window(i, &b), part));
+                done = self
+                    .read_window(i, columns, runs, &mut b)
+                    .map_err(E::from)
+                    .and_then(|()| f(self.window(i, &b, runs), part));
                 if done.is_err() {
                     // The other lanes stop at their next window.
                     next.store(parts.len(), Ordering::Relaxed);
@@ -381,33 +386,37 @@ impl LinkStream {
         })
     }
 
-    /// Window `i` over the buffers `read_window` filled (and checked).
-    fn window<'b>(&'b self, i: usize, b: &'b Buffers) -> LinkWindow<'b> {
+    /// Window `i` over the buffers `read_window` filled (and checked
+    /// against `runs`).
+    fn window<'b>(&'b self, i: usize, b: &'b Buffers, runs: LinkRuns<'b>) -> LinkWindow<'b> {
+        let w = &self.windows[i];
+        let local = self.local(i);
+        let pick = |len: usize| if len == 0 { 0..0 } else { local.clone() };
+        LinkWindow::validated(
+            w.patches.clone(),
+            &b.other[pick(b.other.len())],
+            Weights::new(&b.weight[pick(b.weight.len())], &self.escapes, w.ends.start as u64),
+            &b.direction[pick(b.direction.len())],
+            runs,
+        )
+    }
+
+    /// Window `i`'s ends within its buffers (which start at a chunk).
+    fn local(&self, i: usize) -> Range<usize> {
         let w = &self.windows[i];
         let first_chunk_end = (w.ends.start / CHUNK_ENDS) * CHUNK_ENDS;
-        let local = w.ends.start - first_chunk_end..w.ends.end - first_chunk_end;
-        let pick = |len: usize| if len == 0 { 0..0 } else { local.clone() };
-        // `read_window` checked every id of the buffer.
-        let other = PatchIds::validated(&b.other[pick(b.other.len())], self.patches);
-        LinkWindow {
-            patches: w.patches.clone(),
-            first_end: w.ends.start,
-            other,
-            weight: Weights::new(&b.weight[pick(b.weight.len())], &self.escapes, w.ends.start as u64),
-            direction: &b.direction[pick(b.direction.len())],
-            bucket: &b.bucket[pick(b.bucket.len())],
-        }
+        w.ends.start - first_chunk_end..w.ends.end - first_chunk_end
     }
 
     /// Reads window `i`'s `columns` into `b` in whole chunks, each checked
     /// against the checksum taken when the archive was opened, and checks
-    /// its patch ids.
-    fn read_window(&self, i: usize, columns: Columns, b: &mut Buffers) -> Result<(), ArchiveError> {
+    /// its patch ids against its patches' `runs`.
+    fn read_window(&self, i: usize, columns: Columns, runs: LinkRuns<'_>, b: &mut Buffers) -> Result<(), ArchiveError> {
         let w = &self.windows[i];
         let c0 = w.ends.start / CHUNK_ENDS;
         let c1 = w.ends.end.div_ceil(CHUNK_ENDS).max(c0);
         let (a, e) = (c0 * CHUNK_ENDS, (c1 * CHUNK_ENDS).min(self.ends));
-        let want = [columns.other, columns.weight, columns.direction, columns.bucket && self.at[3].is_some()];
+        let want = [columns.other, columns.weight, columns.direction];
         let n = |c: usize| if want[c] { e - a } else { 0 };
         // Grown once, to the largest window exactly (growing by doubling
         // could hold twice what the memory plan counts).
@@ -420,16 +429,14 @@ impl LinkStream {
         fit(&mut b.other, n(0), self.capacity);
         fit(&mut b.weight, n(1), self.capacity);
         fit(&mut b.direction, n(2), self.capacity);
-        fit(&mut b.bucket, n(3), self.capacity);
-        let bytes: [&mut [u8]; 4] = [
-            bytemuck::cast_slice_mut(&mut b.other),
-            &mut b.weight,
-            bytemuck::cast_slice_mut(&mut b.direction),
-            &mut b.bucket,
-        ];
+        let bytes: [&mut [u8]; 3] =
+            [bytemuck::cast_slice_mut(&mut b.other), &mut b.weight, bytemuck::cast_slice_mut(&mut b.direction)];
         let names = NAMES;
         for (c, buf) in bytes.into_iter().enumerate() {
-            let Some(at) = self.at[c].filter(|_| want[c]) else { continue };
+            if !want[c] {
+                continue;
+            }
+            let at = self.at[c];
             // A chunk at a time, checked while it is in the cache.
             for (k, chunk) in buf.chunks_mut(CHUNK_ENDS * WIDTH[c]).enumerate() {
                 let offset = at + ((a + k * CHUNK_ENDS) * WIDTH[c]) as u64;
@@ -442,9 +449,17 @@ impl LinkStream {
                         names[c]
                     )));
                 }
-                if c == 0 && PatchIds::check(bytemuck::cast_slice(chunk), self.patches).is_none() {
-                    return Err(ArchiveError::corrupt("LOTH: a link end's patch is out of range"));
-                }
+            }
+        }
+        if want[0] {
+            // The ids the window uses, against its patches' runs: the proof
+            // the gather's unchecked reads rest on, made again for every
+            // window read.
+            let of_window =
+                &runs.records()[runs.offsets()[w.patches.start] as usize..runs.offsets()[w.patches.end] as usize];
+            let mut ids = IdCheck::new(of_window, self.patches);
+            if !ids.add(&b.other[self.local(i)]) || !ids.done() {
+                return Err(ArchiveError::corrupt("LOTH: a link end's patch is out of range"));
             }
         }
         Ok(())
@@ -490,11 +505,7 @@ fn drop_cached(file: &File) {
 
 /// Heap bytes per link end of a window reading `columns`.
 pub fn bytes_per_end(columns: Columns) -> usize {
-    [columns.other, columns.weight, columns.direction, columns.bucket]
-        .iter()
-        .zip(WIDTH)
-        .map(|(&on, w)| if on { w } else { 0 })
-        .sum()
+    [columns.other, columns.weight, columns.direction].iter().zip(WIDTH).map(|(&on, w)| if on { w } else { 0 }).sum()
 }
 
 /// Windows of consecutive patches with at most `window_ends` ends each (a
@@ -525,24 +536,18 @@ fn plan(offsets: &[u64], window_ends: usize) -> (Vec<Window>, usize) {
     (windows, capacity)
 }
 
-/// The content rules of §7 for column `c` of some link ends.
+/// The content rules of §7 for column `c` of some link ends (`LOTH`'s ids
+/// are checked against their runs, by the caller).
 fn check_column(c: usize, bytes: &[u8], limits: &Limits<'_>) -> Result<(), ArchiveError> {
     let ok = match c {
-        0 => bytes.chunks_exact(4).all(|x| (u32::from_le_bytes(x.try_into().unwrap()) as usize) < limits.patches),
-        // Any count is a weight; zeros are checked against LCNX.
-        1 => true,
         2 => bytes.chunks_exact(4).all(|x| (u32::from_le_bytes(x.try_into().unwrap()) as usize) < limits.directions),
-        _ => bytes.iter().all(|&k| k <= limits.max_bucket),
+        // Any count is a weight; zeros are checked against LCNX.
+        _ => true,
     };
     if ok {
         return Ok(());
     }
-    Err(ArchiveError::corrupt(match c {
-        0 => "LOTH: patch id out of range".to_string(),
-        1 => "LCNT: bad count".into(),
-        2 => "LDIR: direction out of range".into(),
-        _ => format!("LBKT: bucket above BILD.max_bucket {}", limits.max_bucket),
-    }))
+    Err(ArchiveError::corrupt("LDIR: direction out of range"))
 }
 
 #[cfg(test)]

@@ -135,7 +135,7 @@ pub fn verify(path: &Path) -> Result<Verification, ArchiveError> {
     let dirs: Vec<glam::Vec3> = v.directions.iter().map(|d| glam::Vec3::from(d.direction)).collect();
     let (mut facing, mut sum_ends, mut sum_mirrors) = (0usize, 0u64, 0u64);
     let offsets = v.link_offsets;
-    let columns = Columns { other: true, weight: true, direction: true, bucket: false };
+    let columns = Columns::ALL;
     v.links.for_each_window(columns, v.patch_count(), |w| {
         // In parallel over runs of patches; hashes add in any order, and
         // the findings are merged in patch order.
@@ -146,9 +146,9 @@ pub fn verify(path: &Path) -> Result<Verification, ArchiveError> {
             .map(|run| {
                 let (mut found, mut count, mut ends, mut mirrors) = (Vec::new(), 0usize, 0u64, 0u64);
                 for p in run {
-                    let Range { start, end } = w.local(offsets[p] as usize..offsets[p + 1] as usize);
-                    for i in start..end {
-                        let (q, d, weight) = (w.other.ids()[i], w.direction[i], w.weight.get(i));
+                    debug_assert_eq!(w.row(p), w.local(offsets[p] as usize..offsets[p + 1] as usize));
+                    for (i, q, _) in w.ends_of(p) {
+                        let (d, weight) = (w.direction[i], w.weight.get(i));
                         let dir = dirs[d as usize];
                         let (cp, cq) = (normal[p].dot(dir), normal[q as usize].dot(dir));
                         let least = |x: usize| if grouped[x] { GROUPED_FACING } else { PLANAR_FACING };

@@ -6,15 +6,15 @@ use std::path::Path;
 use bytemuck::{Pod, bytes_of, cast_slice};
 use xxhash_rust::xxh3::{Xxh3, xxh3_64};
 
-use super::layout::{self, HeaderRecord, SectionEntry, Tag, WeightEscape, compression, tag};
+use super::layout::{self, HeaderRecord, LinkRunRecord, SectionEntry, Tag, compression, tag};
 use super::{ArchiveContents, ArchiveError, weights};
 use crate::scratch;
 
 /// Receives batches of link ends: other patch, weight, direction, bucket.
 pub type LinkEndSink<'a> = dyn FnMut(&[u32], &[f32], &[u32], &[u8]) -> std::io::Result<()> + 'a;
 
-/// The link-end columns (`LOTH`, the weights stored as `LCNT` and `LCNX`,
-/// `LDIR`, `LBKT`, §5.10) of
+/// The link ends (other patch, weight, direction, bucket; stored as
+/// `LOTH`, `LCNT` with `LCNX`, `LDIR`, `LROF` and `LRUN`, §5.10) of
 /// an archive too large to hold them in memory, produced in file order
 /// (for example by merging sorted runs spilled to disk) while they are
 /// written: the archive's bytes are those of the same columns held in
@@ -158,59 +158,99 @@ impl<W: Write + Seek> SectionWriter<W> {
         })
     }
 
-    /// Stores the link-end columns `source` gives, as [`Self::column`] of
-    /// each would: their places follow from E alone, so the four are
-    /// written side by side while the source produces them; the weights'
-    /// escapes (`LCNX`, rare) are held and stored after them.
-    fn link_columns(&mut self, source: &mut dyn LinkEndSource) -> std::io::Result<()> {
+    /// Stores the link ends `source` gives (rows per `link_offsets`,
+    /// `LOFF`) as `LOTH`, `LCNT`, `LDIR`, `LROF` and `LRUN`, then `LCNX`
+    /// (§5.10): the places of the first four follow from E and the patch
+    /// count alone, so they are written side by side while the source
+    /// produces them; `LRUN`, whose length is known at the end, goes after
+    /// them at a page boundary, and the weights' escapes (rare) are held
+    /// and stored last. Fails when a row's ends are not in ascending
+    /// (bucket, sender chunk), the order the format requires.
+    pub(super) fn link_columns(&mut self, source: &mut dyn LinkEndSource, link_offsets: &[u64]) -> std::io::Result<()> {
         let e = source.end_count();
-        let tags = [tag::LINK_OTHER, tag::LINK_COUNT, tag::LINK_DIRECTION, tag::LINK_BUCKET];
-        let widths = [4u64, 1, 4, 1];
-        let mut columns = Vec::with_capacity(4);
+        let patches = link_offsets.len().saturating_sub(1);
+        if link_offsets.last().copied().unwrap_or(0) != e {
+            return Err(std::io::Error::other(format!(
+                "LOFF ends at {:?}, the link-end source gives {e}",
+                link_offsets.last()
+            )));
+        }
+        let tags = [tag::LINK_OTHER, tag::LINK_COUNT, tag::LINK_DIRECTION, tag::LINK_RUN_OFFSETS, tag::LINK_RUNS];
+        let lengths = [e * 2, e, e * 4, (patches as u64 + 1) * 8];
+        let widths = [2u32, 1, 4, 8, 8];
+        let mut columns = Vec::with_capacity(5);
         let mut position = self.position;
-        for w in widths {
-            let len = e * w;
-            let align = if len >= layout::LARGE_SECTION { layout::PAGE_ALIGN } else { layout::SECTION_ALIGN };
+        for len in lengths.into_iter().map(Some).chain([None]) {
+            // `LRUN`, of a length not known yet, at a page boundary.
+            let align = match len {
+                Some(len) if len < layout::LARGE_SECTION => layout::SECTION_ALIGN,
+                _ => layout::PAGE_ALIGN,
+            };
             let offset = position.next_multiple_of(align);
             // The padding before the column, written as zeros.
             self.out.seek(SeekFrom::Start(position))?;
             self.out.write_all(&vec![0u8; (offset - position) as usize])?;
             columns.push(PlacedColumn { offset, written: 0, buf: Vec::new(), hasher: Xxh3::new() });
-            position = offset + len;
+            position = offset + len.unwrap_or(0);
         }
         let out = &mut self.out;
-        let mut given = 0u64;
-        let (mut counts, mut escapes) = (Vec::new(), Vec::new());
+        let mut rows = RunWriter::new(link_offsets);
+        let (mut counts, mut escapes, mut ids, mut runs) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+        let mut run_offsets: Vec<u64> = Vec::new();
         source.write_ends(&mut |other, weight, direction, bucket| {
             let n = other.len();
-            if weight.len() != n || direction.len() != n || bucket.len() != n || given + n as u64 > e {
+            if weight.len() != n || direction.len() != n || bucket.len() != n || rows.given + n as u64 > e {
                 return Err(std::io::Error::other("link-end source gave columns of unequal length or too many ends"));
             }
             counts.clear();
-            weights::encode(weight, given, &mut counts, &mut escapes);
-            given += n as u64;
-            columns[0].add(out, cast_slice(other))?;
+            weights::encode(weight, rows.given, &mut counts, &mut escapes);
+            ids.clear();
+            runs.clear();
+            run_offsets.clear();
+            rows.add(other, bucket, &mut ids, &mut runs, &mut run_offsets)?;
+            columns[0].add(out, cast_slice(&ids))?;
             columns[1].add(out, &counts)?;
             columns[2].add(out, cast_slice(direction))?;
-            columns[3].add(out, bucket)
+            columns[3].add(out, cast_slice(&run_offsets))?;
+            columns[4].add(out, cast_slice(&runs))
         })?;
-        if given != e {
-            return Err(std::io::Error::other(format!("link-end source gave {given} of its {e} ends")));
+        if rows.given != e {
+            return Err(std::io::Error::other(format!("link-end source gave {} of its {e} ends", rows.given)));
         }
-        for ((mut c, t), w) in columns.into_iter().zip(tags).zip(widths) {
+        runs.clear();
+        run_offsets.clear();
+        rows.finish(&mut runs, &mut run_offsets);
+        columns[3].add(out, cast_slice(&run_offsets))?;
+        columns[4].add(out, cast_slice(&runs))?;
+        let run_count = rows.runs;
+        for (i, (mut c, t)) in columns.into_iter().zip(tags).enumerate() {
             c.flush(&mut self.out)?;
+            let count = match i {
+                0..=2 => e,
+                3 => patches as u64 + 1,
+                _ => run_count,
+            };
+            let len = count * widths[i] as u64;
+            if c.written != len {
+                return Err(std::io::Error::other(format!(
+                    "section {}: {} bytes written, {len} expected",
+                    super::tag_name(t),
+                    c.written
+                )));
+            }
             self.entries.push(SectionEntry {
                 tag: t,
                 compression: compression::NONE,
                 offset: c.offset,
-                stored_length: e * w,
-                length: e * w,
-                count: e,
-                record_size: w as u32,
+                stored_length: len,
+                length: len,
+                count,
+                record_size: widths[i],
                 flags: 0,
                 checksum: c.hasher.digest(),
                 reserved: 0,
             });
+            position = c.offset + len;
         }
         self.out.seek(SeekFrom::Start(position))?;
         self.position = position;
@@ -245,6 +285,113 @@ impl<W: Write + Seek> SectionWriter<W> {
     }
 }
 
+/// The link ends held in [`ArchiveContents`], as a source.
+struct HeldLinks<'c>(&'c ArchiveContents);
+
+impl LinkEndSource for HeldLinks<'_> {
+    fn end_count(&self) -> u64 {
+        self.0.link_other.len() as u64
+    }
+
+    fn write_ends(&mut self, out: &mut LinkEndSink<'_>) -> std::io::Result<()> {
+        let c = self.0;
+        const BATCH: usize = 1 << 20;
+        let n = c.link_other.len();
+        if c.link_weight.len() != n || c.link_direction.len() != n || c.link_bucket.len() != n {
+            return Err(std::io::Error::other("link-end columns of unequal length"));
+        }
+        for a in (0..n).step_by(BATCH) {
+            let r = a..(a + BATCH).min(n);
+            out(&c.link_other[r.clone()], &c.link_weight[r.clone()], &c.link_direction[r.clone()], &c.link_bucket[r])?;
+        }
+        Ok(())
+    }
+}
+
+/// Cuts link ends given in file order into rows (`LOFF`) and runs of one
+/// (bucket, sender chunk): what `LOTH`, `LROF` and `LRUN` store (§5.10).
+struct RunWriter<'o> {
+    link_offsets: &'o [u64],
+    /// Ends given so far.
+    given: u64,
+    /// The patch whose row the next end is in; its row's end.
+    patch: usize,
+    row_end: u64,
+    /// The run being made: its (bucket, chunk) and length.
+    open: Option<((u8, u16), u32)>,
+    /// Runs closed so far.
+    runs: u64,
+}
+
+impl<'o> RunWriter<'o> {
+    fn new(link_offsets: &'o [u64]) -> Self {
+        Self { link_offsets, given: 0, patch: 0, row_end: 0, open: None, runs: 0 }
+    }
+
+    /// Closes the open run, if any, into `runs`.
+    fn close(&mut self, runs: &mut Vec<LinkRunRecord>) {
+        if let Some(((bucket, chunk), length)) = self.open.take() {
+            runs.push(LinkRunRecord { chunk, bucket, reserved: 0, length });
+            self.runs += 1;
+        }
+    }
+
+    /// Moves to the rows that hold the next end, closing runs and giving
+    /// each row passed its first run (`LROF`).
+    fn advance(&mut self, runs: &mut Vec<LinkRunRecord>, run_offsets: &mut Vec<u64>) {
+        let patches = self.link_offsets.len().saturating_sub(1);
+        while self.given == self.row_end && self.patch < patches {
+            self.close(runs);
+            run_offsets.push(self.runs);
+            self.row_end = self.link_offsets[self.patch + 1];
+            self.patch += 1;
+        }
+    }
+
+    fn add(
+        &mut self,
+        other: &[u32],
+        bucket: &[u8],
+        ids: &mut Vec<u16>,
+        runs: &mut Vec<LinkRunRecord>,
+        run_offsets: &mut Vec<u64>,
+    ) -> std::io::Result<()> {
+        let patches = self.link_offsets.len().saturating_sub(1);
+        for (&o, &k) in other.iter().zip(bucket) {
+            self.advance(runs, run_offsets);
+            if o as usize >= patches {
+                return Err(std::io::Error::other(format!("link end {}: patch {o} of {patches}", self.given)));
+            }
+            let key = (k, (o as usize / layout::CHUNK_PATCHES) as u16);
+            match &mut self.open {
+                Some((open, length)) if *open == key => *length += 1,
+                Some((open, _)) if *open > key => {
+                    return Err(std::io::Error::other(format!(
+                        "link end {}: patch {}'s ends are not in ascending (bucket, sender chunk)",
+                        self.given,
+                        self.patch - 1
+                    )));
+                }
+                _ => {
+                    self.close(runs);
+                    self.open = Some((key, 1));
+                }
+            }
+            ids.push((o as usize % layout::CHUNK_PATCHES) as u16);
+            self.given += 1;
+        }
+        Ok(())
+    }
+
+    /// After the last end: the last run and the rows left (empty ones at
+    /// the end), and `LROF`'s last entry.
+    fn finish(&mut self, runs: &mut Vec<LinkRunRecord>, run_offsets: &mut Vec<u64>) {
+        self.advance(runs, run_offsets);
+        self.close(runs);
+        run_offsets.push(self.runs);
+    }
+}
+
 fn write_all<W: Write + Seek>(
     out: W,
     c: &ArchiveContents,
@@ -274,24 +421,14 @@ fn write_all<W: Write + Seek>(
             w.column(tag::PATCH_BACK_HITS, &c.patch_back_hits)?;
         }
         if !c.grouped_triangles.is_empty() {
-            // Version 7 readers would take kind 2 for a grid of their own.
-            w.version_read = w.version_read.max(layout::VERSION_READ_GROUPED);
             w.column(tag::GROUPED_TRIANGLE_VERTICES, &c.grouped_triangles)?;
         }
         w.column(tag::ADJACENCY_OFFSETS, &c.adjacency_offsets)?;
         w.column(tag::ADJACENCY, &c.adjacency)?;
         w.column(tag::LINK_OFFSETS, &c.link_offsets)?;
         match links.as_deref_mut() {
-            Some(source) => w.link_columns(source)?,
-            None => {
-                let (mut counts, mut escapes) = (Vec::new(), Vec::<WeightEscape>::new());
-                weights::encode(&c.link_weight, 0, &mut counts, &mut escapes);
-                w.column(tag::LINK_OTHER, &c.link_other)?;
-                w.column(tag::LINK_COUNT, &counts)?;
-                w.column(tag::LINK_DIRECTION, &c.link_direction)?;
-                w.column(tag::LINK_BUCKET, &c.link_bucket)?;
-                w.column(tag::LINK_ESCAPES, &escapes)?;
-            }
+            Some(source) => w.link_columns(source, &c.link_offsets)?,
+            None => w.link_columns(&mut HeldLinks(c), &c.link_offsets)?,
         }
         w.raw(tag::META, compression::ZSTD, &meta_z, meta.len() as u64, 1, 0)?;
         if let Some(r) = &c.reflectance {

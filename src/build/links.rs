@@ -8,14 +8,17 @@
 //! alternative, one record per link scattered to both ends, needs atomics or
 //! per-thread copies of the patch state.
 //!
-//! A patch's ends are grouped by bucket (ascending), then by pair and the
-//! bundle's `(a, b)` order, so the distribution accumulates each bucket's
-//! run in registers (accumulating into a bucket slot chosen per end measured
-//! 2.5× slower: a store-to-load dependency per end).
+//! A patch's ends are grouped by bucket (ascending), then by sender chunk
+//! (the other patch's id divided by 2¹⁶, §5.10), then by pair and the
+//! bundle's `(a, b)` order: the archive stores each (bucket, chunk) run's
+//! ids in 16 bits, and the distribution accumulates a run in registers
+//! (accumulating into a bucket slot chosen per end measured 2.5× slower: a
+//! store-to-load dependency per end).
 
 use rayon::prelude::*;
 
 use super::trace::Bundle;
+use crate::archive::layout::CHUNK_PATCHES;
 
 /// The CSR link-end table.
 pub struct LinkTable {
@@ -103,6 +106,32 @@ pub fn assemble(bundles: &[Bundle], patch_count: usize, max_bucket: u32) -> Link
                     bucket[e] = k;
                     *slot += 1;
                 }
+            }
+        }
+        // Within a bucket, by sender chunk, keeping the order above (only
+        // archives of more than one chunk have anything to move).
+        if patch_count > CHUNK_PATCHES {
+            let mut order = Vec::new();
+            let (mut o2, mut w2, mut d2) = (Vec::new(), Vec::new(), Vec::new());
+            for q in lo..hi {
+                let row = (offsets[q] - base) as usize..(offsets[q + 1] - base) as usize;
+                let key = |e: usize| (bucket[e], other[e] as usize / CHUNK_PATCHES);
+                if row.clone().zip(row.clone().skip(1)).all(|(a, b)| key(a) <= key(b)) {
+                    continue;
+                }
+                order.clear();
+                order.extend(row.clone());
+                order.sort_by_key(|&e| key(e));
+                o2.clear();
+                o2.extend(order.iter().map(|&e| other[e]));
+                w2.clear();
+                w2.extend(order.iter().map(|&e| weight[e]));
+                d2.clear();
+                d2.extend(order.iter().map(|&e| direction[e]));
+                other[row.clone()].copy_from_slice(&o2);
+                weight[row.clone()].copy_from_slice(&w2);
+                direction[row].copy_from_slice(&d2);
+                // Buckets were ascending already: they stay where they are.
             }
         }
     });

@@ -4,9 +4,9 @@
 //! its scene, its BVH and a budgeted amount of links, not all of them.
 //!
 //! A run is the link ends of a contiguous range of direction pairs, sorted
-//! by (owner patch, bucket), in the order the in-memory table has them
-//! within one (owner, bucket) slot: pair, then the bundle's order, the `a`
-//! end before the `b` end. Runs cover disjoint pair ranges, so taking each
+//! by (owner patch, bucket, sender chunk), in the order the in-memory
+//! table has them within one such slot: pair, then the bundle's order, the
+//! `a` end before the `b` end. Runs cover disjoint pair ranges, so taking each
 //! slot's ends from the runs in pair order gives the in-memory table end
 //! for end: the archive is byte-identical to an unbounded build's (tested).
 //! A sharded build on several machines is the same merge over runs written
@@ -18,7 +18,8 @@
 //!
 //! Run file: `E` records of 12 bytes (other patch u32, weight f32,
 //! direction u32, little-endian), then `S` records of 12 bytes (owner u32,
-//! bucket u32, count u32), one per non-empty slot, ascending.
+//! bucket · 2¹⁶ + sender chunk u32, count u32), one per non-empty slot,
+//! ascending.
 
 use std::collections::BinaryHeap;
 use std::fs::File;
@@ -30,6 +31,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use super::BuildError;
 use super::trace::Bundle;
 use crate::archive::deltas::{Block, SpillFile};
+use crate::archive::layout::CHUNK_PATCHES;
 use crate::archive::{LinkEndSink, LinkEndSource};
 
 /// Bytes a bundle holds per link (a, b, w: u32; two u8 buckets).
@@ -90,6 +92,13 @@ struct SortEnd {
     other: u32,
     weight: f32,
     direction: u32,
+}
+
+impl SortEnd {
+    /// The slot key after the owner: bucket, then sender chunk (§5.10).
+    fn slot(&self) -> u32 {
+        ((self.bucket as u32) << 16) | (self.other as usize / CHUNK_PATCHES) as u32
+    }
 }
 
 /// A scratch directory and its lock file ([`crate::scratch::scratch_dir`]).
@@ -170,7 +179,7 @@ impl Spill {
         bundles.clear();
         bundles.shrink_to_fit();
         // Within a slot, ends keep the bundle order (`seq` is unique).
-        ends.sort_unstable_by_key(|e| (e.owner, e.bucket, e.seq));
+        ends.sort_unstable_by_key(|e| (e.owner, e.slot(), e.seq));
         let n = self.sequence.fetch_add(1, Ordering::Relaxed);
         let path = self.run_path(&format!("run-{first_pair:06}-{n:04}.bin"))?;
         let file = File::create(&path).map_err(|e| io_error(&path, e))?;
@@ -182,9 +191,9 @@ impl Spill {
                 out.write_all(&e.direction.to_le_bytes())?;
             }
             let mut slots = 0u64;
-            for run in ends.chunk_by(|x, y| (x.owner, x.bucket) == (y.owner, y.bucket)) {
+            for run in ends.chunk_by(|x, y| (x.owner, x.slot()) == (y.owner, y.slot())) {
                 out.write_all(&run[0].owner.to_le_bytes())?;
-                out.write_all(&(run[0].bucket as u32).to_le_bytes())?;
+                out.write_all(&run[0].slot().to_le_bytes())?;
                 out.write_all(&(run.len() as u32).to_le_bytes())?;
                 slots += 1;
             }
@@ -317,7 +326,8 @@ struct RunReader {
 }
 
 impl RunReader {
-    fn next_slot(&mut self) -> std::io::Result<Option<(u32, u8, u32)>> {
+    /// The next slot: owner, bucket · 2¹⁶ + sender chunk, ends.
+    fn next_slot(&mut self) -> std::io::Result<Option<(u32, u32, u32)>> {
         if self.slots_left == 0 {
             return Ok(None);
         }
@@ -325,7 +335,7 @@ impl RunReader {
         let mut r = [0u8; 12];
         self.slots.read_exact(&mut r)?;
         let word = |i: usize| u32::from_le_bytes(r[4 * i..4 * i + 4].try_into().expect("4 bytes"));
-        Ok(Some((word(0), word(1) as u8, word(2))))
+        Ok(Some((word(0), word(1), word(2))))
     }
 }
 
@@ -377,7 +387,7 @@ impl LinkEndSource for SpilledLinks {
                 other.push(word(0));
                 weight.push(f32::from_bits(word(1)));
                 direction.push(word(2));
-                bucket.push(k);
+                bucket.push((k >> 16) as u8);
                 if other.len() == BATCH {
                     crate::scratch::stop_point("merge");
                     out(&other, &weight, &direction, &bucket)?;

@@ -102,25 +102,22 @@ pub fn inspect_histograms(path: &Path, json: bool, charts: Option<&Path>) -> Res
     let mut lengths = [0u64; 24];
     let mut per_direction = vec![0u64; v.directions.len()];
     let mut per_bucket: Vec<u64> = Vec::new();
-    let columns = Columns { other: true, direction: true, bucket: true, ..Default::default() };
-    let offsets = v.link_offsets;
+    let columns = Columns { other: true, direction: true, ..Default::default() };
     v.links.for_each_window(columns, n, |w| {
         for p in w.patches.clone() {
             let c = glam::Vec3::from(v.patch_centre[p]);
-            for e in offsets[p] as usize - w.first_end..offsets[p + 1] as usize - w.first_end {
-                let q = w.other.ids()[e] as usize;
+            for (e, q, b) in w.ends_of(p) {
+                let q = q as usize;
                 let d = c.distance(glam::Vec3::from(v.patch_centre[q.min(n - 1)])) as f64;
                 let k = if d > 0.0 { (d.log2().floor() as i32 - LENGTH_LO + 1).clamp(0, 23) as usize } else { 0 };
                 lengths[k] += 1;
                 if let Some(slot) = w.direction.get(e).and_then(|&dir| per_direction.get_mut(dir as usize)) {
                     *slot += 1;
                 }
-                if let Some(&b) = w.bucket.get(e) {
-                    if per_bucket.len() <= b as usize {
-                        per_bucket.resize(b as usize + 1, 0);
-                    }
-                    per_bucket[b as usize] += 1;
+                if per_bucket.len() <= b as usize {
+                    per_bucket.resize(b as usize + 1, 0);
                 }
+                per_bucket[b as usize] += 1;
             }
         }
         Ok::<(), ArchiveError>(())

@@ -8,7 +8,7 @@ use rayon::prelude::*;
 
 use super::nondiffuse::NonDiffuse;
 use super::overlay::Ends;
-use crate::archive::{LinkWindow, PatchIds};
+use crate::archive::{ChunkOrder, EndRun, LinkWindow, PatchIds};
 
 /// Patches per parallel task: large enough to amortise scheduling, small
 /// enough to balance two to dozens of cores.
@@ -16,22 +16,24 @@ pub(super) const BLOCK: usize = 512;
 
 /// Link-end patch indices known to be below `bound` (checked once, when
 /// made), so that the gather indexes per-patch state with them without a
-/// bounds check per end (9% of the distribution's time, measured).
+/// bounds check per end (9% of the distribution's time, measured): 32-bit
+/// ids (overlays) or a run's 16-bit ones (the archive's, the state then
+/// sliced from the run's chunk base).
 #[derive(Clone, Copy)]
-pub(super) struct Bounded<'a> {
-    other: &'a [u32],
+pub(super) struct Bounded<'a, I = u32> {
+    other: &'a [I],
     bound: usize,
 }
 
-impl<'a> Bounded<'a> {
+impl<'a, I> Bounded<'a, I> {
     /// The indices in `range` (which must lie within them).
     pub(super) fn slice(self, range: std::ops::Range<usize>) -> Self {
         Self { other: &self.other[range], bound: self.bound }
     }
 }
 
-impl<'a> From<PatchIds<'a>> for Bounded<'a> {
-    fn from(ids: PatchIds<'a>) -> Self {
+impl<'a, I: Copy + Into<u32>> From<PatchIds<'a, I>> for Bounded<'a, I> {
+    fn from(ids: PatchIds<'a, I>) -> Self {
         Self { other: ids.ids(), bound: ids.bound() }
     }
 }
@@ -51,14 +53,18 @@ impl Ends {
 /// gather's limit. Generic over the weight's storage: f32 (overlays) or
 /// the archive's one-byte counts (`LCNT`), which convert to the same f32.
 #[inline(always)]
-pub(super) fn weighted_sum<W: Copy + Into<f32>>(other: Bounded<'_>, weight: &[W], shoot: &[[f32; 4]]) -> [f32; 4] {
+pub(super) fn weighted_sum<I: Copy + Into<u32>, W: Copy + Into<f32>>(
+    other: Bounded<'_, I>,
+    weight: &[W],
+    shoot: &[[f32; 4]],
+) -> [f32; 4] {
     assert!(shoot.len() >= other.bound, "per-patch state shorter than the patch indices allow");
     let n = other.other.len().min(weight.len());
     let (other, weight) = (&other.other[..n], &weight[..n]);
     // SAFETY (both `get_unchecked`): every index of a `Bounded` is below its
     // `bound` (checked when it was made), and `bound ≤ shoot.len()` (the
     // assertion above).
-    let at = |o: u32| unsafe { *shoot.get_unchecked(o as usize) };
+    let at = |o: I| unsafe { *shoot.get_unchecked(o.into() as usize) };
     let mut acc = [[0.0f32; 4]; 4];
     let (o4, w4) = (other.chunks_exact(4), weight.chunks_exact(4));
     let (o_rest, w_rest) = (o4.remainder(), w4.remainder());
@@ -83,17 +89,11 @@ pub(super) fn weighted_sum<W: Copy + Into<f32>>(other: Bounded<'_>, weight: &[W]
 
 /// Adds what the window's weights kept apart (`LCNX`: weights that are
 /// not a count in 1..=255, whose `LCNT` byte 0 gave nothing in the gather)
-/// to their owners' slots of `out` (the window's patches' slots),
-/// `slot(q, end)` choosing, within `out`, the slot of owner `q`'s end.
-/// Serial: escapes are rare (none in the scenes we ship).
-fn add_escapes(
-    w: &LinkWindow<'_>,
-    offsets: &[u64],
-    present: Option<&[bool]>,
-    shoot: &[[f32; 4]],
-    out: &mut [[f32; 4]],
-    slot: impl Fn(usize, usize) -> usize,
-) {
+/// to their owners' slots of `out` (`buckets` slots for each of the
+/// window's patches). Serial: escapes are rare (none in the scenes we
+/// ship).
+fn add_escapes(w: &LinkWindow<'_>, buckets: usize, present: Option<&[bool]>, shoot: &[[f32; 4]], out: &mut [[f32; 4]]) {
+    let offsets = w.runs.link_offsets();
     for x in w.weight.escapes() {
         let end = x.end as usize;
         // The owner: the last patch whose row starts at or before the end.
@@ -101,8 +101,10 @@ fn add_escapes(
         if present.is_some_and(|p| !p[q]) {
             continue;
         }
-        let s = shoot[w.other.ids()[end - w.first_end] as usize];
-        let r = &mut out[slot(q, end)];
+        let Some((_, other, bucket)) = w.ends_of(q).find(|e| e.0 + w.first_end == end) else { continue };
+        let s = shoot[other as usize];
+        let k = if buckets > 1 { bucket as usize } else { 0 };
+        let r = &mut out[(q - w.patches.start) * buckets + k];
         for c in 0..4 {
             r[c] += x.weight * s[c];
         }
@@ -119,89 +121,40 @@ fn for_blocks(
     parallel: bool,
     f: impl Fn(usize, &mut [[f32; 4]]) + Sync + Send,
 ) {
-    let size = BLOCK * per_patch;
+    for_blocks_of(BLOCK, out, per_patch, parallel, f)
+}
+
+/// [`for_blocks`] in blocks of `block` patches.
+fn for_blocks_of(
+    block: usize,
+    out: &mut [[f32; 4]],
+    per_patch: usize,
+    parallel: bool,
+    f: impl Fn(usize, &mut [[f32; 4]]) + Sync + Send,
+) {
+    let size = block * per_patch;
     if parallel {
-        out.par_chunks_mut(size).enumerate().for_each(|(block, o)| f(block * BLOCK, o));
+        out.par_chunks_mut(size).enumerate().for_each(|(i, o)| f(i * block, o));
     } else {
-        out.chunks_mut(size).enumerate().for_each(|(block, o)| f(block * BLOCK, o));
+        out.chunks_mut(size).enumerate().for_each(|(i, o)| f(i * block, o));
     }
 }
 
-/// Gathers `out[q − first] = Σ w·shoot[other]` over the link ends of the
-/// window's patches (`first` its first patch; `offsets` is `LOFF`, `out`
-/// has one entry per patch of the window); patches not `present`
-/// (temporal instances absent from the frame) receive nothing. On rayon's
-/// workers when `parallel`.
+/// Receivers a block of the gather over several sender chunks takes: a
+/// chunk's slice of the state (1 MiB) is read for the ends of this many
+/// receivers (about 30 each in a 10⁶-patch building) before the next.
+const CHUNKED_BLOCK: usize = 4096;
+
+/// Gathers `Σ w·shoot[other]` over the link ends of the window's patches
+/// into `out`, sorted into buckets: slot `(q − first)·B + k` holds the
+/// light patch `q` received over ends of bucket `k` (B = `buckets`; with
+/// one, every end's light goes to the patch's one slot). Patches not
+/// `present` (temporal instances absent from the frame) receive nothing.
+/// A run of ends (one bucket, one sender chunk) is summed at a time, its
+/// 16-bit ids against the state from its chunk's base. On rayon's workers
+/// when `parallel`.
 pub(super) fn gather(
     w: &LinkWindow<'_>,
-    offsets: &[u64],
-    present: Option<&[bool]>,
-    shoot: &[[f32; 4]],
-    out: &mut [[f32; 4]],
-    parallel: bool,
-) {
-    assert_eq!(out.len(), w.patches.len(), "one entry per patch of the window");
-    let other = Bounded::from(w.other);
-    let base = w.patches.start;
-    for_blocks(out, 1, parallel, |first, out| {
-        for (i, r) in out.iter_mut().enumerate() {
-            let q = base + first + i;
-            if present.is_some_and(|p| !p[q]) {
-                *r = [0.0; 4];
-                continue;
-            }
-            let e = w.local(offsets[q] as usize..offsets[q + 1] as usize);
-            *r = weighted_sum(other.slice(e.clone()), &w.weight.counts()[e], shoot);
-        }
-    });
-    add_escapes(w, offsets, present, shoot, out, |q, _| q - base);
-}
-
-/// The runs of equal bucket in each patch's link ends (`LBKT`), found once
-/// per archive: the gather then sums each run without looking at the
-/// bucket of every end (that scan took a quarter of the gather's time).
-pub(super) struct BucketRuns {
-    /// Per patch, its runs `offsets[q]..offsets[q + 1]`.
-    pub(super) offsets: Vec<u64>,
-    /// Per run, the link end after its last one.
-    end: Vec<u64>,
-    /// Per run, its bucket.
-    bucket: Vec<u8>,
-}
-
-impl BucketRuns {
-    /// An empty set, to which [`Self::add`] appends patches in order.
-    pub(super) fn with_patches(patches: usize) -> Self {
-        let mut offsets = Vec::with_capacity(patches + 1);
-        offsets.push(0);
-        Self { offsets, end: Vec::new(), bucket: Vec::new() }
-    }
-
-    /// Appends the runs of the window's patches (`LOFF` is `link_offsets`;
-    /// the window holds `LBKT`).
-    pub(super) fn add(&mut self, link_offsets: &[u64], w: &LinkWindow<'_>) {
-        for q in w.patches.clone() {
-            let (a, b) = (link_offsets[q] as usize, link_offsets[q + 1] as usize);
-            let bucket = &w.bucket[w.local(a..b)];
-            for (i, k) in bucket.iter().enumerate() {
-                if i + 1 == b - a || bucket[i + 1] != *k {
-                    self.end.push((a + i + 1) as u64);
-                    self.bucket.push(*k);
-                }
-            }
-            self.offsets.push(self.end.len() as u64);
-        }
-    }
-}
-
-/// Like [`gather`], but sorts what arrives into buckets: slot
-/// `(q − first)·B + k` of `out` holds the light patch `q` received over
-/// ends of bucket `k` (B = buckets).
-#[allow(clippy::too_many_arguments)]
-pub(super) fn gather_buckets(
-    w: &LinkWindow<'_>,
-    offsets: &[u64],
-    runs: &BucketRuns,
     buckets: usize,
     present: Option<&[bool]>,
     shoot: &[[f32; 4]],
@@ -209,8 +162,31 @@ pub(super) fn gather_buckets(
     parallel: bool,
 ) {
     assert_eq!(out.len(), w.patches.len() * buckets, "one slot per patch of the window and bucket");
-    let other = Bounded::from(w.other);
     let base = w.patches.start;
+    let counts = w.weight.counts();
+    if w.chunk_count() > 1 {
+        // Several sender chunks: a block's runs chunk by chunk, so that the
+        // state read stays in one chunk's slice for a while.
+        for_blocks_of(CHUNKED_BLOCK, out, buckets, parallel, |first, out| {
+            out.fill([0.0; 4]);
+            let mut order = ChunkOrder::default();
+            let receivers = base + first..base + first + out.len() / buckets;
+            w.runs_by_chunk(receivers, &mut order, |q, run| {
+                if present.is_some_and(|p| !p[q]) {
+                    return;
+                }
+                let acc = weighted_sum(Bounded::from(run.ids()), &counts[run.ends()], &shoot[run.base()..]);
+                // Buckets are validated to be at most the archive's widest.
+                let k = if buckets > 1 { run.bucket() as usize } else { 0 };
+                let slot = &mut out[(q - base - first) * buckets + k];
+                for c in 0..4 {
+                    slot[c] += acc[c];
+                }
+            });
+        });
+        add_escapes(w, buckets, present, shoot, out);
+        return;
+    }
     for_blocks(out, buckets, parallel, |first, out| {
         for (i, r) in out.chunks_exact_mut(buckets).enumerate() {
             let q = base + first + i;
@@ -218,25 +194,24 @@ pub(super) fn gather_buckets(
             if present.is_some_and(|p| !p[q]) {
                 continue;
             }
-            // Buckets are validated to be < `buckets`.
-            let mut e = offsets[q] as usize - w.first_end;
-            for run in runs.offsets[q] as usize..runs.offsets[q + 1] as usize {
-                let end = runs.end[run] as usize - w.first_end;
-                let acc = weighted_sum(other.slice(e..end), &w.weight.counts()[e..end], shoot);
-                let slot = &mut r[runs.bucket[run] as usize];
+            let mut add = |run: EndRun<'_>, slot: usize| {
+                let acc = weighted_sum(Bounded::from(run.ids()), &counts[run.ends()], &shoot[run.base()..]);
                 for c in 0..4 {
-                    slot[c] += acc[c];
+                    r[slot][c] += acc[c];
                 }
-                e = end;
+            };
+            if buckets > 1 {
+                // Buckets are validated to be at most the archive's widest.
+                w.runs_of(q).for_each(|run| {
+                    let k = run.bucket() as usize;
+                    add(run, k)
+                });
+            } else {
+                w.chunk_runs_of(q).for_each(|run| add(run, 0));
             }
         }
     });
-    add_escapes(w, offsets, present, shoot, out, |q, end| {
-        // The run of `q` that holds the end gives its bucket.
-        let r = runs.offsets[q] as usize..runs.offsets[q + 1] as usize;
-        let k = r.start + runs.end[r.clone()].partition_point(|&x| x as usize <= end);
-        (q - base) * buckets + runs.bucket[k.min(r.end - 1)] as usize
-    });
+    add_escapes(w, buckets, present, shoot, out);
 }
 
 /// Adds `sign · Σ w·shoot[other]` over the ends of `ends` to each owner's
@@ -450,6 +425,7 @@ fn scatter_rows_avx2<'r>(bands: usize, inbuf: &[Lanes], scratch: &mut [Lanes], r
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::archive::LinkRuns;
 
     #[test]
     fn gathering_by_column_equals_scattering_by_row() {
@@ -488,70 +464,95 @@ mod tests {
     }
 
     #[test]
-    fn bucketed_gather_equals_a_per_end_sum_whatever_the_bucket_order() {
-        // Runs of equal bucket, found once, must give what adding every end
-        // into its own bucket gives, also for ends not grouped by bucket
-        // (the format does not require grouping) and for runs of every
-        // length around the four partial sums.
-        let n = 5;
-        let lengths = [0usize, 1, 3, 4, 9, 13];
-        let mut offsets = vec![0u64];
-        let (mut other, mut weight, mut bucket) = (Vec::new(), Vec::new(), Vec::new());
-        for q in 0..n {
-            for e in 0..lengths[q % lengths.len()] + q {
-                other.push(((q * 7 + e * 3) % n) as u32);
-                weight.push(1.0 + e as f32 * 0.25);
-                bucket.push(if q == 3 { (e % 2) as u8 } else { (e / 5).min(1) as u8 });
+    fn the_run_gather_equals_a_per_end_sum_across_chunks_buckets_and_windows() {
+        // 70 000 patches: two sender chunks (the second partly filled), a
+        // few patches with rows of every length around the four partial
+        // sums, ends in both chunks and two buckets, weights that are
+        // counts and weights kept apart (escapes).
+        use crate::archive::layout::{CHUNK_PATCHES, LinkRunRecord};
+        let n = 70_000;
+        let owners = [0usize, 1, 3, 4, 65_540, 69_999];
+        let lengths = [0usize, 1, 5, 9, 13, 30];
+        let mut rows: Vec<Vec<(u8, u32, f32)>> = vec![Vec::new(); n];
+        for (i, (&q, &len)) in owners.iter().zip(&lengths).enumerate() {
+            for e in 0..len {
+                let other = ((q * 7 + e * 9_973 + i) % n) as u32;
+                let bucket = ((e + i) % 3 == 0) as u8;
+                rows[q].push((bucket, other, 1.0 + e as f32 * 0.25));
             }
-            offsets.push(other.len() as u64);
+            // The format's order: by bucket, then sender chunk, stably.
+            rows[q].sort_by_key(|&(k, o, _)| (k, o as usize / CHUNK_PATCHES));
         }
-        let shoot: Vec<[f32; 4]> = (0..n).map(|p| [p as f32 + 1.0, 0.5, 2.0 - p as f32, 0.0]).collect();
+        let (mut offsets, mut run_offsets) = (vec![0u64], vec![0u64]);
+        let (mut ids, mut weight, mut runs, mut other) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+        for row in &rows {
+            for run in row.chunk_by(|x, y| (x.0, x.1 as usize / CHUNK_PATCHES) == (y.0, y.1 as usize / CHUNK_PATCHES)) {
+                let chunk = (run[0].1 as usize / CHUNK_PATCHES) as u16;
+                runs.push(LinkRunRecord { chunk, bucket: run[0].0, reserved: 0, length: run.len() as u32 });
+                for &(_, o, w) in run {
+                    ids.push((o as usize % CHUNK_PATCHES) as u16);
+                    weight.push(w);
+                    other.push(o);
+                }
+            }
+            offsets.push(ids.len() as u64);
+            run_offsets.push(runs.len() as u64);
+        }
+        assert!(runs.iter().any(|r| r.chunk == 1) && runs.iter().any(|r| r.chunk == 0));
+        let shoot: Vec<[f32; 4]> = (0..n).map(|p| [(p % 17) as f32 + 1.0, 0.5, 2.0 - (p % 5) as f32, 0.0]).collect();
         // Weights 1 + e/4: whole ones are one-byte counts, the rest escapes.
         let (mut counts, mut escapes) = (Vec::new(), Vec::new());
         crate::archive::weights::encode(&weight, 0, &mut counts, &mut escapes);
         assert!(!escapes.is_empty() && escapes.len() < weight.len());
         let window = |patches: std::ops::Range<usize>| {
             let ends = offsets[patches.start] as usize..offsets[patches.end] as usize;
-            LinkWindow {
-                first_end: ends.start,
-                other: PatchIds::check(&other[ends.clone()], n).unwrap(),
-                weight: crate::archive::Weights::new(&counts[ends.clone()], &escapes, ends.start as u64),
-                direction: &[],
-                bucket: &bucket[ends],
-                patches,
-            }
+            let weights = crate::archive::Weights::new(&counts[ends.clone()], &escapes, ends.start as u64);
+            let all = LinkRuns::checked(&offsets, &run_offsets, &runs, 1).unwrap();
+            LinkWindow::checked(patches, &ids[ends], weights, &[], all).unwrap()
         };
-        let mut runs = BucketRuns::with_patches(n);
-        runs.add(&offsets, &window(0..n));
-        assert_eq!(runs.offsets.len(), n + 1);
-        assert!(PatchIds::check(&other, n - 1).is_none(), "the test reaches the last patch");
-        let mut recv = vec![[0.0f32; 4]; n * 2];
-        gather_buckets(&window(0..n), &offsets, &runs, 2, None, &shoot, &mut recv, true);
-        // The same in three windows, runs found window by window too.
-        let mut split = vec![[0.0f32; 4]; n * 2];
-        let mut split_runs = BucketRuns::with_patches(n);
-        for w in [0..2, 2..3, 3..n] {
-            split_runs.add(&offsets, &window(w.clone()));
-        }
-        for w in [0..2, 2..3, 3..n] {
-            let out = &mut split[w.start * 2..w.end * 2];
-            gather_buckets(&window(w), &offsets, &split_runs, 2, None, &shoot, out, false);
-        }
-        assert_eq!(split, recv, "windows give the same sums in any windows");
         let mut want = vec![[0.0f64; 4]; n * 2];
-        for q in 0..n {
-            for e in offsets[q] as usize..offsets[q + 1] as usize {
+        for (q, row) in rows.iter().enumerate() {
+            for &(k, o, w) in row {
                 for c in 0..4 {
-                    want[q * 2 + bucket[e] as usize][c] += weight[e] as f64 * shoot[other[e] as usize][c] as f64;
+                    want[q * 2 + k as usize][c] += w as f64 * shoot[o as usize][c] as f64;
                 }
             }
         }
-        for (got, want) in recv.iter().zip(&want) {
-            for c in 0..4 {
-                assert!((got[c] as f64 - want[c]).abs() <= 1e-5 * want[c].abs().max(1.0), "{got:?} vs {want:?}");
+        let close = |got: &[[f32; 4]], want: &[[f64; 4]]| {
+            for (got, want) in got.iter().zip(want) {
+                for c in 0..4 {
+                    assert!((got[c] as f64 - want[c]).abs() <= 1e-5 * want[c].abs().max(1.0), "{got:?} vs {want:?}");
+                }
             }
+        };
+        let mut recv = vec![[9.0f32; 4]; n * 2]; // overwritten, not added to
+        gather(&window(0..n), 2, None, &shoot, &mut recv, true);
+        close(&recv, &want);
+        // The same in three windows.
+        let mut split = vec![[0.0f32; 4]; n * 2];
+        for w in [0..2, 2..65_000, 65_000..n] {
+            let out = &mut split[w.start * 2..w.end * 2];
+            gather(&window(w), 2, None, &shoot, out, false);
         }
-        // Patch 3 alternates buckets: one run per end.
-        assert_eq!(runs.offsets[4] - runs.offsets[3], offsets[4] - offsets[3]);
+        assert_eq!(split, recv, "windows give the same sums in any windows");
+        // One bucket: each patch's light in its one slot.
+        let mut one = vec![[0.0f32; 4]; n];
+        gather(&window(0..n), 1, None, &shoot, &mut one, true);
+        let merged: Vec<[f64; 4]> = want.chunks(2).map(|b| std::array::from_fn(|c| b[0][c] + b[1][c])).collect();
+        close(&one, &merged);
+        // The decoded ids are the other patches.
+        assert_eq!(window(0..n).other_ids(), other);
+        // Ids past the patch count in the last chunk are refused.
+        let mut bad = ids.clone();
+        let last = runs.iter().position(|r| r.chunk == 1).unwrap();
+        let at = (0..runs.len()).take(last).map(|r| runs[r].length as usize).sum::<usize>();
+        bad[at] = (n - CHUNK_PATCHES) as u16;
+        let weights = crate::archive::Weights::new(&counts, &escapes, 0);
+        let all = LinkRuns::checked(&offsets, &run_offsets, &runs, 1).unwrap();
+        assert!(LinkWindow::checked(0..n, &bad, weights, &[], all).is_none());
+        // Runs that do not cover their rows are refused.
+        let mut short = runs.clone();
+        short[0].length += 1;
+        assert!(LinkRuns::checked(&offsets, &run_offsets, &short, 1).is_none());
     }
 }

@@ -40,9 +40,9 @@ fn ring_bytes(buckets: u64) -> u64 {
 pub fn state_bytes(s: &StateShape) -> u64 {
     let (p, nb, depth) = (s.patches, s.buckets.max(1), s.anderson_depth);
     // Distributor: rho, emit (12 each), share, area_eff, surface (4 each),
-    // linked (8), in_base (1), bucket runs (an offset and a run or so per
-    // bucket), rings; non-diffuse index per patch (4).
-    let distributor = p * (12 + 12 + 4 + 4 + 4 + 8 + 1 + 8 + 9 * nb + 4) + p * ring_bytes(nb);
+    // linked (8), in_base (1), rings; non-diffuse index per patch (4). (The
+    // gather's runs are the archive's, `LRUN`, counted with it.)
+    let distributor = p * (12 + 12 + 4 + 4 + 4 + 8 + 1 + 4) + p * ring_bytes(nb);
     // Frame setup: emit (12), emitted power (16), linked (8), presence (2).
     let setup = p * (12 + 16 + 8 + 2);
     // Iteration: seven [f32; 4] vectors, received per bucket, Anderson's

@@ -56,7 +56,6 @@ use std::sync::Arc;
 use crate::archive::layout::model;
 use crate::archive::{ArchiveError, Columns, InetView, LinkRows};
 use crate::progress::Progress;
-use kernels::BucketRuns;
 
 /// Options for [`distribute`].
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -338,7 +337,8 @@ pub struct Distributor<'a> {
     back_share: Vec<f32>,
     area_eff: Vec<f32>,
     linked: Vec<f64>,
-    bucket_runs: Option<BucketRuns>,
+    /// Whether light is sorted into buckets (and spread, §3.4).
+    use_buckets: bool,
     /// Per patch, whether frame 0's links reach it (see [`Self::sparse_jump`]).
     in_base: Vec<bool>,
     nb: usize,
@@ -355,7 +355,7 @@ pub struct Distributor<'a> {
     /// are not links of the later frames.
     leaving: Vec<(u32, u32)>,
     /// Their frame 0 link ends.
-    leaving_rows: LinkRows<'a>,
+    leaving_rows: LinkRows,
     /// Time spent in the gathers over frame 0's links (ns), and the ends
     /// they read: the gather's own throughput, apart from the per-patch
     /// work of an iteration (measurement only; nothing depends on it).
@@ -386,26 +386,22 @@ impl<'a> Distributor<'a> {
                 area_eff[p] = a;
             }
         }
-        // One pass over the link ends: per patch the rays that link, which
-        // patches frame 0's links reach, and the runs of equal bucket.
-        let use_buckets = v.links.has_bucket() && opts.buckets && v.build.max_bucket > 0;
+        // One pass over the link ends: per patch the rays that link, and
+        // which patches frame 0's links reach.
+        let use_buckets = opts.buckets && v.build.max_bucket > 0;
         let mut linked = vec![0.0f64; n];
         // Patches with frame 0 link ends of their own or at another's end
         // (the same, when every link is stored at both ends).
         let mut in_base = vec![false; n];
-        let mut bucket_runs = use_buckets.then(|| BucketRuns::with_patches(n));
-        let columns = Columns { bucket: use_buckets, ..Columns::GATHER };
-        v.links.for_each_window(columns, n, |w| {
+        v.links.for_each_window(Columns::GATHER, n, |w| {
             for q in w.patches.clone() {
-                let e = w.local(v.link_offsets[q] as usize..v.link_offsets[q + 1] as usize);
-                linked[q] = w.weight.slice(e).iter().map(|x| x as f64).sum();
+                linked[q] = w.weight.slice(w.row(q)).iter().map(|x| x as f64).sum();
                 in_base[q] |= linked[q] > 0.0;
-            }
-            for &o in w.other.ids() {
-                in_base[o as usize] = true;
-            }
-            if let Some(runs) = &mut bucket_runs {
-                runs.add(v.link_offsets, &w);
+                for run in w.runs_of(q) {
+                    for &o in run.ids().ids() {
+                        in_base[run.base() + o as usize] = true;
+                    }
+                }
             }
             Ok::<(), ArchiveError>(())
         })?;
@@ -460,7 +456,7 @@ impl<'a> Distributor<'a> {
             share,
             area_eff,
             linked,
-            bucket_runs,
+            use_buckets,
             in_base,
             nb,
             rings,

@@ -90,7 +90,7 @@ pub(super) struct NonDiffuse<'a> {
     /// meets a back face (`NDBK`; empty for files without it).
     pub back_rays: Vec<f32>,
     /// Frame 0's link ends of each non-diffuse patch, walked every step.
-    rows: LinkRows<'a>,
+    rows: LinkRows,
     /// Each table by outgoing direction.
     columns: Vec<TableColumns>,
     /// Runs of at most [`BATCH`] consecutive non-diffuse patches with the
@@ -159,13 +159,13 @@ impl<'a> NonDiffuse<'a> {
         corr_offsets.push(0u64);
         v.links.for_each_window(Columns::ALL, np, |w| {
             for q in w.patches.clone() {
-                for e in w.local(v.link_offsets[q] as usize..v.link_offsets[q + 1] as usize) {
-                    let k = nd_of[w.other.ids()[e] as usize];
+                for (e, other, bucket) in w.ends_of(q) {
+                    let k = nd_of[other as usize];
                     if k != u32::MAX {
                         corr_weight.push(w.weight.get(e));
                         // The sender sends along the antipode of the receiver's direction.
                         corr_slot.push(k * n as u32 + (w.direction[e] ^ 1));
-                        corr_bucket.push(w.bucket.get(e).copied().unwrap_or(0));
+                        corr_bucket.push(bucket);
                     }
                 }
                 corr_offsets.push(corr_weight.len() as u64);

@@ -68,15 +68,14 @@ pub fn solve(
             }
         }
     }
-    let use_buckets = opts.buckets && v.build.max_bucket > 0 && v.links.has_bucket();
+    let use_buckets = opts.buckets && v.build.max_bucket > 0;
     let buckets = if use_buckets { v.build.max_bucket as usize + 1 } else { 1 };
     let mut ends = Vec::new();
-    let columns = Columns { bucket: use_buckets, ..Columns::GATHER };
-    v.links.for_each_window(columns, n, |w| {
+    v.links.for_each_window(Columns::GATHER, n, |w| {
         for q in w.patches.clone() {
-            for e in w.local(v.link_offsets[q] as usize..v.link_offsets[q + 1] as usize) {
-                let bucket = if use_buckets { w.bucket[e] } else { 0 };
-                ends.push(End { owner: q as u32, other: w.other.ids()[e], weight: w.weight.get(e) as f64, bucket });
+            for (e, other, bucket) in w.ends_of(q) {
+                let bucket = if use_buckets { bucket } else { 0 };
+                ends.push(End { owner: q as u32, other, weight: w.weight.get(e) as f64, bucket });
             }
         }
         Ok::<(), ArchiveError>(())

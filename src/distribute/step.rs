@@ -14,7 +14,7 @@
 use rayon::prelude::*;
 
 use super::anderson::Anderson;
-use super::kernels::{BLOCK, add_ends, gather, gather_buckets, silence_absent};
+use super::kernels::{BLOCK, add_ends, gather, silence_absent};
 use super::setup::FrameSetup;
 use super::warm::{Carry, WarmStart};
 use super::{DirectionalRadiance, DistributeError, Distributor, EnergyBalance, Solution};
@@ -320,20 +320,17 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
     /// Gathers `shoot` over frame 0's links into `recv`, window by window.
     fn gather_base(&mut self, present: Option<&[bool]>) -> Result<(), DistributeError> {
         let (d, nb) = (self.d, self.d.nb);
-        let (offsets, shoot, recv) = (d.v.link_offsets, &self.shoot, &mut self.recv);
+        let (shoot, recv) = (&self.shoot, &mut self.recv);
         // Resident ends are one window, split over the workers; streamed
         // windows are each one worker's, unless fewer are held at once
         // than there are workers (few windows, or a budget with room for
         // few): then a window's patches are split too.
         let parallel = match d.v.links {
             crate::archive::Links::Resident(_) => true,
-            crate::archive::Links::Streamed(s) => s.windows_in_flight() < rayon::current_num_threads(),
+            crate::archive::Links::Streamed(s, _) => s.windows_in_flight() < rayon::current_num_threads(),
         };
         d.v.links.for_each_window_par(Columns::GATHER, d.v.patch_count(), recv, nb, |w, out| {
-            match &d.bucket_runs {
-                Some(runs) => gather_buckets(&w, offsets, runs, nb, present, shoot, out, parallel),
-                None => gather(&w, offsets, present, shoot, out, parallel),
-            }
+            gather(&w, nb, present, shoot, out, parallel);
             Ok::<(), DistributeError>(())
         })
     }
@@ -358,7 +355,7 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
             add_ends(&o.gather, nb, &self.shoot, 1.0, nd_phi, &mut self.recv);
         }
         if let Some((x, phi)) = nd_phi {
-            x.gather_corrections(nb, d.bucket_runs.is_some(), phi, &mut self.recv);
+            x.gather_corrections(nb, d.use_buckets, phi, &mut self.recv);
             silence_absent(present, nb, &mut self.recv);
         }
         self.bal.ends_gathered += (v.link_end_count() + s.overlay.as_ref().map_or(0, |o| o.gather.other.len())) as u64;
@@ -369,7 +366,7 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
     /// (§3.4).
     fn spread(&mut self) {
         match &self.d.rings {
-            Some(rings) if self.d.bucket_runs.is_some() => rings.spread(&self.recv, self.d.nb, &mut self.spread),
+            Some(rings) if self.d.use_buckets => rings.spread(&self.recv, self.d.nb, &mut self.spread),
             _ => self.spread.fill([0.0; 4]),
         }
     }

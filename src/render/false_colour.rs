@@ -83,17 +83,15 @@ pub fn patch_values(v: &InetView<'_>, q: Quantity, residual: Option<&[f32]>) -> 
         Quantity::Residual => residual.map_or_else(|| vec![0.0; n], <[f32]>::to_vec),
         Quantity::Buckets => {
             let mut share = vec![0.0f32; n];
-            if v.links.has_bucket() {
-                let columns = Columns { weight: true, bucket: true, ..Default::default() };
-                let offsets = v.link_offsets;
+            if v.build.max_bucket > 0 {
+                let columns = Columns { weight: true, ..Default::default() };
                 v.links.for_each_window(columns, n, |w| {
                     for p in w.patches.clone() {
-                        let (a, b) = (offsets[p] as usize - w.first_end, offsets[p + 1] as usize - w.first_end);
                         let (mut wide, mut all) = (0.0f64, 0.0f64);
-                        for e in a..b {
-                            let rays = w.weight.get(e) as f64;
+                        for run in w.runs_of(p) {
+                            let rays: f64 = w.weight.slice(run.ends()).iter().map(f64::from).sum();
                             all += rays;
-                            if w.bucket[e] != 0 {
+                            if run.bucket() != 0 {
                                 wide += rays;
                             }
                         }

@@ -19,15 +19,17 @@ use crate::distribute::memory::{StateShape, state_bytes};
 use crate::memory::{Bytes, MemoryBudget};
 
 /// Bytes per link end a window's buffers hold at most (`LOTH`, `LCNT`,
-/// `LDIR`, `LBKT`).
-const WINDOW_BYTES_PER_END: u64 = 10;
-/// The largest window planned: 1.25 MiB of `LOTH` and `LCNT` stays in the
+/// `LDIR`).
+const WINDOW_BYTES_PER_END: u64 = 7;
+/// The largest window planned: 0.75 MiB of `LOTH` and `LCNT` stays in the
 /// cache between the reader and the gather (2^18 ends measured 1.5× the
-/// rate of 2^22, 1.3× that of 2^16, on the Cornell box).
+/// rate of 2^22, 1.3× that of 2^16, on the Cornell box, at 5 bytes an
+/// end).
 const MAX_WINDOW_ENDS: u64 = 1 << 18;
 /// The smallest window planned (a chunk).
 const MIN_WINDOW_ENDS: u64 = CHUNK_ENDS as u64;
-/// The buffer a streamed open reads its columns through (16 chunks of `LOTH`).
+/// The buffer a streamed open reads its columns through (16 chunks of
+/// `LDIR`, the widest column).
 const OPEN_BUFFER: u64 = 16 * CHUNK_ENDS as u64 * 4;
 /// Bytes a sample of the sample cache takes.
 const SAMPLE_BYTES: u64 = std::mem::size_of::<super::SampleHit>() as u64;
@@ -168,7 +170,7 @@ fn distribution_bytes(s: &ArchiveSummary, job: &RenderJob) -> u64 {
     let b = &s.build;
     let (p, e) = (b.patch_count as u64, b.link_end_count);
     let nd = s.section_count(tag::NONDIFFUSE_PATCHES);
-    let buckets = if job.buckets && s.section_bytes(tag::LINK_BUCKET) > 0 { b.max_bucket as u64 + 1 } else { 1 };
+    let buckets = if job.buckets && b.max_bucket > 0 { b.max_bucket as u64 + 1 } else { 1 };
     state_bytes(&StateShape {
         patches: p,
         buckets,
