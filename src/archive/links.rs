@@ -297,21 +297,6 @@ impl<'w> EndRun<'w> {
     }
 }
 
-/// Scratch of [`LinkWindow::runs_by_chunk`]: a cursor per receiver and
-/// bucket.
-#[derive(Default)]
-pub struct ChunkOrder {
-    cursors: Vec<Cursor>,
-}
-
-/// The next run of one receiver's bucket, and the end of its runs.
-struct Cursor {
-    q: usize,
-    run: usize,
-    last: usize,
-    start: usize,
-}
-
 /// Frame 0's link ends, wherever they are.
 /// Frame 0's link ends, wherever they are.
 #[derive(Clone, Copy)]
@@ -435,53 +420,6 @@ impl<'w> LinkWindow<'w> {
             }
             Some(run)
         })
-    }
-
-    /// The runs of the window's patches `receivers`, sender chunk by
-    /// sender chunk (within a chunk, by receiver, then bucket), each given
-    /// to `f` with its receiver: for a gather whose reads of per-patch
-    /// state stay in one chunk's slice (1 MiB of `[f32; 4]`) for the
-    /// receivers' ends of that chunk, rather than range over all of it
-    /// for each receiver. A receiver's runs of one bucket come in row
-    /// order, so sums per (receiver, bucket) add in the order
-    /// [`Self::runs_of`] gives. `order` is scratch, kept between calls.
-    pub fn runs_by_chunk(&self, receivers: Range<usize>, order: &mut ChunkOrder, mut f: impl FnMut(usize, EndRun<'w>)) {
-        let cursors = &mut order.cursors;
-        cursors.clear();
-        for q in receivers {
-            let runs = self.runs.of(q);
-            let first = self.runs.run_offsets[q] as usize;
-            let mut start = self.row(q).start;
-            let mut k = 0;
-            while k < runs.len() {
-                let (bucket, segment) = (runs[k].bucket, k);
-                let segment_start = start;
-                while k < runs.len() && runs[k].bucket == bucket {
-                    start += runs[k].length as usize;
-                    k += 1;
-                }
-                cursors.push(Cursor { q, run: first + segment, last: first + k, start: segment_start });
-            }
-        }
-        // A bucket's runs of a patch have ascending chunks, one run each at
-        // most: a pass per chunk takes each run once.
-        for chunk in 0..self.patch_count.div_ceil(CHUNK_PATCHES) {
-            let base = chunk * CHUNK_PATCHES;
-            for c in cursors.iter_mut() {
-                if c.run < c.last && self.runs.runs[c.run].chunk as usize == chunk {
-                    let r = &self.runs.runs[c.run];
-                    let ends = c.start..c.start + r.length as usize;
-                    c.start = ends.end;
-                    c.run += 1;
-                    f(c.q, EndRun { bucket: r.bucket, base, ends, ids: self.other, bound: self.patch_count - base });
-                }
-            }
-        }
-    }
-
-    /// The sender chunks of the archive's patches.
-    pub fn chunk_count(&self) -> usize {
-        self.patch_count.div_ceil(CHUNK_PATCHES)
     }
 
     /// Patch `q`'s ends (a patch of the window) in row order: the entry,

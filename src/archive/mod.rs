@@ -32,7 +32,7 @@ mod write;
 use std::fmt;
 use std::path::PathBuf;
 
-pub use links::{ChunkOrder, Columns, EndRun, LinkRows, LinkRuns, LinkSlices, LinkWindow, Links, PatchIds};
+pub use links::{Columns, EndRun, LinkRows, LinkRuns, LinkSlices, LinkWindow, Links, PatchIds};
 pub use read::{Archive, ArchiveSummary, DeltaBytes, InetView, OnDisk, ReflectanceView, SequenceView, ShadingView};
 pub use stream::{CHUNK_ENDS, LinkStream, bytes_per_end};
 pub use weights::Weights;

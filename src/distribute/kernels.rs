@@ -8,7 +8,7 @@ use rayon::prelude::*;
 
 use super::nondiffuse::NonDiffuse;
 use super::overlay::Ends;
-use crate::archive::{ChunkOrder, EndRun, LinkWindow, PatchIds};
+use crate::archive::{EndRun, LinkWindow, PatchIds};
 
 /// Patches per parallel task: large enough to amortise scheduling, small
 /// enough to balance two to dozens of cores.
@@ -50,14 +50,31 @@ impl Ends {
 /// `Σ w·shoot[other]` over a run of link ends, in four partial sums (ends
 /// `4i + j` go to sum `j`): one sum would chain every addition on the one
 /// before it, and the latency of that chain (4 cycles per end) was the
-/// gather's limit. Generic over the weight's storage: f32 (overlays) or
-/// the archive's one-byte counts (`LCNT`), which convert to the same f32.
+/// gather's limit. Generic over the id's width (an archive run's 16 bits,
+/// an overlay's 32) and the weight's storage: f32 (overlays) or the
+/// archive's one-byte counts (`LCNT`), which convert to the same f32.
 #[inline(always)]
 pub(super) fn weighted_sum<I: Copy + Into<u32>, W: Copy + Into<f32>>(
     other: Bounded<'_, I>,
     weight: &[W],
     shoot: &[[f32; 4]],
 ) -> [f32; 4] {
+    let mut acc = [[0.0f32; 4]; 4];
+    accumulate(&mut acc, other, weight, shoot);
+    reduce(&acc)
+}
+
+/// Adds `w·shoot[other]` over a run of link ends to the four partial sums
+/// `acc` (ends `4i + j` of the run to sum `j`), without adding them up:
+/// consecutive runs of one receiver's slot (its sender chunks) share one
+/// reduction ([`reduce`]).
+#[inline(always)]
+fn accumulate<I: Copy + Into<u32>, W: Copy + Into<f32>>(
+    acc: &mut [[f32; 4]; 4],
+    other: Bounded<'_, I>,
+    weight: &[W],
+    shoot: &[[f32; 4]],
+) {
     assert!(shoot.len() >= other.bound, "per-patch state shorter than the patch indices allow");
     let n = other.other.len().min(weight.len());
     let (other, weight) = (&other.other[..n], &weight[..n]);
@@ -65,7 +82,6 @@ pub(super) fn weighted_sum<I: Copy + Into<u32>, W: Copy + Into<f32>>(
     // `bound` (checked when it was made), and `bound ≤ shoot.len()` (the
     // assertion above).
     let at = |o: I| unsafe { *shoot.get_unchecked(o.into() as usize) };
-    let mut acc = [[0.0f32; 4]; 4];
     let (o4, w4) = (other.chunks_exact(4), weight.chunks_exact(4));
     let (o_rest, w_rest) = (o4.remainder(), w4.remainder());
     for (o, w) in o4.zip(w4) {
@@ -84,6 +100,11 @@ pub(super) fn weighted_sum<I: Copy + Into<u32>, W: Copy + Into<f32>>(
             acc[j][c] += w * s[c];
         }
     }
+}
+
+/// The sum of four partial sums, in a fixed order.
+#[inline(always)]
+fn reduce(acc: &[[f32; 4]; 4]) -> [f32; 4] {
     [0, 1, 2, 3].map(|c| (acc[0][c] + acc[1][c]) + (acc[2][c] + acc[3][c]))
 }
 
@@ -121,29 +142,13 @@ fn for_blocks(
     parallel: bool,
     f: impl Fn(usize, &mut [[f32; 4]]) + Sync + Send,
 ) {
-    for_blocks_of(BLOCK, out, per_patch, parallel, f)
-}
-
-/// [`for_blocks`] in blocks of `block` patches.
-fn for_blocks_of(
-    block: usize,
-    out: &mut [[f32; 4]],
-    per_patch: usize,
-    parallel: bool,
-    f: impl Fn(usize, &mut [[f32; 4]]) + Sync + Send,
-) {
-    let size = block * per_patch;
+    let size = BLOCK * per_patch;
     if parallel {
-        out.par_chunks_mut(size).enumerate().for_each(|(i, o)| f(i * block, o));
+        out.par_chunks_mut(size).enumerate().for_each(|(i, o)| f(i * BLOCK, o));
     } else {
-        out.chunks_mut(size).enumerate().for_each(|(i, o)| f(i * block, o));
+        out.chunks_mut(size).enumerate().for_each(|(i, o)| f(i * BLOCK, o));
     }
 }
-
-/// Receivers a block of the gather over several sender chunks takes: a
-/// chunk's slice of the state (1 MiB) is read for the ends of this many
-/// receivers (about 30 each in a 10⁶-patch building) before the next.
-const CHUNKED_BLOCK: usize = 4096;
 
 /// Gathers `Σ w·shoot[other]` over the link ends of the window's patches
 /// into `out`, sorted into buckets: slot `(q − first)·B + k` holds the
@@ -151,8 +156,8 @@ const CHUNKED_BLOCK: usize = 4096;
 /// one, every end's light goes to the patch's one slot). Patches not
 /// `present` (temporal instances absent from the frame) receive nothing.
 /// A run of ends (one bucket, one sender chunk) is summed at a time, its
-/// 16-bit ids against the state from its chunk's base. On rayon's workers
-/// when `parallel`.
+/// 16-bit ids against the state from its chunk's base; a slot's runs share
+/// one reduction. On rayon's workers when `parallel`.
 pub(super) fn gather(
     w: &LinkWindow<'_>,
     buckets: usize,
@@ -164,29 +169,6 @@ pub(super) fn gather(
     assert_eq!(out.len(), w.patches.len() * buckets, "one slot per patch of the window and bucket");
     let base = w.patches.start;
     let counts = w.weight.counts();
-    if w.chunk_count() > 1 {
-        // Several sender chunks: a block's runs chunk by chunk, so that the
-        // state read stays in one chunk's slice for a while.
-        for_blocks_of(CHUNKED_BLOCK, out, buckets, parallel, |first, out| {
-            out.fill([0.0; 4]);
-            let mut order = ChunkOrder::default();
-            let receivers = base + first..base + first + out.len() / buckets;
-            w.runs_by_chunk(receivers, &mut order, |q, run| {
-                if present.is_some_and(|p| !p[q]) {
-                    return;
-                }
-                let acc = weighted_sum(Bounded::from(run.ids()), &counts[run.ends()], &shoot[run.base()..]);
-                // Buckets are validated to be at most the archive's widest.
-                let k = if buckets > 1 { run.bucket() as usize } else { 0 };
-                let slot = &mut out[(q - base - first) * buckets + k];
-                for c in 0..4 {
-                    slot[c] += acc[c];
-                }
-            });
-        });
-        add_escapes(w, buckets, present, shoot, out);
-        return;
-    }
     for_blocks(out, buckets, parallel, |first, out| {
         for (i, r) in out.chunks_exact_mut(buckets).enumerate() {
             let q = base + first + i;
@@ -194,11 +176,22 @@ pub(super) fn gather(
             if present.is_some_and(|p| !p[q]) {
                 continue;
             }
-            let mut add = |run: EndRun<'_>, slot: usize| {
-                let acc = weighted_sum(Bounded::from(run.ids()), &counts[run.ends()], &shoot[run.base()..]);
-                for c in 0..4 {
-                    r[slot][c] += acc[c];
+            // A slot's runs (its sender chunks) add into one set of
+            // partial sums, reduced once: a receiver of a 10⁶-patch
+            // archive has ~7 runs of ~65 ends.
+            let mut acc = [[0.0f32; 4]; 4];
+            let mut slot: Option<usize> = None;
+            let mut add = |run: EndRun<'_>, k: usize| {
+                if slot.is_some_and(|s| s != k) {
+                    let sum = reduce(&acc);
+                    let to = &mut r[slot.expect("checked")];
+                    for c in 0..4 {
+                        to[c] += sum[c];
+                    }
+                    acc = [[0.0f32; 4]; 4];
                 }
+                slot = Some(k);
+                accumulate(&mut acc, Bounded::from(run.ids()), &counts[run.ends()], &shoot[run.base()..]);
             };
             if buckets > 1 {
                 // Buckets are validated to be at most the archive's widest.
@@ -208,6 +201,12 @@ pub(super) fn gather(
                 });
             } else {
                 w.chunk_runs_of(q).for_each(|run| add(run, 0));
+            }
+            if let Some(k) = slot {
+                let sum = reduce(&acc);
+                for c in 0..4 {
+                    r[k][c] += sum[c];
+                }
             }
         }
     });
