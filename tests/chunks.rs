@@ -41,7 +41,7 @@ fn a_bounded_build_of_two_chunks_writes_the_bytes_of_an_unbounded_one() {
     let a = Archive::open(&full).unwrap();
     let v = a.view();
     assert!(v.patch_count() > CHUNK_PATCHES);
-    let runs = v.links.runs();
+    let runs = v.links.resident().unwrap().runs;
     let w = v.links.resident().unwrap().window();
     let mut across = 0;
     for q in 0..v.patch_count() {

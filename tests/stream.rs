@@ -126,9 +126,19 @@ fn a_link_column_cut_or_rewritten_under_a_distribution_is_an_error() {
     // Opening it now fails on the section checksum, before any use.
     let err = Archive::open_streamed(&path, 1000).err().unwrap().to_string();
     assert!(err.contains("LCNT") && err.contains("checksum"), "{err}");
+    bytes[at as usize + 70_000] ^= 0x40;
+
+    // A run (LRUN, read with each window) rewritten: the same.
+    std::fs::write(&path, &bytes).unwrap();
+    let a = Archive::open_streamed(&path, 1000).unwrap();
+    let runs = section_offset(&path, tag::LINK_RUNS);
+    bytes[runs as usize + 8 * 40 + 2] ^= 0x01; // a bucket
+    std::fs::write(&path, &bytes).unwrap();
+    let err = run(&a).unwrap_err().to_string();
+    assert!(err.contains("changed on disk") && err.contains("LRUN"), "{err}");
+    bytes[runs as usize + 8 * 40 + 2] ^= 0x01;
 
     // Cut short after opening: a short read, never SIGBUS.
-    bytes[at as usize + 70_000] ^= 0x40;
     std::fs::write(&path, &bytes).unwrap();
     let a = Archive::open_streamed(&path, 1000).unwrap();
     assert!(run(&a).is_ok());
@@ -222,11 +232,14 @@ fn the_least_a_streamed_render_needs_does_not_grow_with_the_cores() {
     let budget = |bytes| MemoryBudget { bytes, source: BudgetSource::Given };
     // The least, from the refusal of a budget far too small: the same on
     // 2 and on 64 workers.
+    let (runs, ends) = (summary.section_count(tag::LINK_RUNS), summary.build.link_end_count);
     let least = |threads| plan(&summary, &job(threads), budget(1 << 20)).unwrap_err().needed();
     assert_eq!(least(2), least(64));
     for (threads, extra_windows, want) in [(64, 0, 2), (64, 3, 5), (2, 3, 2), (4, 100, 4)] {
-        // A smallest window: (2¹⁶ + 2 × 2¹⁶ ends) × 7 bytes.
-        let bytes = least(threads) + extra_windows * 3 * 65_536 * 7;
+        // A smallest window: (2¹⁶ + 2 × 2¹⁶ ends) × 7 bytes, and its runs
+        // (planned at twice the archive's mean per end).
+        let per_end = 7 + (16 * runs).div_ceil(ends).min(8);
+        let bytes = least(threads) + extra_windows * 3 * 65_536 * per_end;
         let p = plan(&summary, &job(threads), budget(bytes)).unwrap();
         match p.access {
             LinkAccess::Streamed { in_flight, .. } => {

@@ -208,7 +208,7 @@ fn version_9_archives_upgrade_to_the_bytes_of_a_fresh_build() {
             // Rows with ends in both chunks, re-ordered by the upgrade.
             let v = a.view();
             assert!(v.patch_count() > CHUNK_PATCHES);
-            let runs = v.links.runs();
+            let runs = v.links.resident().unwrap().runs;
             let both = (0..v.patch_count()).filter(|&q| {
                 let r = runs.of(q);
                 r.iter().any(|x| x.chunk == 0) && r.iter().any(|x| x.chunk == 1)

@@ -61,14 +61,24 @@ impl<'a, I: Copy + Into<u32>> PatchIds<'a, I> {
 pub struct LinkRuns<'a> {
     link_offsets: &'a [u64],
     run_offsets: &'a [u64],
+    /// Runs `first .. first + runs.len()` of `LRUN`: all of them
+    /// (resident), a window's (streamed), or none (a streamed archive's
+    /// runs outside a window).
     runs: &'a [LinkRunRecord],
+    first: usize,
 }
 
 impl<'a> LinkRuns<'a> {
-    /// Runs validated by [`check_runs`], by the code of this module's
-    /// parent only.
-    pub(super) fn validated(link_offsets: &'a [u64], run_offsets: &'a [u64], runs: &'a [LinkRunRecord]) -> Self {
-        Self { link_offsets, run_offsets, runs }
+    /// Runs validated by [`check_run_offsets`] and [`check_rows`], by the
+    /// code of this module's parent only: all of them (`first` 0), or the
+    /// runs of a window's patches (`first` the first's `LROF`).
+    pub(super) fn validated(
+        link_offsets: &'a [u64],
+        run_offsets: &'a [u64],
+        runs: &'a [LinkRunRecord],
+        first: usize,
+    ) -> Self {
+        Self { link_offsets, run_offsets, runs, first }
     }
 
     /// Runs given by the caller (tests, tools), checked against
@@ -81,19 +91,19 @@ impl<'a> LinkRuns<'a> {
         max_bucket: u8,
     ) -> Option<Self> {
         let ascending = link_offsets.first() == Some(&0) && link_offsets.windows(2).all(|w| w[0] <= w[1]);
-        (ascending && check_runs(link_offsets, run_offsets, runs, max_bucket).is_ok()).then_some(Self {
-            link_offsets,
-            run_offsets,
-            runs,
-        })
+        let patches = link_offsets.len().saturating_sub(1);
+        let ok = ascending
+            && check_run_offsets(run_offsets, patches, runs.len() as u64).is_ok()
+            && check_rows(link_offsets, run_offsets, 0..patches, runs, max_bucket).is_ok();
+        ok.then_some(Self { link_offsets, run_offsets, runs, first: 0 })
     }
 
-    /// The runs of patch `q`, in row order.
+    /// The runs of patch `q` (one whose runs are held), in row order.
     pub fn of(&self, q: usize) -> &'a [LinkRunRecord] {
-        &self.runs[self.run_offsets[q] as usize..self.run_offsets[q + 1] as usize]
+        &self.runs[self.run_offsets[q] as usize - self.first..self.run_offsets[q + 1] as usize - self.first]
     }
 
-    /// Every run, in file order.
+    /// The runs held, in file order.
     pub fn records(&self) -> &'a [LinkRunRecord] {
         self.runs
     }
@@ -109,31 +119,43 @@ impl<'a> LinkRuns<'a> {
     }
 }
 
-/// The content rules of §7 for `LROF` and `LRUN` against `LOFF`
-/// (`link_offsets`, already checked), `max_bucket` and the patch count:
-/// the first rule broken, if any.
-pub(super) fn check_runs(
-    link_offsets: &[u64],
-    run_offsets: &[u64],
-    runs: &[LinkRunRecord],
-    max_bucket: u8,
-) -> Result<(), String> {
-    let patches = link_offsets.len().saturating_sub(1);
+/// The rules of §7 for `LROF` alone: P + 1 entries from 0, never
+/// decreasing, to the `runs` of `LRUN`.
+pub(super) fn check_run_offsets(run_offsets: &[u64], patches: usize, runs: u64) -> Result<(), String> {
     if run_offsets.len() != patches + 1 {
         return Err(format!("LROF: {} entries, expected {} (one per patch, and one)", run_offsets.len(), patches + 1));
     }
-    if run_offsets[0] != 0 || run_offsets[patches] != runs.len() as u64 {
-        return Err(format!("LROF: must run from 0 to the {} runs of LRUN", runs.len()));
+    if run_offsets[0] != 0 || run_offsets[patches] != runs || run_offsets.windows(2).any(|w| w[1] < w[0]) {
+        return Err(format!("LROF: must run from 0 to the {runs} runs of LRUN, never decreasing"));
     }
-    let chunks = patches.div_ceil(CHUNK_PATCHES);
-    for q in 0..patches {
-        let (a, b) = (run_offsets[q], run_offsets[q + 1]);
-        if b < a || b > runs.len() as u64 {
-            return Err(format!("LROF[{q}]: not ascending"));
-        }
+    Ok(())
+}
+
+/// The content rules of §7 for the runs of `patches` (`runs`, from the
+/// first of them on), against `LOFF` (`link_offsets`, checked), `LROF`
+/// (`run_offsets`, checked by [`check_run_offsets`]), `max_bucket` and the
+/// patch count: the first rule broken, if any.
+pub(super) fn check_rows(
+    link_offsets: &[u64],
+    run_offsets: &[u64],
+    patches: Range<usize>,
+    runs: &[LinkRunRecord],
+    max_bucket: u8,
+) -> Result<(), String> {
+    let chunks = (link_offsets.len() - 1).div_ceil(CHUNK_PATCHES);
+    let first = run_offsets[patches.start];
+    if run_offsets[patches.end] - first != runs.len() as u64 {
+        return Err(format!(
+            "LRUN: {} runs read for patches {patches:?}, LROF says {}",
+            runs.len(),
+            run_offsets[patches.end] - first
+        ));
+    }
+    for q in patches {
+        let (a, b) = ((run_offsets[q] - first) as usize, (run_offsets[q + 1] - first) as usize);
         let mut ends = 0u64;
         let mut last: Option<(u8, u16)> = None;
-        for r in &runs[a as usize..b as usize] {
+        for r in &runs[a..b] {
             if r.length == 0 || r.reserved != 0 {
                 return Err(format!("LRUN: patch {q} has a run of no ends, or a reserved byte set"));
             }
@@ -166,21 +188,23 @@ pub(super) fn check_runs(
 /// Checks link-end ids read in file order against the runs they fall in:
 /// every id plus its run's chunk base below the patch count. Only runs of
 /// the last chunk need looking at (any 16-bit id of an earlier chunk is
-/// below it). Fed piece by piece, from the start of a run.
-pub(super) struct IdCheck<'r> {
-    runs: &'r [LinkRunRecord],
-    next: usize,
+/// below it). Fed piece by piece, from the start of a run, with the runs
+/// in file order (a slice's, or read from disk as they are needed).
+pub(super) struct IdCheck<R> {
+    runs: R,
     left: u32,
     /// Ids of the current run must be below this.
     bound: usize,
     patches: usize,
+    /// Every run was taken.
+    exhausted: bool,
 }
 
-impl<'r> IdCheck<'r> {
+impl<R: Iterator<Item = LinkRunRecord>> IdCheck<R> {
     /// A check of the ids of `runs` (consecutive, in file order) among
     /// `patches` patches.
-    pub(super) fn new(runs: &'r [LinkRunRecord], patches: usize) -> Self {
-        Self { runs, next: 0, left: 0, bound: 0, patches }
+    pub(super) fn new(runs: R, patches: usize) -> Self {
+        Self { runs, left: 0, bound: 0, patches, exhausted: false }
     }
 
     /// Whether the next `ids.len()` ids are in range (false, too, when
@@ -188,8 +212,10 @@ impl<'r> IdCheck<'r> {
     pub(super) fn add(&mut self, mut ids: &[u16]) -> bool {
         while !ids.is_empty() {
             while self.left == 0 {
-                let Some(r) = self.runs.get(self.next) else { return false };
-                self.next += 1;
+                let Some(r) = self.runs.next() else {
+                    self.exhausted = true;
+                    return false;
+                };
                 self.left = r.length;
                 self.bound = self.patches.saturating_sub(r.chunk as usize * CHUNK_PATCHES);
             }
@@ -205,8 +231,8 @@ impl<'r> IdCheck<'r> {
     }
 
     /// Whether every id of the runs was given.
-    pub(super) fn done(&self) -> bool {
-        self.left == 0 && self.next == self.runs.len()
+    pub(super) fn done(&mut self) -> bool {
+        self.left == 0 && !self.exhausted && self.runs.next().is_none()
     }
 }
 
@@ -304,7 +330,8 @@ pub enum Links<'a> {
     /// In memory (a mapped or owned archive): one window holds them all.
     Resident(LinkSlices<'a>),
     /// On disk, read a window at a time (an archive opened with
-    /// [`super::Archive::open_streamed`]), with the runs, held.
+    /// [`super::Archive::open_streamed`]), with `LOFF` and `LROF` (its
+    /// runs, `LRUN`, are read with each window).
     Streamed(&'a LinkStream, LinkRuns<'a>),
 }
 
@@ -376,8 +403,9 @@ impl<'w> LinkWindow<'w> {
             return None;
         }
         let n = (link_offsets[patches.end] - link_offsets[patches.start]) as usize;
-        let window_runs = &runs.runs[runs.run_offsets[patches.start] as usize..runs.run_offsets[patches.end] as usize];
-        let mut ids = IdCheck::new(window_runs, link_offsets.len() - 1);
+        let (a, b) = (runs.run_offsets[patches.start] as usize, runs.run_offsets[patches.end] as usize);
+        let window_runs = runs.runs.get(a.checked_sub(runs.first)?..b.checked_sub(runs.first)?)?;
+        let mut ids = IdCheck::new(window_runs.iter().copied(), link_offsets.len() - 1);
         if other.len() != n || !ids.add(other) || !ids.done() {
             return None;
         }
@@ -536,14 +564,6 @@ impl<'a> Links<'a> {
             Ok::<(), ArchiveError>(())
         })?;
         Ok(LinkRows { row_of, offsets: compact_offsets, other, weight, direction })
-    }
-
-    /// The runs of every patch (`LROF`, `LRUN`).
-    pub fn runs(&self) -> LinkRuns<'a> {
-        match self {
-            Links::Resident(s) => s.runs,
-            Links::Streamed(_, runs) => *runs,
-        }
     }
 
     /// Whether the ends are streamed from disk.

@@ -12,7 +12,7 @@ use super::layout::{
     InstanceRecord, MaterialRecord, NonDiffusePatchRecord, OrientationRecord, PrimitiveRecord, PrototypeRecord,
     SectionEntry, SurfaceRecord, Tag, WeightEscape, compression, tag,
 };
-use super::links::{IdCheck, LinkRows, LinkRuns, LinkSlices, Links, check_runs};
+use super::links::{IdCheck, LinkRows, LinkRuns, LinkSlices, Links, check_rows, check_run_offsets};
 use super::presence::{self, FramePresence, FrameSpan};
 use super::stream::{self, LinkStream};
 use super::weights::{self, Weights};
@@ -48,9 +48,9 @@ impl Storage {
     }
 }
 
-/// Tags of the link-end columns a streamed archive reads from disk (it
-/// holds their runs, `LROF` and `LRUN`).
-const LINK_COLUMNS: [Tag; 3] = [tag::LINK_OTHER, tag::LINK_COUNT, tag::LINK_DIRECTION];
+/// Tags of the link-end columns a streamed archive reads from disk with
+/// each window (it holds `LOFF` and `LROF`).
+const LINK_COLUMNS: [Tag; 4] = [tag::LINK_OTHER, tag::LINK_COUNT, tag::LINK_DIRECTION, tag::LINK_RUNS];
 
 /// An opened, fully validated archive.
 pub struct Archive {
@@ -556,13 +556,22 @@ impl Archive {
         check(hits.len() == b.patch_count as usize, || {
             format!("section PHIT: {} records, expected {}", hits.len(), b.patch_count)
         })?;
-        let limits = stream::Limits { hits, patches: b.patch_count as usize, directions: b.direction_count as usize };
-        let (run_offsets, runs): (&[u64], &[layout::LinkRunRecord]) =
-            (archive.column(tag::LINK_RUN_OFFSETS)?, archive.column(tag::LINK_RUNS)?);
-        check_runs(offsets, run_offsets, runs, b.max_bucket.min(255) as u8).map_err(bad)?;
-        let runs = LinkRuns::validated(offsets, run_offsets, runs);
-        let columns =
-            [archive.entry(tag::LINK_OTHER)?, archive.entry(tag::LINK_COUNT)?, archive.entry(tag::LINK_DIRECTION)?];
+        let limits = stream::Limits {
+            hits,
+            patches: b.patch_count as usize,
+            directions: b.direction_count as usize,
+            max_bucket: b.max_bucket.min(255) as u8,
+        };
+        let run_offsets: &[u64] = archive.column(tag::LINK_RUN_OFFSETS)?;
+        check_run_offsets(run_offsets, b.patch_count as usize, archive.entry(tag::LINK_RUNS)?.count).map_err(bad)?;
+        // The runs themselves are read, and checked, with the columns.
+        let runs = LinkRuns::validated(offsets, run_offsets, &[], 0);
+        let columns = [
+            archive.entry(tag::LINK_OTHER)?,
+            archive.entry(tag::LINK_COUNT)?,
+            archive.entry(tag::LINK_DIRECTION)?,
+            archive.entry(tag::LINK_RUNS)?,
+        ];
         let escapes: Vec<WeightEscape> = {
             let e = archive.entry(tag::LINK_ESCAPES)?;
             let mut records = vec![WeightEscape::default(); (e.stored_length as usize) / size_of::<WeightEscape>()];
@@ -748,14 +757,11 @@ impl Archive {
             adjacency: self.column(tag::ADJACENCY)?,
             link_offsets: self.column(tag::LINK_OFFSETS)?,
             links: match &self.stream {
-                // Checked when the stream was opened.
+                // Checked when the stream was opened; the runs come with
+                // each window.
                 Some(stream) => Links::Streamed(
                     stream,
-                    LinkRuns::validated(
-                        self.column(tag::LINK_OFFSETS)?,
-                        self.column(tag::LINK_RUN_OFFSETS)?,
-                        self.column(tag::LINK_RUNS)?,
-                    ),
+                    LinkRuns::validated(self.column(tag::LINK_OFFSETS)?, self.column(tag::LINK_RUN_OFFSETS)?, &[], 0),
                 ),
                 None => {
                     let b: &BuildRecord = self.one(tag::BUILD)?;
@@ -765,6 +771,7 @@ impl Archive {
                         self.column(tag::LINK_OFFSETS)?,
                         self.column(tag::LINK_RUN_OFFSETS)?,
                         self.column(tag::LINK_RUNS)?,
+                        0,
                     );
                     Links::Resident(LinkSlices::validated(
                         self.column(tag::LINK_OTHER)?,
@@ -1314,8 +1321,9 @@ fn validate_contents(v: &InetView<'_>, meta: &ArchiveMeta) -> Result<(), Archive
             check(b.link_end_count == ends as u64, || "BILD: link end count disagrees with LOTH".into())?;
             csr("LOFF", v.link_offsets.iter().copied(), ends)?;
             let runs = l.runs.records();
-            check_runs(v.link_offsets, l.runs.offsets(), runs, b.max_bucket.min(255) as u8).map_err(bad)?;
-            let mut ids = IdCheck::new(runs, p);
+            check_run_offsets(l.runs.offsets(), p, runs.len() as u64).map_err(bad)?;
+            check_rows(v.link_offsets, l.runs.offsets(), 0..p, runs, b.max_bucket.min(255) as u8).map_err(bad)?;
+            let mut ids = IdCheck::new(runs.iter().copied(), p);
             check(ids.add(l.local_ids()) && ids.done(), || "LOTH: patch id out of range".into())?;
             let escapes = l.weight.escapes();
             let mut next = 0;

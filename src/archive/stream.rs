@@ -22,8 +22,9 @@ use xxhash_rust::xxh3::{Xxh3, xxh3_64};
 
 use super::ArchiveError;
 use super::invariants::WeightSums;
+use super::layout::LinkRunRecord;
 use super::layout::{SectionEntry, WeightEscape};
-use super::links::{Columns, IdCheck, LinkRuns, LinkWindow};
+use super::links::{Columns, IdCheck, LinkRuns, LinkWindow, check_rows};
 use super::weights::{self, Weights};
 
 /// Link ends per checked chunk: windows are read in whole chunks.
@@ -44,6 +45,7 @@ pub(super) struct Limits<'h> {
     pub hits: &'h [u32],
     pub patches: usize,
     pub directions: usize,
+    pub max_bucket: u8,
 }
 
 /// The link-end columns of an archive on disk, read window by window.
@@ -58,6 +60,12 @@ pub struct LinkStream {
     escapes: Vec<WeightEscape>,
     /// Per chunk, each column's XXH3-64.
     sums: Vec<[u64; 3]>,
+    /// File offset of `LRUN`.
+    runs_at: u64,
+    /// Per window, the XXH3-64 of its runs' bytes.
+    run_sums: Vec<u64>,
+    /// The most runs a window holds.
+    run_capacity: usize,
     windows: Vec<Window>,
     /// The most ends a window's buffers hold (whole chunks).
     capacity: usize,
@@ -67,6 +75,8 @@ pub struct LinkStream {
     evict: AtomicBool,
     /// The most windows a parallel pass holds at once.
     in_flight: AtomicUsize,
+    /// `BILD.max_bucket`, which runs are checked against.
+    max_bucket: u8,
 }
 
 struct Window {
@@ -79,11 +89,48 @@ struct Buffers {
     other: Vec<u16>,
     weight: Vec<u8>,
     direction: Vec<u32>,
+    runs: Vec<LinkRunRecord>,
 }
 
 impl Buffers {
     fn bytes(&self) -> usize {
-        self.other.capacity() * 2 + self.weight.capacity() + self.direction.capacity() * 4
+        self.other.capacity() * 2 + self.weight.capacity() + self.direction.capacity() * 4 + self.runs.capacity() * 8
+    }
+}
+
+/// `LRUN` read from the file in order, a piece at a time, hashed as read:
+/// the runs an open's check of `LOTH` walks beside it.
+struct RunReader<'f> {
+    file: &'f File,
+    at: u64,
+    left: u64,
+    buf: Vec<LinkRunRecord>,
+    next: usize,
+    hash: Xxh3,
+    error: Option<std::io::Error>,
+}
+
+impl Iterator for RunReader<'_> {
+    type Item = LinkRunRecord;
+
+    fn next(&mut self) -> Option<LinkRunRecord> {
+        if self.next == self.buf.len() {
+            if self.left == 0 || self.error.is_some() {
+                return None;
+            }
+            let n = self.left.min(1 << 16) as usize;
+            self.buf.resize(n, LinkRunRecord::default());
+            if let Err(e) = read_at(self.file, bytemuck::cast_slice_mut(&mut self.buf), self.at) {
+                self.error = Some(e);
+                return None;
+            }
+            self.hash.update(bytemuck::cast_slice(&self.buf));
+            self.at += n as u64 * 8;
+            self.left -= n as u64;
+            self.next = 0;
+        }
+        self.next += 1;
+        Some(self.buf[self.next - 1])
     }
 }
 
@@ -117,15 +164,16 @@ pub(super) fn read_at(file: &File, mut buf: &mut [u8], mut offset: u64) -> std::
 
 impl LinkStream {
     /// Reads and checks the columns `entries` (`LOTH`, `LCNT`, `LDIR`,
-    /// already checked to lie in the file) of the archive open as `file`,
-    /// with `escapes` (`LCNX`, checked against its checksum), against their
-    /// checksums, `runs` (checked) and `limits`, and plans windows of at
-    /// most `window_ends` ends (more for a patch with more).
+    /// `LRUN`, already checked to lie in the file) of the archive open as
+    /// `file`, with `escapes` (`LCNX`, checked against its checksum), against
+    /// their checksums, `runs` (`LOFF` and `LROF`, checked) and `limits`,
+    /// and plans windows of at most `window_ends` ends (more for a patch
+    /// with more).
     #[allow(clippy::too_many_arguments)]
     pub(super) fn open(
         file: File,
         path: &Path,
-        entries: [&SectionEntry; 3],
+        entries: [&SectionEntry; 4],
         escapes: Vec<WeightEscape>,
         offsets: &[u64],
         runs: LinkRuns<'_>,
@@ -138,8 +186,45 @@ impl LinkStream {
         let names = NAMES;
         let mut buf = Vec::new();
         let mut next_escape = 0;
-        let mut ids = IdCheck::new(runs.records(), limits.patches);
-        for (c, e) in entries.iter().enumerate() {
+        let (windows, capacity) = plan(offsets, window_ends.max(1));
+        // The runs, window by window: their rules (§7), a checksum per
+        // window for later reads, and the section's.
+        let run_entry = entries[3];
+        let run_offsets = runs.offsets();
+        let run_count = run_offsets.last().copied().unwrap_or(0);
+        if run_entry.length != run_count * 8 {
+            return Err(ArchiveError::corrupt(format!(
+                "section LRUN: {} bytes, expected {} for LROF's {run_count} runs",
+                run_entry.length,
+                run_count * 8
+            )));
+        }
+        let (mut run_sums, mut run_capacity, mut section) = (Vec::with_capacity(windows.len()), 0, Xxh3::new());
+        let mut run_buf: Vec<LinkRunRecord> = Vec::new();
+        for w in &windows {
+            let (a, b) = (run_offsets[w.patches.start], run_offsets[w.patches.end]);
+            run_buf.resize((b - a) as usize, LinkRunRecord::default());
+            read_at(&file, bytemuck::cast_slice_mut(&mut run_buf), run_entry.offset + a * 8)
+                .map_err(|x| short(path, "LRUN", x))?;
+            let bytes: &[u8] = bytemuck::cast_slice(&run_buf);
+            section.update(bytes);
+            run_sums.push(xxh3_64(bytes));
+            run_capacity = run_capacity.max(run_buf.len());
+            check_rows(offsets, run_offsets, w.patches.clone(), &run_buf, limits.max_bucket)
+                .map_err(ArchiveError::Corrupt)?;
+        }
+        check_sum_of(run_entry, section.digest(), "LRUN")?;
+        let mut run_reader = RunReader {
+            file: &file,
+            at: run_entry.offset,
+            left: run_count,
+            buf: Vec::new(),
+            next: 0,
+            hash: Xxh3::new(),
+            error: None,
+        };
+        let mut ids = IdCheck::new(&mut run_reader, limits.patches);
+        for (c, e) in entries[..3].iter().enumerate() {
             let mut sums_of_rows = WeightSums::new(offsets, limits.hits);
             if e.length != (ends * WIDTH[c]) as u64 {
                 return Err(ArchiveError::corrupt(format!(
@@ -185,8 +270,12 @@ impl LinkStream {
         if !ids.done() {
             return Err(ArchiveError::corrupt("LOTH: fewer ids than the runs hold"));
         }
-        let at = entries.map(|e| e.offset);
-        let (windows, capacity) = plan(offsets, window_ends.max(1));
+        if let Some(e) = run_reader.error.take() {
+            return Err(short(path, "LRUN", e));
+        }
+        // Read twice: the second time, the bytes the first checked.
+        check_sum_of(run_entry, run_reader.hash.digest(), "LRUN")?;
+        let at = [entries[0].offset, entries[1].offset, entries[2].offset];
         Ok(Self {
             file,
             path: path.into(),
@@ -195,11 +284,15 @@ impl LinkStream {
             at,
             escapes,
             sums,
+            runs_at: run_entry.offset,
+            run_sums,
+            run_capacity,
             windows,
             capacity,
             pool: Mutex::new(Vec::new()),
             evict: AtomicBool::new(false),
             in_flight: AtomicUsize::new(usize::MAX),
+            max_bucket: limits.max_bucket,
         })
     }
 
@@ -230,7 +323,7 @@ impl LinkStream {
     /// Heap bytes held for the whole pass: `LCNX` and the chunk checksums
     /// (windows' buffers are [`Self::pass_bytes`]).
     pub fn held_bytes(&self) -> usize {
-        self.escapes.len() * size_of::<WeightEscape>() + self.sums.len() * 32
+        self.escapes.len() * size_of::<WeightEscape>() + self.sums.len() * 32 + self.run_sums.len() * 8
     }
 
     /// Link ends in all.
@@ -252,7 +345,7 @@ impl LinkStream {
     /// holds (two windows' buffers: one in use, one being read; the
     /// gather's parallel passes hold [`Self::windows_in_flight`]).
     pub fn pass_bytes(&self, columns: Columns) -> usize {
-        2 * self.capacity * bytes_per_end(columns)
+        2 * (self.capacity * bytes_per_end(columns) + self.run_capacity * 8)
     }
 
     /// Buffers kept between passes (each holds one window).
@@ -392,12 +485,13 @@ impl LinkStream {
         let w = &self.windows[i];
         let local = self.local(i);
         let pick = |len: usize| if len == 0 { 0..0 } else { local.clone() };
+        let first = runs.offsets()[w.patches.start] as usize;
         LinkWindow::validated(
             w.patches.clone(),
             &b.other[pick(b.other.len())],
             Weights::new(&b.weight[pick(b.weight.len())], &self.escapes, w.ends.start as u64),
             &b.direction[pick(b.direction.len())],
-            runs,
+            LinkRuns::validated(runs.link_offsets(), runs.offsets(), &b.runs, first),
         )
     }
 
@@ -429,6 +523,20 @@ impl LinkStream {
         fit(&mut b.other, n(0), self.capacity);
         fit(&mut b.weight, n(1), self.capacity);
         fit(&mut b.direction, n(2), self.capacity);
+        // The window's runs, always: checked against their checksum and,
+        // since the proof below rests on them, their rules again.
+        let (r0, r1) = (runs.offsets()[w.patches.start], runs.offsets()[w.patches.end]);
+        fit(&mut b.runs, (r1 - r0) as usize, self.run_capacity);
+        let run_bytes: &mut [u8] = bytemuck::cast_slice_mut(&mut b.runs);
+        read_at(&self.file, run_bytes, self.runs_at + r0 * 8).map_err(|x| short(&self.path, "LRUN", x))?;
+        if xxh3_64(run_bytes) != self.run_sums[i] {
+            return Err(ArchiveError::corrupt(format!(
+                "{}: the runs of window {i} (LRUN) changed on disk while in use (was the archive rewritten?)",
+                self.path.display()
+            )));
+        }
+        check_rows(runs.link_offsets(), runs.offsets(), w.patches.clone(), &b.runs, self.max_bucket)
+            .map_err(ArchiveError::Corrupt)?;
         let bytes: [&mut [u8]; 3] =
             [bytemuck::cast_slice_mut(&mut b.other), &mut b.weight, bytemuck::cast_slice_mut(&mut b.direction)];
         let names = NAMES;
@@ -455,15 +563,24 @@ impl LinkStream {
             // The ids the window uses, against its patches' runs: the proof
             // the gather's unchecked reads rest on, made again for every
             // window read.
-            let of_window =
-                &runs.records()[runs.offsets()[w.patches.start] as usize..runs.offsets()[w.patches.end] as usize];
-            let mut ids = IdCheck::new(of_window, self.patches);
+            let mut ids = IdCheck::new(b.runs.iter().copied(), self.patches);
             if !ids.add(&b.other[self.local(i)]) || !ids.done() {
                 return Err(ArchiveError::corrupt("LOTH: a link end's patch is out of range"));
             }
         }
         Ok(())
     }
+}
+
+/// A section's checksum against `sum`, its bytes' XXH3-64.
+fn check_sum_of(e: &SectionEntry, sum: u64, name: &str) -> Result<(), ArchiveError> {
+    if sum != e.checksum {
+        return Err(ArchiveError::corrupt(format!(
+            "section {name}: checksum mismatch (stored {:#018x}, computed {sum:#018x})",
+            e.checksum
+        )));
+    }
+    Ok(())
 }
 
 /// Calls `f` with the `len` bytes of `file` at `offset`, read in pieces

@@ -18,8 +18,8 @@ use crate::archive::{ArchiveSummary, CHUNK_ENDS, layout::tag};
 use crate::distribute::memory::{StateShape, state_bytes};
 use crate::memory::{Bytes, MemoryBudget};
 
-/// Bytes per link end a window's buffers hold at most (`LOTH`, `LCNT`,
-/// `LDIR`).
+/// Bytes per link end a window's buffers hold for the columns (`LOTH`,
+/// `LCNT`, `LDIR`); its runs (`LRUN`, 8 bytes each) come on top.
 const WINDOW_BYTES_PER_END: u64 = 7;
 /// The largest window planned: 0.75 MiB of `LOTH` and `LCNT` stays in the
 /// cache between the reader and the gather (2^18 ends measured 1.5× the
@@ -238,7 +238,11 @@ pub fn plan(s: &ArchiveSummary, job: &RenderJob, budget: MemoryBudget) -> Result
     // the smallest size, and never fewer than two: the least a streamed
     // render needs does not grow with the machine's cores.
     let workers = job.threads.max(2) as u64;
-    let one_window = |w: u64| (w + 2 * CHUNK_ENDS as u64) * WINDOW_BYTES_PER_END;
+    // A window's runs: twice the archive's mean per end (windows vary),
+    // at most one an end.
+    let runs = s.section_count(tag::LINK_RUNS);
+    let per_end = WINDOW_BYTES_PER_END + (16 * runs).div_ceil(ends.max(1)).min(8);
+    let one_window = |w: u64| (w + 2 * CHUNK_ENDS as u64) * per_end;
     const WINDOWS: &str = "link windows";
     let base = with(vec![("archive sections held", held)]);
     let base_total = sum(&base);
@@ -256,7 +260,7 @@ pub fn plan(s: &ArchiveSummary, job: &RenderJob, budget: MemoryBudget) -> Result
     // MB of windows on 64).
     let cache = if cache > 0 && room >= cache + workers * one_window(MAX_WINDOW_ENDS) { cache } else { 0 };
     let in_flight = ((room - cache) / one_window(MIN_WINDOW_ENDS)).clamp(2, workers);
-    let per_window = (room - cache) / (in_flight * WINDOW_BYTES_PER_END);
+    let per_window = (room - cache) / (in_flight * per_end);
     let window = per_window.saturating_sub(2 * CHUNK_ENDS as u64).clamp(MIN_WINDOW_ENDS, MAX_WINDOW_ENDS);
     let mut parts = base;
     parts.push((WINDOWS, in_flight * one_window(window)));
