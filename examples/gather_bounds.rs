@@ -1,8 +1,9 @@
 //! What bounds the distribution's gather on a given archive: reading the
-//! link-end stream (`LOTH` + `LCNT`, 5 bytes an end) from wherever it
-//! lives (L3 or DRAM), or the reads of per-patch state at the ends' other
-//! patches. Passes over the mapped archive's link ends, on 1 and 2
-//! threads:
+//! link-end stream from wherever it lives (L3 or DRAM), or the reads of
+//! per-patch state at the ends' other patches. The archive's ends are
+//! decoded to 32-bit ids (format 9's rows: `LOTH` + `LCNT`, 5 bytes an
+//! end; format 10 stores 16-bit ids in runs, 3 bytes), and timed in
+//! passes on 1 and 2 threads:
 //!
 //! - the stream alone (summing both columns, a chunk of each at a time);
 //! - a gather like the distribution's (four partial sums of count ×

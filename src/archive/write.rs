@@ -364,7 +364,11 @@ impl<'o> RunWriter<'o> {
             }
             let key = (k, (o as usize / layout::CHUNK_PATCHES) as u16);
             match &mut self.open {
-                Some((open, length)) if *open == key => *length += 1,
+                Some((open, length)) if *open == key => {
+                    *length = length.checked_add(1).ok_or_else(|| {
+                        std::io::Error::other(format!("link end {}: a run of more than 2³² − 1 ends", self.given))
+                    })?;
+                }
                 Some((open, _)) if *open > key => {
                     return Err(std::io::Error::other(format!(
                         "link end {}: patch {}'s ends are not in ascending (bucket, sender chunk)",
