@@ -323,7 +323,9 @@ impl LinkStream {
     /// Heap bytes held for the whole pass: `LCNX` and the chunk checksums
     /// (windows' buffers are [`Self::pass_bytes`]).
     pub fn held_bytes(&self) -> usize {
-        self.escapes.len() * size_of::<WeightEscape>() + self.sums.len() * 32 + self.run_sums.len() * 8
+        self.escapes.len() * size_of::<WeightEscape>()
+            + self.sums.len() * size_of::<[u64; 3]>()
+            + self.run_sums.len() * 8
     }
 
     /// Link ends in all.

@@ -231,6 +231,7 @@ pub fn plan(s: &ArchiveSummary, job: &RenderJob, budget: MemoryBudget) -> Result
     // Streamed: the copied sections, a checksum per column per chunk, the
     // open's read buffer, and the link windows.
     let ends = s.build.link_end_count;
+    // Three columns' XXH3 per chunk of ends, and one per window for its runs.
     let sums = ends.div_ceil(CHUNK_ENDS as u64) * 32;
     // `DELT` stays on disk: one frame's stored bytes at a time.
     let held = s.held_bytes() + sums + OPEN_BUFFER + s.max_delta_stored;
