@@ -79,14 +79,7 @@ fn new_rows(a: &Archive) -> Vec<Vec<(u32, f32, u32, u8)>> {
 /// the link ends byte for byte, and its link ends re-ordered by (bucket,
 /// sender chunk) within each row, stably.
 fn same_but_link_order(name: &str, old: &[u8], new: &[u8], a: &Archive) {
-    let links = [
-        tag::LINK_OTHER,
-        tag::LINK_WEIGHT_V6,
-        tag::LINK_COUNT,
-        tag::LINK_ESCAPES,
-        tag::LINK_DIRECTION,
-        tag::LINK_BUCKET_V9,
-    ];
+    let links = upgrade::OLD_LINK_COLUMNS;
     let (old_s, new_s) = (sections(old), sections(new));
     for (e, bytes) in old_s.iter().filter(|(e, _)| !links.contains(&e.tag)) {
         let (_, b) = new_s.iter().find(|(n, _)| n.tag == e.tag).unwrap();

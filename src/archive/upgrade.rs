@@ -99,6 +99,7 @@ pub fn upgrade(input: &Path, output: &Path) -> Result<Upgraded, ArchiveError> {
     let first_link_column = entries.iter().position(|e| OLD_LINK_COLUMNS.contains(&e.tag));
     let mut buf = Vec::new();
     let mut source = OldLinkSource { old, error: None };
+    let mut escapes = 0;
     for (i, e) in entries.iter().enumerate() {
         if Some(i) == first_link_column {
             let offsets = source.old.offsets.clone();
@@ -106,7 +107,7 @@ pub fn upgrade(input: &Path, output: &Path) -> Result<Upgraded, ArchiveError> {
             if let Some(e) = source.error.take() {
                 return Err(e);
             }
-            written.map_err(io_out)?;
+            escapes = written.map_err(io_out)?;
         }
         if OLD_LINK_COLUMNS.contains(&e.tag) {
             continue;
@@ -122,7 +123,6 @@ pub fn upgrade(input: &Path, output: &Path) -> Result<Upgraded, ArchiveError> {
         check_digest(e, hasher.digest())?;
     }
     source.old.finish()?;
-    let escapes = source.old.escapes_written;
     let out = w.finish().map_err(io_out)?;
     let tmp_file = out.into_inner().map_err(|e| io_out(e.into_error()))?;
     tmp_file.sync_all().map_err(io_out)?;
@@ -144,8 +144,8 @@ pub fn upgrade(input: &Path, output: &Path) -> Result<Upgraded, ArchiveError> {
 }
 
 /// The link-end sections of files before version 10, which an upgrade
-/// rewrites.
-const OLD_LINK_COLUMNS: [layout::Tag; 6] = [
+/// rewrites (every other section is copied byte for byte).
+pub const OLD_LINK_COLUMNS: [layout::Tag; 6] = [
     tag::LINK_OTHER,
     tag::LINK_WEIGHT_V6,
     tag::LINK_COUNT,
@@ -166,7 +166,6 @@ struct OldLinks<'f> {
     hashers: [Xxh3; 4],
     /// `LCNX` of a version 7 to 9 file, whole (escapes are rare).
     escapes_in: Vec<WeightEscape>,
-    escapes_written: u64,
     patch_count: usize,
 }
 
@@ -227,7 +226,6 @@ impl<'f> OldLinks<'f> {
             columns,
             hashers: std::array::from_fn(|_| Xxh3::new()),
             escapes_in,
-            escapes_written: 0,
         })
     }
 
@@ -338,8 +336,6 @@ impl OldLinkSource<'_> {
                     k2.push(bucket[e]);
                 }
             }
-            old.escapes_written +=
-                w2.iter().filter(|&&w| !(1.0..=255.0).contains(&w) || w.fract() != 0.0).count() as u64;
             if let Err(e) = out(&o2, &w2, &d2, &k2) {
                 return Ok(Err(e));
             }

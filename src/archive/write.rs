@@ -165,8 +165,13 @@ impl<W: Write + Seek> SectionWriter<W> {
     /// produces them; `LRUN`, whose length is known at the end, goes after
     /// them at a page boundary, and the weights' escapes (rare) are held
     /// and stored last. Fails when a row's ends are not in ascending
-    /// (bucket, sender chunk), the order the format requires.
-    pub(super) fn link_columns(&mut self, source: &mut dyn LinkEndSource, link_offsets: &[u64]) -> std::io::Result<()> {
+    /// (bucket, sender chunk), the order the format requires. Returns the
+    /// number of weights kept apart in `LCNX`.
+    pub(super) fn link_columns(
+        &mut self,
+        source: &mut dyn LinkEndSource,
+        link_offsets: &[u64],
+    ) -> std::io::Result<u64> {
         let e = source.end_count();
         let patches = link_offsets.len().saturating_sub(1);
         if link_offsets.last().copied().unwrap_or(0) != e {
@@ -254,7 +259,8 @@ impl<W: Write + Seek> SectionWriter<W> {
         }
         self.out.seek(SeekFrom::Start(position))?;
         self.position = position;
-        self.column(tag::LINK_ESCAPES, &escapes)
+        self.column(tag::LINK_ESCAPES, &escapes)?;
+        Ok(escapes.len() as u64)
     }
 
     pub(super) fn finish(mut self) -> std::io::Result<W> {
@@ -433,7 +439,7 @@ fn write_all<W: Write + Seek>(
         match links.as_deref_mut() {
             Some(source) => w.link_columns(source, &c.link_offsets)?,
             None => w.link_columns(&mut HeldLinks(c), &c.link_offsets)?,
-        }
+        };
         w.raw(tag::META, compression::ZSTD, &meta_z, meta.len() as u64, 1, 0)?;
         if let Some(r) = &c.reflectance {
             w.column(tag::PROTOTYPES, &r.prototypes)?;
