@@ -29,6 +29,22 @@ struct Cli {
     command: Command,
 }
 
+/// `--memory-budget`, one argument shared by `build`, `render` and `demo`
+/// (which hands it to both its stages): flattened once per command, since
+/// clap refuses two arguments of one name in a command.
+#[derive(Args, Clone, Default)]
+struct BudgetArgs {
+    /// Resident memory to stay within, e.g. 512M or 4G (powers of 1024;
+    /// default: 75% of the cgroup memory limit, else of physical memory).
+    /// A build spills links that would not fit as sorted runs to a scratch
+    /// directory next to the output and merges them into the archive (the
+    /// same bytes); a render streams the link ends of an archive that does
+    /// not fit whole from disk. A job that cannot fit is refused before
+    /// work starts (exit 6); peak memory stays below the budget plus 64 MiB.
+    #[arg(long, value_name = "SIZE", value_parser = illumnet::memory::parse_size)]
+    memory_budget: Option<u64>,
+}
+
 /// Build resolution overrides (default: the scene's `[build]` table, then
 /// sizes scaled to the scene: patch = diagonal/64, spacing = diagonal/128,
 /// frequency 16).
@@ -39,12 +55,9 @@ struct BuildArgs {
     /// --ray-spacing, --frequency and the scene's [build] table override it.
     #[arg(long, value_enum, default_value_t = Quality::Default)]
     quality: Quality,
-    /// Resident memory to stay within, e.g. 512M or 4G (powers of 1024;
-    /// default: 75% of the cgroup memory limit, else of physical memory).
-    /// Links that would not fit are spilled as sorted runs to a scratch
-    /// directory next to the output and merged into the archive (the same
-    /// bytes); a budget too small is refused before tracing (exit 6).
-    #[arg(long, value_name = "SIZE", value_parser = illumnet::memory::parse_size)]
+    /// From [`BudgetArgs`]: `demo` takes one `--memory-budget` for its
+    /// build and its render.
+    #[arg(skip)]
     memory_budget: Option<u64>,
     /// Target patch edge length in metres.
     #[arg(long, value_name = "M")]
@@ -174,12 +187,8 @@ struct RenderArgs {
     /// exit 7, after the frame's energy balance is printed).
     #[arg(long)]
     allow_unconverged: bool,
-    /// Resident memory to stay within, e.g. 512M or 4G (powers of 1024;
-    /// default: 75% of the cgroup memory limit, else of physical memory).
-    /// An archive that does not fit whole has its link ends streamed from
-    /// disk; a job that cannot fit is refused before work starts (exit 6).
-    /// Peak memory stays below the budget plus 64 MiB.
-    #[arg(long, value_name = "SIZE", value_parser = illumnet::memory::parse_size)]
+    /// From [`BudgetArgs`], as in [`BuildArgs`].
+    #[arg(skip)]
     memory_budget: Option<u64>,
     /// For measurement: drop the archive's pages from the kernel's cache
     /// before every pass over its link ends, so each distribution
@@ -318,6 +327,8 @@ enum Command {
         #[command(flatten)]
         settings: BuildArgs,
         #[command(flatten)]
+        budget: BudgetArgs,
+        #[command(flatten)]
         gltf: GltfArgs,
     },
     /// Distribute light over an archive's links and render its camera view.
@@ -343,6 +354,8 @@ enum Command {
         contact_sheet: Option<PathBuf>,
         #[command(flatten)]
         render: RenderArgs,
+        #[command(flatten)]
+        budget: BudgetArgs,
         #[command(flatten)]
         camera: camera::CameraArgs,
         #[command(flatten)]
@@ -429,6 +442,8 @@ enum Command {
         settings: BuildArgs,
         #[command(flatten)]
         render: RenderArgs,
+        #[command(flatten)]
+        budget: BudgetArgs,
     },
 }
 
@@ -492,10 +507,24 @@ pub fn main() -> ExitCode {
     let progress = progress_bar::BarProgress::new(cli.quiet);
     let json = matches!(cli.command, Command::Inspect { json: true, .. } | Command::Verify { json: true, .. });
     let result = match cli.command {
-        Command::Build { scene, output, frame, settings, gltf } => {
+        Command::Build { scene, output, frame, mut settings, budget, gltf } => {
+            settings.memory_budget = budget.memory_budget;
             commands::build(&scene, &gltf.options(), &output, frame, settings, &progress)
         }
-        Command::Render { archive, output, exr, frames, gif, contact_sheet, render, camera, explain, relight } => {
+        Command::Render {
+            archive,
+            output,
+            exr,
+            frames,
+            gif,
+            contact_sheet,
+            mut render,
+            budget,
+            camera,
+            explain,
+            relight,
+        } => {
+            render.memory_budget = budget.memory_budget;
             let extras = commands::Extras {
                 gif: gif.as_deref(),
                 contact_sheet: contact_sheet.as_deref(),
@@ -530,7 +559,10 @@ pub fn main() -> ExitCode {
             commands::compare(&image, &reference, heatmap.as_deref(), full_scale, below)
         }
         Command::Upgrade { archive, output } => commands::upgrade(&archive, output.as_deref().unwrap_or(&archive)),
-        Command::Demo { output, settings, render } => commands::demo(&output, settings, render, &progress),
+        Command::Demo { output, mut settings, mut render, budget } => {
+            (settings.memory_budget, render.memory_budget) = (budget.memory_budget, budget.memory_budget);
+            commands::demo(&output, settings, render, &progress)
+        }
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
@@ -544,5 +576,30 @@ pub fn main() -> ExitCode {
             }
             ExitCode::from(code)
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use clap::CommandFactory;
+
+    use super::Cli;
+
+    /// clap checks a command's definition (unique names and flags, valid
+    /// defaults) only in builds with debug assertions, and then only for
+    /// the subcommand run: this checks every one, in any build. It caught
+    /// `demo` flattening two `--memory-budget` arguments.
+    #[test]
+    fn every_command_line_definition_is_consistent() {
+        Cli::command().debug_assert();
+    }
+
+    /// `demo` hands one budget to its build and its render.
+    #[test]
+    fn demo_takes_one_memory_budget_for_both_stages() {
+        use clap::Parser;
+        let cli = Cli::try_parse_from(["illumnet", "demo", "--memory-budget", "64M"]).expect("parses");
+        let super::Command::Demo { budget, .. } = cli.command else { panic!("not demo") };
+        assert_eq!(budget.memory_budget, Some(64 << 20));
     }
 }
