@@ -450,9 +450,12 @@ const BVH_BYTES_PER_PRIMITIVE: u64 = 200;
 const LEAST_LINKS: u64 = 16 << 20;
 
 /// Resident bytes a build needs whatever its links: per patch (geometry,
-/// adjacency, hit counts and each tracer's counts), per vertex and per
-/// primitive (with the BVH), each tracer's scratch (for a sequence, with
-/// a part of its per-frame link changes), the non-diffuse hit counts.
+/// adjacency, hit counts and each tracer's counts: hits and back hits in
+/// u64 and the list of patches it touched), per vertex and per primitive
+/// (with the BVH), each tracer's part of a sequence's per-frame link
+/// changes, the non-diffuse hit counts. (The tracers' per-pair scratch,
+/// which grows with the rays of a pair, is counted as it grows:
+/// [`spill::Spill::hold_scratch`].)
 fn fixed_build_bytes(
     patches: &Patches,
     prims: usize,
@@ -469,7 +472,7 @@ fn fixed_build_bytes(
     vec![
         ("patches", p * (12 + 12 + 4 + 4 + 16 + 16 + 8 + 4 + 4) + patches.vertex_position.len() as u64 * 12),
         ("primitives and BVH", prims as u64 * (SETUP_BYTES_PER_PRIMITIVE + BVH_BYTES_PER_PRIMITIVE)),
-        ("tracers' scratch", threads * (p * 4 + (4 << 20) + changes)),
+        ("tracers' scratch", threads * (p * 24 + changes)),
         ("non-diffuse hit counts", (nd_patches * pairs) as u64 * 8),
     ]
 }
@@ -582,8 +585,7 @@ fn build_impl(
     let lobes = reflectance::primitive_lobes(scene, &prim_surface);
     let nd_index = reflectance::nondiffuse_index(&patches, &lobes);
     // Under a budget: what the links may hold before workers spill them
-    // (sorting a spill takes about 60 bytes a link, holding 14, and the
-    // in-memory table at the end about 40), or a refusal now.
+    // (spill::SpillPlan), or a refusal now.
     let spill = match bound {
         Some(b) if !keep_links => {
             let nd = nd_index.iter().filter(|&&i| i != u32::MAX).count();
@@ -593,9 +595,8 @@ fn build_impl(
                 parts.push(("links", LEAST_LINKS));
                 return Err(BuildError::OverBudget { budget: b.budget, parts });
             }
-            let room = b.budget - fixed;
-            let threshold = room * spill::BUNDLE_BYTES_PER_LINK / spill::Spill::sort_bytes_per_link() * 2 / 3;
-            Some(spill::Spill::new(&b.output, threshold, patches.len())?)
+            let plan = spill::SpillPlan::new(b.budget - fixed, rayon::current_num_threads());
+            Some(spill::Spill::new(&b.output, plan, patches.len())?)
         }
         _ => None,
     };

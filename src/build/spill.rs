@@ -3,11 +3,13 @@
 //! columns as it is written (an [`LinkEndSource`]), so that a build holds
 //! its scene, its BVH and a budgeted amount of links, not all of them.
 //!
-//! A run is the link ends of a contiguous range of direction pairs, sorted
-//! by (owner patch, bucket, sender chunk), in the order the in-memory
-//! table has them within one such slot: pair, then the bundle's order, the
-//! `a` end before the `b` end. Runs cover disjoint pair ranges, so taking each
-//! slot's ends from the runs in pair order gives the in-memory table end
+//! A run is the link ends of a contiguous range of links in pair order
+//! (it may begin and end inside a pair's bundle: a run holds at most
+//! [`SpillPlan::run_links`] links), sorted by (owner
+//! patch, bucket, sender chunk), in the order the in-memory table has them
+//! within one such slot: pair, then the bundle's order, the `a` end before
+//! the `b` end. Runs cover disjoint ranges, so taking each slot's ends from
+//! the runs in the order of their first link gives the in-memory table end
 //! for end: the archive is byte-identical to an unbounded build's (tested).
 //! A sharded build on several machines is the same merge over runs written
 //! by each.
@@ -36,9 +38,9 @@ use crate::archive::{LinkEndSink, LinkEndSource};
 
 /// Bytes a bundle holds per link (a, b, w: u32; two u8 buckets).
 pub(super) const BUNDLE_BYTES_PER_LINK: u64 = 14;
-/// Bytes spilling holds per link while it sorts: the bundle's 14 and two
-/// ends of 24-byte records (sorted in place).
-const SORT_BYTES_PER_LINK: u64 = 62;
+/// Bytes a sort buffer holds per link of a run: two ends of 24-byte
+/// records.
+const SORT_BYTES_PER_LINK: u64 = 2 * size_of::<SortEnd>() as u64;
 /// Read buffer per run and stream while merging: 64 KiB, less when there
 /// are many runs (the merge then holds at most 16 MiB of buffers), never
 /// less than 4 KiB.
@@ -49,10 +51,61 @@ const MERGE_BUFFERS: usize = 16 << 20;
 
 /// One spilled run.
 struct Run {
-    first_pair: u32,
+    /// Where the run starts: its first pair, and the index of its first
+    /// link within that pair's bundle (a bundle larger than a run is cut
+    /// into several); runs are merged in this order.
+    first: (u32, u64),
     path: PathBuf,
     ends: u64,
     slots: u64,
+}
+
+/// How a bounded build spends `room`, the bytes its links may hold:
+///
+/// - bundles traced and not yet spilled, a sequence's per-frame link
+///   changes held in memory, and the tracers' growing per-pair scratch,
+///   all counted in `Spill::in_memory`: at most `1.5 · threshold` (a
+///   worker spills once the count passes the threshold and it holds at
+///   least `threshold / 2n` itself; those below hold less than
+///   `threshold / 2` together);
+/// - sort buffers, pooled: one per spill under way (at most one per
+///   worker), made when none is free and never grown: a run holds at most
+///   `run_links` links, so the n buffers take at most
+///   `n · run_links · 48 = threshold · 48 / 14` bytes.
+///
+/// The first holds while what cannot be spilled (the scratch, the changes
+/// held) stays below half the threshold, and bundles are small against
+/// the threshold: a worker counts a bundle once it is traced, so each may
+/// hold one more than its count says.
+///
+/// Both together fill `room`. The buffers are kept, not freed after each
+/// run: the allocator would keep freed pages resident for a while, and
+/// fresh ones are faulted in again.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(super) struct SpillPlan {
+    /// Bytes counted in memory above which workers spill.
+    pub(super) threshold: u64,
+    /// Links a run holds at most.
+    pub(super) run_links: u64,
+}
+
+impl SpillPlan {
+    /// The plan for `room` bytes and `workers` tracing threads.
+    pub(super) fn new(room: u64, workers: usize) -> Self {
+        let n = workers.max(1) as u64;
+        // 1.5·T + T·48/14 = room.
+        let threshold = room * 2 * BUNDLE_BYTES_PER_LINK / (3 * BUNDLE_BYTES_PER_LINK + 2 * SORT_BYTES_PER_LINK);
+        // A run's ends are numbered in u32 (`SortEnd::seq`).
+        let run_links = (threshold / (BUNDLE_BYTES_PER_LINK * n)).clamp(1, u32::MAX as u64 / 2);
+        Self { threshold, run_links }
+    }
+
+    /// Bytes the plan holds at most: the counted bytes and the sort
+    /// buffers (what `room` must cover).
+    #[cfg(test)]
+    fn peak_bytes(&self, workers: usize) -> u64 {
+        self.threshold * 3 / 2 + workers.max(1) as u64 * self.run_links * SORT_BYTES_PER_LINK
+    }
 }
 
 /// Where a build spills, and what it has spilled.
@@ -62,14 +115,17 @@ pub(super) struct Spill {
     /// The scratch directory and its lock (held while it lives), made
     /// at the first spill.
     dir: Mutex<Option<Scratch>>,
-    /// Bytes held (bundles, and the per-frame link changes kept in
-    /// memory) above which a worker spills its bundles.
-    threshold: u64,
+    /// Bytes held (bundles, the per-frame link changes kept in memory,
+    /// the tracers' scratch) above which a worker spills its bundles;
+    /// links per run at most.
+    plan: SpillPlan,
     in_memory: AtomicU64,
     runs: Mutex<Vec<Run>>,
-    /// Sort buffers kept between spills (fresh ones each time would leave
-    /// the allocator holding freed pages).
+    /// Sort buffers kept between spills, one per worker that has spilled
+    /// ([`SpillPlan`]), each of `2 · run_links` ends.
     buffers: Mutex<Vec<Vec<SortEnd>>>,
+    /// Sort buffers made so far.
+    buffers_made: AtomicU64,
     /// Link ends per patch, over every run.
     ends_per_patch: Mutex<Vec<u64>>,
     sequence: AtomicU64,
@@ -109,16 +165,16 @@ fn io_error(path: &Path, e: std::io::Error) -> BuildError {
 }
 
 impl Spill {
-    /// A scratch directory next to `output`, spilling when the
-    /// bundles held exceed `threshold` bytes.
-    pub(super) fn new(output: &Path, threshold: u64, patches: usize) -> Result<Self, String> {
+    /// A scratch directory next to `output`, spilling as `plan` says.
+    pub(super) fn new(output: &Path, plan: SpillPlan, patches: usize) -> Result<Self, String> {
         Ok(Self {
             output: output.to_path_buf(),
             dir: Mutex::new(None),
-            threshold,
+            plan,
             in_memory: AtomicU64::new(0),
             runs: Mutex::new(Vec::new()),
             buffers: Mutex::new(Vec::new()),
+            buffers_made: AtomicU64::new(0),
             ends_per_patch: Mutex::new(vec![0; patches]),
             sequence: AtomicU64::new(0),
             deltas: std::sync::OnceLock::new(),
@@ -136,52 +192,93 @@ impl Spill {
         // runs do not come out tiny: the build holds at most
         // `threshold · 1.5` (each of n workers below threshold / 2n).
         let own: u64 = held.iter().map(|b| b.a.len() as u64 * BUNDLE_BYTES_PER_LINK).sum();
-        let share = self.threshold / (2 * rayon::current_num_threads() as u64).max(1);
-        if total > self.threshold && own >= share {
+        let share = self.plan.threshold / (2 * rayon::current_num_threads() as u64).max(1);
+        if total > self.plan.threshold && own >= share {
             self.spill(held)?;
         }
         Ok(())
     }
 
-    /// Writes `bundles` (consecutive pairs) as one sorted run and lets them go.
+    /// Counts `bytes` more of a tracer's scratch as held (it keeps them
+    /// until the trace ends).
+    pub(super) fn hold_scratch(&self, bytes: u64) {
+        self.in_memory.fetch_add(bytes, Ordering::Relaxed);
+    }
+
+    /// Writes `bundles` (consecutive pairs) as sorted runs of at most
+    /// `run_links` links each, and lets them go.
     pub(super) fn spill(&self, bundles: &mut Vec<Bundle>) -> Result<(), BuildError> {
         let links: u64 = bundles.iter().map(|b| b.a.len() as u64).sum();
         if bundles.is_empty() {
             return Ok(());
         }
-        let first_pair = bundles[0].pair;
-        let mut ends = self.buffers.lock().ok().and_then(|mut b| b.pop()).unwrap_or_default();
-        ends.clear();
-        ends.reserve(2 * links as usize);
-        for b in bundles.iter() {
-            for i in 0..b.a.len() {
-                let w = b.w[i] as f32;
-                let seq = ends.len() as u32;
-                ends.push(SortEnd {
-                    owner: b.a[i],
-                    bucket: b.bucket_a[i],
-                    seq,
-                    other: b.b[i],
-                    weight: w,
-                    direction: 2 * b.pair,
-                });
-                ends.push(SortEnd {
-                    owner: b.b[i],
-                    bucket: b.bucket_b[i],
-                    seq: seq + 1,
-                    other: b.a[i],
-                    weight: w,
-                    direction: 2 * b.pair + 1,
-                });
+        let cap = self.plan.run_links.max(1);
+        let mut ends = self.buffers.lock().ok().and_then(|mut b| b.pop()).unwrap_or_else(|| {
+            self.buffers_made.fetch_add(1, Ordering::Relaxed);
+            Vec::with_capacity(2 * cap as usize)
+        });
+        // The next link to spill: its bundle, and its index in the bundle.
+        let (mut bundle, mut at) = (0usize, 0usize);
+        let result = loop {
+            if bundle == bundles.len() {
+                break Ok(());
             }
+            let first = (bundles[bundle].pair, at as u64);
+            ends.clear();
+            while bundle < bundles.len() && (ends.len() as u64) < 2 * cap {
+                let b = &bundles[bundle];
+                let take = (b.a.len() - at).min((cap - ends.len() as u64 / 2) as usize);
+                for i in at..at + take {
+                    let w = b.w[i] as f32;
+                    let seq = ends.len() as u32;
+                    ends.push(SortEnd {
+                        owner: b.a[i],
+                        bucket: b.bucket_a[i],
+                        seq,
+                        other: b.b[i],
+                        weight: w,
+                        direction: 2 * b.pair,
+                    });
+                    ends.push(SortEnd {
+                        owner: b.b[i],
+                        bucket: b.bucket_b[i],
+                        seq: seq + 1,
+                        other: b.a[i],
+                        weight: w,
+                        direction: 2 * b.pair + 1,
+                    });
+                }
+                at += take;
+                if at == b.a.len() {
+                    (bundle, at) = (bundle + 1, 0);
+                }
+            }
+            debug_assert!(
+                ends.len() as u64 <= 2 * cap && ends.capacity() as u64 == 2 * cap,
+                "a run fills its buffer, never grows it"
+            );
+            // (Bundles of no links after the last run's end give none.)
+            if !ends.is_empty()
+                && let Err(e) = self.write_run(&mut ends, first)
+            {
+                break Err(e);
+            }
+        };
+        if let Ok(mut b) = self.buffers.lock() {
+            b.push(ends);
         }
         self.in_memory.fetch_sub(links * BUNDLE_BYTES_PER_LINK, Ordering::Relaxed);
         bundles.clear();
         bundles.shrink_to_fit();
+        result
+    }
+
+    /// Sorts `ends` (a run starting at `first`) and writes it.
+    fn write_run(&self, ends: &mut [SortEnd], first: (u32, u64)) -> Result<(), BuildError> {
         // Within a slot, ends keep the bundle order (`seq` is unique).
         ends.sort_unstable_by_key(|e| (e.owner, e.slot(), e.seq));
         let n = self.sequence.fetch_add(1, Ordering::Relaxed);
-        let path = self.run_path(&format!("run-{first_pair:06}-{n:04}.bin"))?;
+        let path = self.run_path(&format!("run-{:06}-{n:04}.bin", first.0))?;
         let file = File::create(&path).map_err(|e| io_error(&path, e))?;
         let mut out = BufWriter::with_capacity(1 << 20, file);
         let write = |out: &mut BufWriter<File>, ends: &[SortEnd]| -> std::io::Result<u64> {
@@ -200,19 +297,16 @@ impl Spill {
             out.flush()?;
             Ok(slots)
         };
-        let slots = write(&mut out, &ends).map_err(|e| io_error(&path, e))?;
+        let slots = write(&mut out, ends).map_err(|e| io_error(&path, e))?;
         drop(out);
         crate::scratch::stop_point("spill");
         {
             let mut per = self.ends_per_patch.lock().expect("no panics while held");
-            for e in &ends {
+            for e in ends.iter() {
                 per[e.owner as usize] += 1;
             }
         }
-        self.runs.lock().expect("no panics while held").push(Run { first_pair, path, ends: ends.len() as u64, slots });
-        if let Ok(mut b) = self.buffers.lock() {
-            b.push(ends);
-        }
+        self.runs.lock().expect("no panics while held").push(Run { first, path, ends: ends.len() as u64, slots });
         Ok(())
     }
 
@@ -220,7 +314,7 @@ impl Spill {
     /// build holds more than the threshold (else the tails of many chunks
     /// would add up in memory).
     pub(super) fn end_chunk(&self, held: &mut Vec<Bundle>) -> Result<(), BuildError> {
-        if self.in_memory.load(Ordering::Relaxed) > self.threshold {
+        if self.in_memory.load(Ordering::Relaxed) > self.plan.threshold {
             self.spill(held)?;
         }
         Ok(())
@@ -257,10 +351,13 @@ impl Spill {
         if bytes == 0 {
             return Ok(());
         }
-        let room = self.threshold / 2;
+        // Held while they take at most half the threshold, and while the
+        // count stays below it (bundles can be spilled, changes held cannot).
+        let room = self.plan.threshold / 2;
+        let below = |h: u64| h + bytes <= room && self.in_memory.load(Ordering::Relaxed) + bytes <= self.plan.threshold;
         if self
             .deltas_held
-            .fetch_update(Ordering::Relaxed, Ordering::Relaxed, |h| (h + bytes <= room).then_some(h + bytes))
+            .fetch_update(Ordering::Relaxed, Ordering::Relaxed, |h| below(h).then_some(h + bytes))
             .is_ok()
         {
             self.in_memory.fetch_add(bytes, Ordering::Relaxed);
@@ -290,7 +387,7 @@ impl Spill {
     /// The merge of every run, and `LOFF` from the runs' counts.
     pub(super) fn finish(self) -> Result<(SpilledLinks, Vec<u64>), String> {
         let mut runs = self.runs.into_inner().expect("no panics while held");
-        runs.sort_by_key(|r| r.first_pair);
+        runs.sort_by_key(|r| r.first);
         let per = self.ends_per_patch.into_inner().expect("no panics while held");
         let mut offsets = Vec::with_capacity(per.len() + 1);
         let mut sum = 0u64;
@@ -302,9 +399,10 @@ impl Spill {
         Ok((SpilledLinks { _dir: self.dir.into_inner().expect("no panics while held"), runs, ends: sum }, offsets))
     }
 
-    /// Bytes held per link of a run being sorted.
-    pub(super) fn sort_bytes_per_link() -> u64 {
-        SORT_BYTES_PER_LINK
+    /// Sort buffers made: at most one per thread that spilled.
+    #[cfg(test)]
+    fn buffers_made(&self) -> u64 {
+        self.buffers_made.load(Ordering::Relaxed)
     }
 }
 
@@ -405,5 +503,98 @@ impl LinkEndSource for SpilledLinks {
             out(&other, &weight, &direction, &bucket)?;
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::build::links::assemble;
+
+    #[test]
+    fn a_plan_fills_its_room_and_no_more() {
+        for room in [16u64 << 20, 1 << 30, 1900 << 20, 3 << 40] {
+            for workers in [1, 2, 3, 8, 64] {
+                let plan = SpillPlan::new(room, workers);
+                let peak = plan.peak_bytes(workers);
+                assert!(peak <= room, "{plan:?} with {workers} workers holds {peak} of {room} bytes");
+                if plan.run_links == u32::MAX as u64 / 2 {
+                    continue; // a run's ends are numbered in u32: rooms of terabytes are not filled
+                }
+                // Rounding aside, it uses the room: within 1%.
+                assert!(peak as f64 >= 0.99 * room as f64, "{plan:?}: {peak} of {room}");
+                // A worker's run is twice what it holds before it spills.
+                let share = plan.threshold / (2 * workers as u64);
+                assert!((plan.run_links * BUNDLE_BYTES_PER_LINK).abs_diff(2 * share) <= BUNDLE_BYTES_PER_LINK + 2);
+            }
+        }
+    }
+
+    /// Patches of the bundles below: 40 in two sender chunks.
+    const PATCHES: usize = CHUNK_PATCHES + 20;
+
+    /// Patch `i` of 40: the first 20 in chunk 0, the rest in chunk 1.
+    fn patch(i: u32) -> u32 {
+        if i < 20 { i } else { CHUNK_PATCHES as u32 + i - 20 }
+    }
+
+    /// Bundles of pairs 0..6, of 0 to 9 links, over 40 patches in two
+    /// sender chunks.
+    fn bundles() -> Vec<Bundle> {
+        (0..6u32)
+            .map(|pair| {
+                let n = [7, 0, 9, 1, 4, 0][pair as usize];
+                let mut b = Bundle { pair, ..Default::default() };
+                for i in 0..n {
+                    b.a.push(patch((pair * 7 + i * 3) % 40));
+                    b.b.push(patch((pair * 11 + i * 5 + 1) % 40));
+                    b.w.push(1 + (i + pair) % 4);
+                    b.bucket_a.push((i % 2) as u8);
+                    b.bucket_b.push(((i + pair) % 3 == 0) as u8);
+                }
+                b
+            })
+            .collect()
+    }
+
+    #[test]
+    fn runs_of_a_few_links_cut_bundles_and_merge_to_the_in_memory_table() {
+        let expected = assemble(&bundles(), PATCHES, 1);
+        for run_links in [1, 2, 3, 5, 8, 100] {
+            let dir = tempfile::tempdir().expect("a temporary directory");
+            let plan = SpillPlan { threshold: 1 << 20, run_links };
+            let spill = Spill::new(&dir.path().join("a.inet"), plan, PATCHES).expect("a spill");
+            // Two spills of consecutive pairs, as two workers would.
+            let mut all = bundles();
+            let mut second = all.split_off(2);
+            spill.spill(&mut all).expect("spilled");
+            spill.spill(&mut second).expect("spilled");
+            assert!(all.is_empty() && second.is_empty(), "spilled bundles are let go");
+            assert_eq!(spill.buffers_made(), 1, "one sort buffer, reused");
+            let mut runs = spill.runs.lock().expect("runs");
+            assert!(runs.iter().all(|r| r.ends <= 2 * run_links), "a run holds at most {run_links} links");
+            assert!(runs.iter().all(|r| r.ends > 0), "no empty runs");
+            let links: u64 = 7 + 9 + 1 + 4;
+            assert!(runs.len() as u64 >= links.div_ceil(run_links), "{} runs of {run_links}", runs.len());
+            // Runs finish in any order on several workers: the merge orders them.
+            runs.reverse();
+            drop(runs);
+            let (mut merged, offsets) = spill.finish().expect("finished");
+            assert_eq!(offsets, expected.offsets);
+            let (mut other, mut weight, mut direction, mut bucket) = (vec![], vec![], vec![], vec![]);
+            merged
+                .write_ends(&mut |o, w, d, k| {
+                    other.extend_from_slice(o);
+                    weight.extend_from_slice(w);
+                    direction.extend_from_slice(d);
+                    bucket.extend_from_slice(k);
+                    Ok(())
+                })
+                .expect("merged");
+            assert_eq!(other, expected.other, "run_links {run_links}");
+            assert_eq!(weight, expected.weight);
+            assert_eq!(direction, expected.direction);
+            assert_eq!(bucket, expected.bucket);
+        }
     }
 }

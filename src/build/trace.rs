@@ -299,6 +299,35 @@ struct Scratch {
     by_first: Vec<u32>,
     active: Vec<u32>,
     walk: Vec<u32>,
+    /// Bytes of the per-pair buffers above reported to a bounded build's
+    /// count ([`Scratch::grown`]).
+    reported: u64,
+}
+
+impl Scratch {
+    /// Bytes the per-pair buffers have grown by since last asked (they
+    /// grow with a pair's rays and links, and are kept for the next pair).
+    fn grown(&mut self) -> u64 {
+        fn cap<T>(v: &Vec<T>) -> u64 {
+            (v.capacity() * size_of::<T>()) as u64
+        }
+        let frames: u64 = self.changes.iter().map(cap).sum();
+        let bytes = cap(&self.hits)
+            + cap(&self.keys)
+            + cap(&self.frame_links)
+            + cap(&self.prev_links)
+            + cap(&self.change_frames)
+            + frames
+            + cap(&self.cumulative)
+            + cap(&self.next)
+            + cap(&self.permanent)
+            + cap(&self.by_first)
+            + cap(&self.active)
+            + cap(&self.walk);
+        let grown = bytes.saturating_sub(self.reported);
+        self.reported = self.reported.max(bytes);
+        grown
+    }
 }
 
 /// Hits per patch counted by one worker and added to the shared totals when
@@ -338,9 +367,13 @@ struct HitCounts {
 }
 
 impl HitCounts {
+    /// Counts for `patches` patches: 24 bytes a patch, all told (a bounded
+    /// build counts them so, `fixed_build_bytes`).
     fn resize(&mut self, patches: usize) {
-        self.hits.count.resize(patches, 0);
-        self.backs.count.resize(patches, 0);
+        for c in [&mut self.hits, &mut self.backs] {
+            c.count.resize(patches, 0);
+            c.touched.reserve_exact(patches.saturating_sub(c.touched.len()));
+        }
     }
 }
 
@@ -771,6 +804,12 @@ pub fn trace_all(
         };
         let mut stats = BundleStats { rays: g.nu * g.nv, ..Default::default() };
         s.keys.clear();
+        // Room for a link a ray, counted before the pair is traced (what
+        // more it needs is counted after it).
+        s.keys.reserve(usize::try_from(g.nu * g.nv).unwrap_or(usize::MAX));
+        if let Some(spill) = spill {
+            spill.hold_scratch(s.grown());
+        }
         for jj in 0..g.nv {
             let v = ((g.j0 + jj as i64) as f32 + g.offset.y) * g.step;
             for ii in 0..g.nu {
@@ -868,6 +907,7 @@ pub fn trace_all(
                 stats.links += st.links;
                 bundles.push(b);
                 if let Some(spill) = spill {
+                    spill.hold_scratch(s.grown());
                     spill.hold(&mut bundles)?;
                 }
                 // The records held are bounded by a fixed count, not by the
