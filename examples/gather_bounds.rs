@@ -18,7 +18,9 @@
 //!   format), per receiver in runs, or sorted by sender with each end's
 //!   receiver beside it;
 //! - the distribution's loop over rows, asking for the state of the end
-//!   0, 16, 32 or 64 ends ahead (software prefetch).
+//!   0, 16, 32 or 64 ends ahead (software prefetch);
+//! - the loop over rows with smaller per-patch state: 12 bytes (RGB in
+//!   f32) and 8 bytes (a bound on what a smaller state's locality gives).
 //!
 //! Numbers for `docs/PERFORMANCE.md`:
 //!
@@ -61,6 +63,9 @@ fn main() {
     let shoot: Vec<[f32; 4]> = (0..patches).map(|i| [i as f32 * 1e-6, 1.0, 2.0, 0.0]).collect();
     let mut recv = vec![[0f32; 4]; patches];
     let mut recv2 = vec![[0f32; 4]; patches];
+    let shoot3: Vec<[f32; 3]> = shoot.iter().map(|s| [s[0], s[1], s[2]]).collect();
+    let shoot2: Vec<[f32; 2]> = shoot.iter().map(|s| [s[0], s[1]]).collect();
+    let (mut recv3, mut recv2n) = (vec![[0f32; 3]; patches], vec![[0f32; 2]; patches]);
     let t = Instant::now();
     let blocked: std::collections::HashMap<(u32, usize), Blocked> = BLOCKINGS
         .iter()
@@ -132,6 +137,19 @@ fn main() {
                 rows(offsets, other, count, &shoot, &mut recv2);
             }
             line("gather, rows, the blocked kernel", ends / t.elapsed().as_secs_f64());
+            // Smaller per-patch state, the same loop: RGB in 12 bytes (what
+            // the distribution could store), and 8 bytes (the size of RGB
+            // in f16 with padding; two f32 read here, a bound on locality).
+            let t = Instant::now();
+            for _ in 0..PASSES {
+                rows_n(offsets, other, count, &shoot3, &mut recv3);
+            }
+            line("gather, rows, 12-byte state", ends / t.elapsed().as_secs_f64());
+            let t = Instant::now();
+            for _ in 0..PASSES {
+                rows_n(offsets, other, count, &shoot2, &mut recv2n);
+            }
+            line("gather, rows, 8-byte state (locality bound)", ends / t.elapsed().as_secs_f64());
             for ahead in [0, 16, 32, 64] {
                 let t = Instant::now();
                 for _ in 0..PASSES {
@@ -192,6 +210,27 @@ fn rows(offsets: &[u64], other: &[u32], count: &[u8], shoot: &[[f32; 4]], recv: 
                 }
             }
             *r = [0, 1, 2, 3].map(|c| (acc[0][c] + acc[1][c]) + (acc[2][c] + acc[3][c]));
+        }
+    });
+}
+
+/// [`rows`] over per-patch state of `N` floats.
+fn rows_n<const N: usize>(offsets: &[u64], other: &[u32], count: &[u8], shoot: &[[f32; N]], recv: &mut [[f32; N]]) {
+    recv.par_chunks_mut(BLOCK).enumerate().for_each(|(block, out)| {
+        for (i, r) in out.iter_mut().enumerate() {
+            let q = block * BLOCK + i;
+            let row = offsets[q] as usize..offsets[q + 1] as usize;
+            let (o, w) = (&other[row.clone()], &count[row]);
+            let mut acc = [[0f32; N]; 4];
+            for (o4, w4) in o.chunks(4).zip(w.chunks(4)) {
+                for (j, (&o, &w)) in o4.iter().zip(w4).enumerate() {
+                    let s = shoot[o as usize];
+                    for c in 0..N {
+                        acc[j][c] += w as f32 * s[c];
+                    }
+                }
+            }
+            *r = std::array::from_fn(|c| (acc[0][c] + acc[1][c]) + (acc[2][c] + acc[3][c]));
         }
     });
 }
