@@ -142,12 +142,12 @@ fn main() {
             // in f16 with padding; two f32 read here, a bound on locality).
             let t = Instant::now();
             for _ in 0..PASSES {
-                rows_n(offsets, other, count, &shoot3, &mut recv3);
+                rows(offsets, other, count, &shoot3, &mut recv3);
             }
             line("gather, rows, 12-byte state", ends / t.elapsed().as_secs_f64());
             let t = Instant::now();
             for _ in 0..PASSES {
-                rows_n(offsets, other, count, &shoot2, &mut recv2n);
+                rows(offsets, other, count, &shoot2, &mut recv2n);
             }
             line("gather, rows, 8-byte state (locality bound)", ends / t.elapsed().as_secs_f64());
             for ahead in [0, 16, 32, 64] {
@@ -193,29 +193,9 @@ fn main() {
     }
 }
 
-/// The blocked kernel's loop over rows of u32 ids.
-fn rows(offsets: &[u64], other: &[u32], count: &[u8], shoot: &[[f32; 4]], recv: &mut [[f32; 4]]) {
-    recv.par_chunks_mut(BLOCK).enumerate().for_each(|(block, out)| {
-        for (i, r) in out.iter_mut().enumerate() {
-            let q = block * BLOCK + i;
-            let row = offsets[q] as usize..offsets[q + 1] as usize;
-            let (o, w) = (&other[row.clone()], &count[row]);
-            let mut acc = [[0f32; 4]; 4];
-            for (o4, w4) in o.chunks(4).zip(w.chunks(4)) {
-                for (j, (&o, &w)) in o4.iter().zip(w4).enumerate() {
-                    let s = shoot[o as usize];
-                    for c in 0..4 {
-                        acc[j][c] += w as f32 * s[c];
-                    }
-                }
-            }
-            *r = [0, 1, 2, 3].map(|c| (acc[0][c] + acc[1][c]) + (acc[2][c] + acc[3][c]));
-        }
-    });
-}
-
-/// [`rows`] over per-patch state of `N` floats.
-fn rows_n<const N: usize>(offsets: &[u64], other: &[u32], count: &[u8], shoot: &[[f32; N]], recv: &mut [[f32; N]]) {
+/// The blocked kernel's loop over rows of u32 ids, over per-patch state
+/// of `N` floats.
+fn rows<const N: usize>(offsets: &[u64], other: &[u32], count: &[u8], shoot: &[[f32; N]], recv: &mut [[f32; N]]) {
     recv.par_chunks_mut(BLOCK).enumerate().for_each(|(block, out)| {
         for (i, r) in out.iter_mut().enumerate() {
             let q = block * BLOCK + i;
