@@ -15,6 +15,11 @@ pub trait Progress: Sync {
     /// Something the user should know before a long stage starts (what it
     /// will cost). Shown even when progress bars are not; ignored by default.
     fn note(&self, _message: &str) {}
+    /// A stage named `stage` starts whose work is neither known nor counted
+    /// (a check of a written file, say): shown as busy until
+    /// [`Progress::finish`], so a long wait is never silent. Ignored by
+    /// default.
+    fn busy(&self, _stage: &str) {}
 }
 
 /// Progress sink that ignores every event.

@@ -184,6 +184,25 @@ fn a_build_budget_too_small_is_refused_before_tracing() {
 }
 
 #[test]
+fn a_budget_below_one_direction_pairs_link_keys_per_tracer_is_refused_before_tracing() {
+    // At 0.4 mm spacing the Cornell box's largest bundle is about 6·10⁶
+    // rays, whose link keys (16 bytes a ray, reserved before the pair is
+    // traced and not spillable) every tracer holds: 92 MB each, over a
+    // 64 MiB budget whatever the thread count, where everything else this
+    // build needs is about 18 MiB. Not refused, it would trace 7·10⁹ rays.
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("box.inet");
+    let scene = concat!(env!("CARGO_MANIFEST_DIR"), "/scenes/cornell_box.toml");
+    let args = ["build", scene, "-q", "-o", path.to_str().unwrap(), "--ray-spacing", "0.0004"];
+    let out = illumnet(&[&args[..], &["--memory-budget", "64M"]].concat());
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(6), "{stderr}");
+    assert!(stderr.contains("the build needs at least") && stderr.contains("a direction pair's link keys"), "{stderr}");
+    assert!(stderr.contains("--ray-spacing"), "the refusal says what helps: {stderr}");
+    assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0, "nothing is written");
+}
+
+#[test]
 fn a_scene_of_many_primitives_is_refused_before_its_patches_are_cut() {
     // A floor of 204 800 small triangles needs about 120 MB for its
     // primitives and BVH before any link: refused under 64M at once, and

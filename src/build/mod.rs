@@ -245,7 +245,7 @@ impl std::fmt::Display for BuildError {
                 for (i, (name, b)) in parts.iter().enumerate() {
                     write!(f, "{}{name} {}", if i > 0 { ", " } else { "" }, Bytes(*b))?;
                 }
-                write!(f, "); raise --memory-budget, or use larger patches")
+                write!(f, "); raise --memory-budget, or use larger patches or a larger --ray-spacing")
             }
         }
     }
@@ -453,9 +453,10 @@ const LEAST_LINKS: u64 = 16 << 20;
 /// adjacency, hit counts and each tracer's counts: hits and back hits in
 /// u64 and the list of patches it touched), per vertex and per primitive
 /// (with the BVH), each tracer's part of a sequence's per-frame link
-/// changes, the non-diffuse hit counts. (The tracers' per-pair scratch,
-/// which grows with the rays of a pair, is counted as it grows:
-/// [`spill::Spill::hold_scratch`].)
+/// changes, the non-diffuse hit counts. (The tracers' per-pair scratch
+/// grows with the rays of a pair: each tracer's link keys for the largest
+/// pair are fixed too, added by the caller, and what grows past them is
+/// counted as it grows: [`spill::Spill::hold_scratch`].)
 fn fixed_build_bytes(
     patches: &Patches,
     prims: usize,
@@ -590,13 +591,19 @@ fn build_impl(
         Some(b) if !keep_links => {
             let nd = nd_index.iter().filter(|&&i| i != u32::MAX).count();
             let mut parts = fixed_build_bytes(&patches, prims.len(), nd, dirs.len() / 2, scene.frame_count());
+            // Every tracer may hold its largest pair's link keys at once,
+            // and no spill frees them: fixed, like the counts.
+            let workers = rayon::current_num_threads();
+            let pair_rays = trace::largest_pair_rays(&dirs, settings.ray_spacing, bounds).unwrap_or(0);
+            let pair_scratch = pair_rays.saturating_mul(trace::PAIR_BYTES_PER_RAY);
+            parts.push(("a direction pair's link keys per tracer", pair_scratch.saturating_mul(workers as u64)));
             let fixed: u64 = parts.iter().map(|p| p.1).sum();
-            if b.budget < fixed + LEAST_LINKS {
+            if b.budget < fixed.saturating_add(LEAST_LINKS) {
                 parts.push(("links", LEAST_LINKS));
                 return Err(BuildError::OverBudget { budget: b.budget, parts });
             }
-            let plan = spill::SpillPlan::new(b.budget - fixed, rayon::current_num_threads());
-            Some(spill::Spill::new(&b.output, plan, patches.len())?)
+            let plan = spill::SpillPlan::new(b.budget - fixed, workers);
+            Some(spill::Spill::new(&b.output, plan, patches.len(), pair_scratch, workers)?)
         }
         _ => None,
     };

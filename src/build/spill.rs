@@ -135,6 +135,11 @@ pub(super) struct Spill {
     /// Bytes of per-frame link changes held in memory (also counted in
     /// `in_memory`): at most half the threshold.
     deltas_held: AtomicU64,
+    /// Bytes of a tracer's scratch the build counted as fixed (a pair's
+    /// link keys at one link a ray), and how many tracers may still
+    /// claim them ([`Spill::scratch_credit`]).
+    pair_scratch: u64,
+    credits: AtomicU64,
 }
 
 /// An end as it is sorted.
@@ -166,7 +171,15 @@ fn io_error(path: &Path, e: std::io::Error) -> BuildError {
 
 impl Spill {
     /// A scratch directory next to `output`, spilling as `plan` says.
-    pub(super) fn new(output: &Path, plan: SpillPlan, patches: usize) -> Result<Self, String> {
+    /// `pair_scratch` bytes of each of `workers` tracers' scratch are
+    /// counted outside the plan's room, as fixed.
+    pub(super) fn new(
+        output: &Path,
+        plan: SpillPlan,
+        patches: usize,
+        pair_scratch: u64,
+        workers: usize,
+    ) -> Result<Self, String> {
         Ok(Self {
             output: output.to_path_buf(),
             dir: Mutex::new(None),
@@ -179,7 +192,17 @@ impl Spill {
             sequence: AtomicU64::new(0),
             deltas: std::sync::OnceLock::new(),
             deltas_held: AtomicU64::new(0),
+            pair_scratch,
+            credits: AtomicU64::new(workers as u64),
         })
+    }
+
+    /// Bytes of a new tracer's scratch already counted (as fixed, before
+    /// the plan's room): a pair's link keys for each of the first
+    /// `workers` tracers that ask, nothing for any after them.
+    pub(super) fn scratch_credit(&self) -> u64 {
+        let claimed = self.credits.fetch_update(Ordering::Relaxed, Ordering::Relaxed, |c| c.checked_sub(1));
+        if claimed.is_ok() { self.pair_scratch } else { 0 }
     }
 
     /// Counts `bundle` as held, and spills `held` (the worker's bundles of
@@ -563,7 +586,7 @@ mod tests {
         for run_links in [1, 2, 3, 5, 8, 100] {
             let dir = tempfile::tempdir().expect("a temporary directory");
             let plan = SpillPlan { threshold: 1 << 20, run_links };
-            let spill = Spill::new(&dir.path().join("a.inet"), plan, PATCHES).expect("a spill");
+            let spill = Spill::new(&dir.path().join("a.inet"), plan, PATCHES, 0, 1).expect("a spill");
             // Two spills of consecutive pairs, as two workers would.
             let mut all = bundles();
             let mut second = all.split_off(2);

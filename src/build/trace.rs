@@ -127,6 +127,38 @@ pub fn layout(dirs: &DirectionSet, delta: f32, k: u32) -> BundleLayout {
     }
 }
 
+/// Bytes of a tracer's per-pair scratch per ray it traces: the link keys,
+/// reserved at one link a ray before the pair is traced and not freed
+/// (nor spillable) until it is done. Rays that cross more surfaces need
+/// more (counted as they grow), so this is the least a pair needs.
+pub(super) const PAIR_BYTES_PER_RAY: u64 = size_of::<LinkKey>() as u64;
+
+/// Rays of the largest direction pair's bundle within `bounds`, or `None`
+/// when the whole build would trace more than its limit (which
+/// [`trace_all`] refuses): what one tracer's per-pair scratch grows with,
+/// so that a budget is checked against it before any ray is traced.
+pub(super) fn largest_pair_rays(dirs: &DirectionSet, delta: f32, bounds: (Vec3, Vec3)) -> Option<u64> {
+    let (lo, hi) = bounds;
+    let pairs = (dirs.len() / 2) as u32;
+    // As `trace_all` counts: in f64 first, since tiny spacings overflow.
+    let estimate: f64 = (0..pairs)
+        .map(|k| {
+            let lay = layout(dirs, delta, k);
+            let extent = (hi - lo).length() as f64 * if lay.intercept_axis.is_some() { 3.0 } else { 1.0 };
+            (extent / lay.step as f64 + 3.0).powi(2)
+        })
+        .sum();
+    if !(lo.is_finite() && hi.is_finite()) || estimate.is_nan() || estimate > MAX_RAYS as f64 {
+        return None;
+    }
+    (0..pairs)
+        .map(|k| {
+            let g = grid_for(Vec3::from(dirs.directions[2 * k as usize]), k, lo, hi, &layout(dirs, delta, k));
+            g.nu * g.nv
+        })
+        .max()
+}
+
 fn grid_for(dir: Vec3, pair: u32, lo: Vec3, hi: Vec3, layout: &BundleLayout) -> Grid {
     let centre = (lo + hi) * 0.5;
     let radius = (hi - lo).length() * 0.5;
@@ -894,6 +926,10 @@ pub fn trace_all(
             // grown (and their pages faulted in) again and again.
             let mut s = ScratchLease::take(&pool);
             let s = &mut *s;
+            if let Some(spill) = spill.filter(|_| s.reported == 0) {
+                // A new tracer's first pair's keys were counted as fixed.
+                s.reported = spill.scratch_credit();
+            }
             s.changes.resize_with(frames, Vec::new);
             s.chunk.resize_with(frames, Vec::new);
             s.counts.resize(patches.len());

@@ -92,11 +92,27 @@ fn build_scene(scene: &Scene, output: &Path, args: &BuildArgs, progress: &dyn Pr
         archive::write_with_links(output, &contents, spilled.as_mut().map(|s| s as &mut dyn archive::LinkEndSource))?;
     drop(spilled);
     let t_write = t_w.elapsed().as_secs_f64();
+    let sequence = contents.sequence.as_ref().map(|q| {
+        let frames = q.record.frames;
+        let moving = q.instances.iter().filter(|i| i.frame_first > 0 || i.frame_last + 1 < frames).count();
+        (frames, moving, q.deltas.stored_length())
+    });
+    drop(contents);
+    // The written archive is read back and checked whole, as a render
+    // opens it (every checksum, every link's bounds and weights): a build
+    // never ends on a file its own reader refuses. Its emitters' link rows
+    // then say which lamps face a nearby surface.
+    let t_c = Instant::now();
+    progress.busy("checking the written archive");
+    let written = Archive::open_streamed(output, archive::CHUNK_ENDS);
+    progress.finish();
+    let written = written?;
+    let t_check = t_c.elapsed().as_secs_f64();
     let secs = t.elapsed().as_secs_f64();
     println!(
         "built {}: {} patches, {} directions, {} rays ({:.1} M rays/s), {} links ({} ends; {} before merging \
          parallel rays), {:.1} MB, {:.2} s \
-         (setup {:.2} s, trace {:.2} s, links {:.2} s, write {:.2} s)",
+         (setup {:.2} s, trace {:.2} s, links {:.2} s, write {:.2} s, check {:.2} s)",
         output.display(),
         stats.patches,
         stats.directions,
@@ -111,14 +127,13 @@ fn build_scene(scene: &Scene, output: &Path, args: &BuildArgs, progress: &dyn Pr
         stats.trace_s,
         stats.assemble_s,
         t_write,
+        t_check,
     );
-    if let Some(q) = &contents.sequence {
-        let frames = q.record.frames;
-        let moving = q.instances.iter().filter(|i| i.frame_first > 0 || i.frame_last + 1 < frames).count();
+    if let Some((frames, moving, changes)) = sequence {
         println!(
             "sequence: {frames} frames, {moving} instances of moving surfaces (each present in some frames), {} of \
              per-frame link changes",
-            Bytes(q.deltas.stored_length())
+            Bytes(changes)
         );
     }
     if let Some(b) = memory::peak_resident() {
@@ -136,10 +151,6 @@ fn build_scene(scene: &Scene, output: &Path, args: &BuildArgs, progress: &dyn Pr
             stats.reflectance_s
         );
     }
-    // Lamps facing a nearby surface, read back from the archive (the
-    // emitters' link rows, a block at a time).
-    drop(contents);
-    let written = Archive::open_streamed(output, archive::CHUNK_ENDS)?;
     for w in super::inspect_surface::facing_nearby(&written.view(), &written.meta().surface_names, settings.patch_size)?
     {
         eprintln!("illumnet: warning: {w}");

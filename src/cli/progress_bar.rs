@@ -47,6 +47,17 @@ impl Progress for BarProgress {
         }
     }
 
+    fn busy(&self, stage: &str) {
+        if self.quiet {
+            return;
+        }
+        let b = ProgressBar::new_spinner();
+        b.set_style(ProgressStyle::with_template("{msg:28} {spinner} {elapsed}").expect("valid template"));
+        b.enable_steady_tick(Duration::from_millis(100));
+        b.set_message(stage.to_string());
+        *self.bar.lock().unwrap_or_else(|e| e.into_inner()) = Some(b);
+    }
+
     fn note(&self, message: &str) {
         eprintln!("illumnet: note: {message}");
     }
