@@ -530,15 +530,17 @@ pub fn render(
             if job.frames == 1 { "" } else { "s" }
         ));
     }
+    if memory.access == plan::LinkAccess::Mapped && args.evict_each_pass {
+        bail_input!("--evict-each-pass needs the link ends streamed: give a --memory-budget below the archive's size")
+    }
+    // Opening checks every checksum and link: about a minute for 15 GB.
+    progress.busy("opening and checking the archive");
     let archive = match memory.access {
-        plan::LinkAccess::Mapped if args.evict_each_pass => {
-            bail_input!(
-                "--evict-each-pass needs the link ends streamed: give a --memory-budget below the archive's size"
-            )
-        }
-        plan::LinkAccess::Mapped => open_archive(path)?,
-        plan::LinkAccess::Streamed { window_ends, .. } => opened(path, Archive::open_streamed(path, window_ends))?,
+        plan::LinkAccess::Mapped => open_archive(path),
+        plan::LinkAccess::Streamed { window_ends, .. } => opened(path, Archive::open_streamed(path, window_ends)),
     };
+    progress.finish();
+    let archive = archive?;
     if let Some(stream) = archive.link_stream() {
         stream.evict_each_pass(args.evict_each_pass);
         if let plan::LinkAccess::Streamed { in_flight, .. } = memory.access {
