@@ -137,26 +137,28 @@ pub(super) const PAIR_BYTES_PER_RAY: u64 = size_of::<LinkKey>() as u64;
 /// when the whole build would trace more than its limit (which
 /// [`trace_all`] refuses): what one tracer's per-pair scratch grows with,
 /// so that a budget is checked against it before any ray is traced.
-pub(super) fn largest_pair_rays(dirs: &DirectionSet, delta: f32, bounds: (Vec3, Vec3)) -> Option<u64> {
-    let (lo, hi) = bounds;
-    let pairs = (dirs.len() / 2) as u32;
-    // As `trace_all` counts: in f64 first, since tiny spacings overflow.
-    let estimate: f64 = (0..pairs)
-        .map(|k| {
-            let lay = layout(dirs, delta, k);
-            let extent = (hi - lo).length() as f64 * if lay.intercept_axis.is_some() { 3.0 } else { 1.0 };
-            (extent / lay.step as f64 + 3.0).powi(2)
-        })
-        .sum();
+pub(super) fn largest_pair_rays(dirs: &DirectionSet, delta: f32, (lo, hi): (Vec3, Vec3)) -> Option<u64> {
+    let layouts: Vec<BundleLayout> = (0..(dirs.len() / 2) as u32).map(|k| layout(dirs, delta, k)).collect();
+    let estimate = estimated_rays(&layouts, (lo, hi));
     if !(lo.is_finite() && hi.is_finite()) || estimate.is_nan() || estimate > MAX_RAYS as f64 {
         return None;
     }
-    (0..pairs)
-        .map(|k| {
-            let g = grid_for(Vec3::from(dirs.directions[2 * k as usize]), k, lo, hi, &layout(dirs, delta, k));
-            g.nu * g.nv
+    let dir_of = |k: usize| Vec3::from(dirs.directions[2 * k]);
+    layouts.iter().enumerate().map(|(k, lay)| grid_for(dir_of(k), k as u32, lo, hi, lay)).map(|g| g.nu * g.nv).max()
+}
+
+/// Rays the bundles of `layouts` would hold over `bounds`, at most,
+/// counted in f64 (tiny spacings overflow integer grid sizes): what is
+/// checked against [`MAX_RAYS`] before any grid is made.
+fn estimated_rays(layouts: &[BundleLayout], (lo, hi): (Vec3, Vec3)) -> f64 {
+    let diagonal = (hi - lo).length() as f64;
+    layouts
+        .iter()
+        .map(|lay| {
+            let extent = diagonal * if lay.intercept_axis.is_some() { 3.0 } else { 1.0 };
+            (extent / lay.step as f64 + 3.0).powi(2)
         })
-        .max()
+        .sum()
 }
 
 fn grid_for(dir: Vec3, pair: u32, lo: Vec3, hi: Vec3, layout: &BundleLayout) -> Grid {
@@ -760,14 +762,7 @@ pub fn trace_all(
             "the scene's bounds are not finite (a transform or keyframe moved geometry to infinity)".into(),
         ));
     }
-    // Counted in f64 first: tiny spacings would overflow integer grid sizes.
-    let total_rays_f: f64 = (0..pairs)
-        .map(|k| {
-            let lay = &layouts[k as usize];
-            let extent = (hi - lo).length() as f64 * if lay.intercept_axis.is_some() { 3.0 } else { 1.0 };
-            (extent / lay.step as f64 + 3.0).powi(2)
-        })
-        .sum();
+    let total_rays_f = estimated_rays(&layouts, (lo, hi));
     if total_rays_f.is_nan() || total_rays_f > MAX_RAYS as f64 {
         return Err(BuildError::Failed(format!(
             "ray spacing {delta} m would trace about {total_rays_f:.3e} rays (limit {MAX_RAYS}); use a larger spacing"
