@@ -172,6 +172,29 @@ fn a_build_over_its_budget_spills_runs_and_writes_the_same_bytes() {
 }
 
 #[test]
+fn more_runs_than_the_process_may_open_files_for_are_merged_in_passes_to_the_same_bytes() {
+    // 48 open files a process leave a merge 8 runs at once (two files
+    // each, 32 kept for the rest): the ~90 runs of the Cornell box under
+    // 32M are merged in passes, into the unbounded build's bytes. (One
+    // merge of every run needs two files a run and fails here.)
+    let dir = tempfile::tempdir().unwrap();
+    let (full, bounded) = (dir.path().join("full.inet"), dir.path().join("bounded.inet"));
+    build("cornell_box.toml", &full, &["--frequency", "19"]);
+    let scene = concat!(env!("CARGO_MANIFEST_DIR"), "/scenes/cornell_box.toml");
+    let out = Command::new("sh")
+        .args(["-c", "ulimit -n 48 && exec \"$0\" \"$@\"", env!("CARGO_BIN_EXE_illumnet")])
+        .args(["build", scene, "-q", "-o", bounded.to_str().unwrap(), "--frequency", "19", "--memory-budget", "32M"])
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{stdout}\n{}", String::from_utf8_lossy(&out.stderr));
+    assert!(runs(&stdout) > 2 * 8, "more runs than two merges of 8 take: {stdout}");
+    assert!(std::fs::read(&full).unwrap() == std::fs::read(&bounded).unwrap(), "archives differ");
+    let left: Vec<_> = std::fs::read_dir(dir.path()).unwrap().map(|e| e.unwrap().file_name()).collect();
+    assert_eq!(left.len(), 2, "scratch files left behind: {left:?}");
+}
+
+#[test]
 fn a_build_budget_too_small_is_refused_before_tracing() {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("box.inet");

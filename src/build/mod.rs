@@ -597,6 +597,7 @@ fn build_impl(
             let pair_rays = trace::largest_pair_rays(&dirs, settings.ray_spacing, bounds).unwrap_or(0);
             let pair_scratch = pair_rays.saturating_mul(trace::PAIR_BYTES_PER_RAY);
             parts.push(("a direction pair's link keys per tracer", pair_scratch.saturating_mul(workers as u64)));
+            parts.push(("a run writer's buffer per tracer", (spill::RUN_WRITE_BUFFER * workers) as u64));
             let fixed: u64 = parts.iter().map(|p| p.1).sum();
             if b.budget < fixed.saturating_add(LEAST_LINKS) {
                 parts.push(("links", LEAST_LINKS));
@@ -644,7 +645,7 @@ fn build_impl(
                 group.push(b);
             }
             sp.spill(&mut group)?;
-            let (merge, offsets) = sp.finish()?;
+            let (merge, offsets) = sp.finish(progress)?;
             let table = links::LinkTable {
                 offsets,
                 other: Vec::new(),

@@ -21,7 +21,14 @@
 //! Run file: `E` records of 12 bytes (other patch u32, weight f32,
 //! direction u32, little-endian), then `S` records of 12 bytes (owner u32,
 //! bucket · 2¹⁶ + sender chunk u32, count u32), one per non-empty slot,
-//! ascending.
+//! ascending (a slot repeats only where its count would pass u32).
+//!
+//! More runs than one merge may open ([`MERGE_FAN_IN`], or fewer under a
+//! low limit of open files) are merged in passes: groups of
+//! consecutive runs (in the order of their first link) become one run
+//! each, in the same format, until few enough remain. A group's slot keeps
+//! its runs' ends in run order, as the final merge takes them, so the
+//! archive's bytes do not depend on how many passes there were (tested).
 
 use std::collections::BinaryHeap;
 use std::fs::File;
@@ -35,6 +42,7 @@ use super::trace::Bundle;
 use crate::archive::deltas::{Block, SpillFile};
 use crate::archive::layout::CHUNK_PATCHES;
 use crate::archive::{LinkEndSink, LinkEndSource};
+use crate::progress::Progress;
 
 /// Bytes a bundle holds per link (a, b, w: u32; two u8 buckets).
 pub(super) const BUNDLE_BYTES_PER_LINK: u64 = 14;
@@ -42,12 +50,37 @@ pub(super) const BUNDLE_BYTES_PER_LINK: u64 = 14;
 /// records.
 const SORT_BYTES_PER_LINK: u64 = 2 * size_of::<SortEnd>() as u64;
 /// Read buffer per run and stream while merging: 64 KiB, less when there
-/// are many runs (the merge then holds at most 16 MiB of buffers), never
-/// less than 4 KiB.
+/// are many runs (the merge then holds at most [`MERGE_BUFFERS`]).
 const MERGE_BUFFER: usize = 64 << 10;
-/// What the merge's read buffers take at most, unless runs are so many
-/// that 4 KiB each is more.
+/// What a merge's buffers take at most: 16 MiB, read buffers (two per
+/// run: its ends and its slots) and, in a merge into a run, the writers'.
 const MERGE_BUFFERS: usize = 16 << 20;
+/// Runs merged at once, at most. More runs are first merged in groups of
+/// consecutive runs into fewer, larger runs (a pass reads and writes the
+/// spilled bytes once more), so that a merge opens at most 512 files
+/// (under the usual limit of 1 024 a process; fewer where the process may
+/// open fewer: [`merge_fan_in`]) and its read buffers are no smaller than
+/// 32 KiB.
+const MERGE_FAN_IN: usize = 256;
+/// Files a merge leaves the rest of the process (standard streams, the
+/// archive being written, locks, the spilled per-frame changes).
+const OTHER_FILES: u64 = 32;
+
+/// Runs one merge may open (two files each): [`MERGE_FAN_IN`], or fewer
+/// when the process's soft limit of open files (`ulimit -n`) would not
+/// leave [`OTHER_FILES`] beside them; at least 2.
+fn merge_fan_in() -> usize {
+    let mut limit = libc::rlimit { rlim_cur: 0, rlim_max: 0 };
+    // SAFETY: getrlimit only writes the struct it is given, which lives
+    // for the call.
+    #[allow(clippy::unnecessary_cast)] // rlim_t is not u64 everywhere
+    let soft =
+        if unsafe { libc::getrlimit(libc::RLIMIT_NOFILE, &mut limit) } == 0 { limit.rlim_cur as u64 } else { 1024 };
+    (soft.saturating_sub(OTHER_FILES) / 2).clamp(2, MERGE_FAN_IN as u64) as usize
+}
+/// Write buffer of each file a run is written to (one per spilling
+/// worker while tracing: counted as fixed).
+pub(super) const RUN_WRITE_BUFFER: usize = 1 << 20;
 
 /// One spilled run.
 struct Run {
@@ -303,7 +336,7 @@ impl Spill {
         let n = self.sequence.fetch_add(1, Ordering::Relaxed);
         let path = self.run_path(&format!("run-{:06}-{n:04}.bin", first.0))?;
         let file = File::create(&path).map_err(|e| io_error(&path, e))?;
-        let mut out = BufWriter::with_capacity(1 << 20, file);
+        let mut out = BufWriter::with_capacity(RUN_WRITE_BUFFER, file);
         let write = |out: &mut BufWriter<File>, ends: &[SortEnd]| -> std::io::Result<u64> {
             for e in ends {
                 out.write_all(&e.other.to_le_bytes())?;
@@ -407,10 +440,22 @@ impl Spill {
         self.runs.lock().map_or(0, |r| r.len())
     }
 
-    /// The merge of every run, and `LOFF` from the runs' counts.
-    pub(super) fn finish(self) -> Result<(SpilledLinks, Vec<u64>), String> {
+    /// The merge of every run, and `LOFF` from the runs' counts. Runs
+    /// beyond what one merge may open ([`merge_fan_in`]) are merged into
+    /// fewer first (reported to `progress`).
+    pub(super) fn finish(self, progress: &dyn Progress) -> Result<(SpilledLinks, Vec<u64>), BuildError> {
+        self.finish_with(merge_fan_in(), progress)
+    }
+
+    /// [`Self::finish`] merging at most `fan_in` (≥ 2) runs at once.
+    fn finish_with(self, fan_in: usize, progress: &dyn Progress) -> Result<(SpilledLinks, Vec<u64>), BuildError> {
         let mut runs = self.runs.into_inner().expect("no panics while held");
         runs.sort_by_key(|r| r.first);
+        let spilled = (runs.len(), runs.iter().map(|r| (r.ends + r.slots) * 12).sum());
+        let dir = self.dir.into_inner().expect("no panics while held");
+        if let Some((scratch, _)) = &dir {
+            runs = merge_passes(runs, fan_in.max(2), scratch.path(), progress)?;
+        }
         let per = self.ends_per_patch.into_inner().expect("no panics while held");
         let mut offsets = Vec::with_capacity(per.len() + 1);
         let mut sum = 0u64;
@@ -419,7 +464,7 @@ impl Spill {
             sum += e;
             offsets.push(sum);
         }
-        Ok((SpilledLinks { _dir: self.dir.into_inner().expect("no panics while held"), runs, ends: sum }, offsets))
+        Ok((SpilledLinks { _dir: dir, runs, spilled, ends: sum }, offsets))
     }
 
     /// Sort buffers made: at most one per thread that spilled.
@@ -435,7 +480,10 @@ impl Spill {
 pub struct SpilledLinks {
     /// Removed (with the runs) when the build ends.
     _dir: Option<Scratch>,
+    /// The runs left to merge, in the order of their first link.
     runs: Vec<Run>,
+    /// Runs the tracers spilled (before any merge pass), and their bytes.
+    spilled: (usize, u64),
     ends: u64,
 }
 
@@ -461,14 +509,14 @@ impl RunReader {
 }
 
 impl SpilledLinks {
-    /// Runs spilled.
+    /// Runs spilled while tracing.
     pub fn run_count(&self) -> usize {
-        self.runs.len()
+        self.spilled.0
     }
 
-    /// Bytes the runs take on disk.
+    /// Bytes the runs spilled while tracing took on disk.
     pub fn spilled_bytes(&self) -> u64 {
-        self.runs.iter().map(|r| (r.ends + r.slots) * 12).sum()
+        self.spilled.1
     }
 }
 
@@ -478,19 +526,6 @@ impl LinkEndSource for SpilledLinks {
     }
 
     fn write_ends(&mut self, out: &mut LinkEndSink<'_>) -> std::io::Result<()> {
-        let mut readers = Vec::with_capacity(self.runs.len());
-        let mut heap = BinaryHeap::new();
-        let buffer = (MERGE_BUFFERS / (2 * self.runs.len().max(1))).clamp(4 << 10, MERGE_BUFFER);
-        for (i, run) in self.runs.iter().enumerate() {
-            let ends = BufReader::with_capacity(buffer, File::open(&run.path)?);
-            let mut file = File::open(&run.path)?;
-            file.seek(SeekFrom::Start(run.ends * 12))?;
-            let mut r = RunReader { ends, slots: BufReader::with_capacity(buffer, file), slots_left: run.slots };
-            if let Some((owner, bucket, count)) = r.next_slot()? {
-                heap.push(std::cmp::Reverse((owner, bucket, i, count)));
-            }
-            readers.push(r);
-        }
         const BATCH: usize = 1 << 16;
         let (mut other, mut weight, mut direction, mut bucket) = (
             Vec::with_capacity(BATCH),
@@ -499,11 +534,9 @@ impl LinkEndSource for SpilledLinks {
             Vec::with_capacity(BATCH),
         );
         let mut record = [0u8; 12];
-        // Smallest slot first; within a slot, runs in pair order.
-        while let Some(std::cmp::Reverse((_, k, i, count))) = heap.pop() {
-            let r = &mut readers[i];
+        merge_slots(&self.runs, MERGE_BUFFERS, |_, k, count, ends| {
             for _ in 0..count {
-                r.ends.read_exact(&mut record)?;
+                ends.read_exact(&mut record)?;
                 let word = |j: usize| u32::from_le_bytes(record[4 * j..4 * j + 4].try_into().expect("4 bytes"));
                 other.push(word(0));
                 weight.push(f32::from_bits(word(1)));
@@ -518,15 +551,127 @@ impl LinkEndSource for SpilledLinks {
                     bucket.clear();
                 }
             }
-            if let Some((owner, bucket, count)) = r.next_slot()? {
-                heap.push(std::cmp::Reverse((owner, bucket, i, count)));
-            }
-        }
+            Ok(())
+        })?;
         if !other.is_empty() {
             out(&other, &weight, &direction, &bucket)?;
         }
         Ok(())
     }
+}
+
+/// Walks the slots of `runs` (in the order of their first link) in merged
+/// order: smallest (owner, slot key) first, and within a slot the runs in
+/// order. `slot(owner, key, count, ends)` must read the slot's `count`
+/// end records from `ends`. The read buffers take at most `buffers` bytes
+/// (at least 4 KiB a file).
+fn merge_slots(
+    runs: &[Run],
+    buffers: usize,
+    mut slot: impl FnMut(u32, u32, u32, &mut BufReader<File>) -> std::io::Result<()>,
+) -> std::io::Result<()> {
+    let mut readers = Vec::with_capacity(runs.len());
+    let mut heap = BinaryHeap::new();
+    let buffer = (buffers / (2 * runs.len().max(1))).clamp(4 << 10, MERGE_BUFFER);
+    for (i, run) in runs.iter().enumerate() {
+        let ends = BufReader::with_capacity(buffer, File::open(&run.path)?);
+        let mut file = File::open(&run.path)?;
+        file.seek(SeekFrom::Start(run.ends * 12))?;
+        let mut r = RunReader { ends, slots: BufReader::with_capacity(buffer, file), slots_left: run.slots };
+        if let Some((owner, key, count)) = r.next_slot()? {
+            heap.push(std::cmp::Reverse((owner, key, i, count)));
+        }
+        readers.push(r);
+    }
+    while let Some(std::cmp::Reverse((owner, key, i, count))) = heap.pop() {
+        let r = &mut readers[i];
+        slot(owner, key, count, &mut r.ends)?;
+        if let Some((owner, key, count)) = r.next_slot()? {
+            heap.push(std::cmp::Reverse((owner, key, i, count)));
+        }
+    }
+    Ok(())
+}
+
+/// Merges `runs` (in the order of their first link) in passes of groups
+/// of at most `fan_in` consecutive runs until at most `fan_in` are left,
+/// each group into one run in `dir`, removing a group's runs once it is
+/// merged (so a pass needs one group's bytes of disk more, not all).
+fn merge_passes(
+    mut runs: Vec<Run>,
+    fan_in: usize,
+    dir: &Path,
+    progress: &dyn Progress,
+) -> Result<Vec<Run>, BuildError> {
+    let mut pass = 0;
+    while runs.len() > fan_in {
+        let groups = runs.len().div_ceil(fan_in);
+        let size = runs.len().div_ceil(groups);
+        let total: u64 = runs.iter().map(|r| r.ends).sum();
+        progress.start(&format!("merging {} runs into {groups}", runs.len()), total);
+        let mut merged = Vec::with_capacity(groups);
+        for (g, group) in runs.chunks(size).enumerate() {
+            let path = dir.join(format!("merge-{pass:02}-{g:06}.bin"));
+            let run = merge_group(group, &path).map_err(|e| {
+                BuildError::Scratch(format!("cannot merge spilled link ends into {}: {e}", path.display()))
+            })?;
+            for r in group {
+                let _ = std::fs::remove_file(&r.path);
+            }
+            progress.advance(run.ends);
+            merged.push(run);
+        }
+        progress.finish();
+        runs = merged;
+        pass += 1;
+    }
+    Ok(runs)
+}
+
+/// `group`'s runs merged into one run at `path` (its slot records are
+/// written beside it first, then appended).
+fn merge_group(group: &[Run], path: &Path) -> std::io::Result<Run> {
+    let slots_path = path.with_extension("slots");
+    let mut ends_out = BufWriter::with_capacity(RUN_WRITE_BUFFER, File::create(path)?);
+    let mut slots_out = BufWriter::with_capacity(RUN_WRITE_BUFFER, File::create(&slots_path)?);
+    let (mut ends, mut slots) = (0u64, 0u64);
+    let mut last: Option<(u32, u32, u32)> = None;
+    let mut put = |out: &mut BufWriter<File>, (owner, key, count): (u32, u32, u32)| -> std::io::Result<()> {
+        slots += 1;
+        out.write_all(&owner.to_le_bytes())?;
+        out.write_all(&key.to_le_bytes())?;
+        out.write_all(&count.to_le_bytes())
+    };
+    let mut records = vec![0u8; 64 << 10];
+    merge_slots(group, MERGE_BUFFERS - 2 * RUN_WRITE_BUFFER - records.len(), |owner, key, count, from| {
+        let mut left = count as usize * 12;
+        while left > 0 {
+            let n = left.min(records.len());
+            from.read_exact(&mut records[..n])?;
+            ends_out.write_all(&records[..n])?;
+            left -= n;
+        }
+        ends += count as u64;
+        // Runs of one slot in a row become one record while its count fits.
+        match &mut last {
+            Some((o, k, c)) if (*o, *k) == (owner, key) && c.checked_add(count).is_some() => *c += count,
+            _ => {
+                if let Some(previous) = last.replace((owner, key, count)) {
+                    put(&mut slots_out, previous)?;
+                }
+            }
+        }
+        Ok(())
+    })?;
+    if let Some(previous) = last {
+        put(&mut slots_out, previous)?;
+    }
+    slots_out.flush()?;
+    drop(slots_out);
+    let mut file = ends_out.into_inner().map_err(|e| e.into_error())?;
+    std::io::copy(&mut File::open(&slots_path)?, &mut file)?;
+    std::fs::remove_file(&slots_path)?;
+    Ok(Run { first: group[0].first, path: path.to_path_buf(), ends, slots })
 }
 
 #[cfg(test)]
@@ -583,7 +728,8 @@ mod tests {
     #[test]
     fn runs_of_a_few_links_cut_bundles_and_merge_to_the_in_memory_table() {
         let expected = assemble(&bundles(), PATCHES, 1);
-        for run_links in [1, 2, 3, 5, 8, 100] {
+        // Fan-ins of 2 and 3 merge the runs of one link in passes first.
+        for (run_links, fan_in) in [(1, 2), (1, 3), (1, 256), (2, 2), (3, 4), (5, 256), (8, 2), (100, 256)] {
             let dir = tempfile::tempdir().expect("a temporary directory");
             let plan = SpillPlan { threshold: 1 << 20, run_links };
             let spill = Spill::new(&dir.path().join("a.inet"), plan, PATCHES, 0, 1).expect("a spill");
@@ -601,9 +747,17 @@ mod tests {
             assert!(runs.len() as u64 >= links.div_ceil(run_links), "{} runs of {run_links}", runs.len());
             // Runs finish in any order on several workers: the merge orders them.
             runs.reverse();
+            let spilled = runs.len();
             drop(runs);
-            let (mut merged, offsets) = spill.finish().expect("finished");
+            let (mut merged, offsets) = spill.finish_with(fan_in, &crate::progress::NoProgress).expect("finished");
             assert_eq!(offsets, expected.offsets);
+            assert_eq!(merged.run_count(), spilled, "runs spilled, whatever the passes");
+            assert!(merged.runs.len() <= fan_in, "{} runs left to merge with fan-in {fan_in}", merged.runs.len());
+            // A pass removes the runs it merged: only those left remain.
+            let files = std::fs::read_dir(dir.path()).expect("the output's directory");
+            let scratch = files.flatten().find(|f| f.path().is_dir()).expect("a scratch directory").path();
+            let left = std::fs::read_dir(scratch).expect("the scratch directory").count();
+            assert_eq!(left, merged.runs.len() + 1, "the runs left and the lock file, nothing else");
             let (mut other, mut weight, mut direction, mut bucket) = (vec![], vec![], vec![], vec![]);
             merged
                 .write_ends(&mut |o, w, d, k| {
