@@ -6,9 +6,22 @@ use std::os::unix::process::ExitStatusExt;
 use std::path::Path;
 use std::process::Command;
 
+/// Runs illumnet with `args`, killed at `stop_at`; with `ulimit -n 48`
+/// when `args` starts with "few-files" (in its place).
 fn illumnet(args: &[&str], stop_at: Option<&str>) -> std::process::Output {
-    let mut c = Command::new(env!("CARGO_BIN_EXE_illumnet"));
-    c.args(args).env_remove("ILLUMNET_TEST_STOP_AT");
+    let mut c = match args.split_first() {
+        Some((&"few-files", rest)) => {
+            let mut c = Command::new("sh");
+            c.args(["-c", "ulimit -n 48 && exec \"$0\" \"$@\"", env!("CARGO_BIN_EXE_illumnet")]).args(rest);
+            c
+        }
+        _ => {
+            let mut c = Command::new(env!("CARGO_BIN_EXE_illumnet"));
+            c.args(args);
+            c
+        }
+    };
+    c.env_remove("ILLUMNET_TEST_STOP_AT");
     if let Some(s) = stop_at {
         c.env("ILLUMNET_TEST_STOP_AT", s);
     }
@@ -37,12 +50,15 @@ fn a_build_killed_at_any_stage_keeps_the_old_archive_and_the_next_build_cleans_u
     // under a budget (the default quality's 174 MiB archive under 40 MiB).
     let unbounded: &[&str] = &["build", "-q", scene, "-o", out_s, "--quality", "draft", "--frequency", "9"];
     let bounded: &[&str] = &["build", "-q", scene, "-o", out_s, "--memory-budget", "40M"];
+    // Its runs merged in passes of 8 (48 open files).
+    let passes: &[&str] = &["few-files", "build", "-q", scene, "-o", out_s, "--memory-budget", "40M"];
     for (stage, args, leaves) in [
         ("trace", unbounded, false),
         ("links", unbounded, false),
         ("write", unbounded, true),
         ("spill", bounded, true),
         ("merge", bounded, true),
+        ("merge pass", passes, true),
         ("write", bounded, true),
     ] {
         let killed = illumnet(args, Some(stage));

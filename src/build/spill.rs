@@ -615,6 +615,7 @@ fn merge_passes(
             let run = merge_group(group, &path).map_err(|e| {
                 BuildError::Scratch(format!("cannot merge spilled link ends into {}: {e}", path.display()))
             })?;
+            crate::scratch::stop_point("merge pass");
             for r in group {
                 let _ = std::fs::remove_file(&r.path);
             }
