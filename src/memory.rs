@@ -142,6 +142,12 @@ pub fn peak_resident() -> Option<u64> {
     proc_kib("/proc/self/status", "VmHWM:")
 }
 
+/// The resident set size of this process now (`VmRSS` of
+/// `/proc/self/status`), on Linux: what a plan made mid-run starts from.
+pub fn resident_now() -> Option<u64> {
+    proc_kib("/proc/self/status", "VmRSS:")
+}
+
 /// A `key: N kB` line of a `/proc` file, in bytes.
 fn proc_kib(file: &str, key: &str) -> Option<u64> {
     let text = std::fs::read_to_string(file).ok()?;

@@ -212,7 +212,7 @@ fn a_budget_below_one_direction_pairs_link_keys_per_tracer_is_refused_before_tra
     // rays, whose link keys (16 bytes a ray, reserved before the pair is
     // traced and not spillable) every tracer holds: 92 MB each, over a
     // 64 MiB budget whatever the thread count, where everything else this
-    // build needs is about 18 MiB. Not refused, it would trace 7·10⁹ rays.
+    // build needs is about 20 MiB. Not refused, it would trace 7·10⁹ rays.
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("box.inet");
     let scene = concat!(env!("CARGO_MANIFEST_DIR"), "/scenes/cornell_box.toml");

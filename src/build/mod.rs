@@ -486,6 +486,9 @@ fn build_impl(
     progress: &dyn Progress,
 ) -> Result<(Sequence, Option<SpilledLinks>), BuildError> {
     settings.validate()?;
+    // Resident before the build's own memory: the program and the scene
+    // (the budget's uncounted constant covers them).
+    let resident_before = crate::memory::resident_now();
     let t0 = Instant::now();
     let dirs = match settings.direction_set {
         DirectionSetKind::Geodesic => DirectionSet::new(settings.frequency)?,
@@ -591,12 +594,25 @@ fn build_impl(
         Some(b) if !keep_links => {
             let nd = nd_index.iter().filter(|&&i| i != u32::MAX).count();
             let mut parts = fixed_build_bytes(&patches, prims.len(), nd, dirs.len() / 2, scene.frame_count());
+            // What the setup left resident beyond its estimate (allocator
+            // slack, its temporaries' pages: 70 MiB at 10⁶ patches) stays
+            // while tracing: counted as measured. (Of the parts above, the
+            // patches and the primitives are resident before tracing; the
+            // BVH and the tracers' are not.)
+            let setup = parts[0].1 + prims.len() as u64 * SETUP_BYTES_PER_PRIMITIVE;
+            let grown = match (resident_before, crate::memory::resident_now()) {
+                (Some(before), Some(now)) => now.saturating_sub(before),
+                _ => 0,
+            };
+            parts.push(("setup's resident memory beyond its estimate", grown.saturating_sub(setup)));
             // Every tracer may hold its largest pair's link keys at once,
             // and no spill frees them: fixed, like the counts.
             let workers = rayon::current_num_threads();
             let pair_rays = trace::largest_pair_rays(&dirs, settings.ray_spacing, bounds).unwrap_or(0);
             let pair_scratch = pair_rays.saturating_mul(trace::PAIR_BYTES_PER_RAY);
             parts.push(("a direction pair's link keys per tracer", pair_scratch.saturating_mul(workers as u64)));
+            let making = pair_rays.saturating_mul(trace::BUNDLE_BYTES_PER_RAY).saturating_mul(workers as u64);
+            parts.push(("the bundle each tracer makes of them", making));
             parts.push(("a run writer's buffer per tracer", (spill::RUN_WRITE_BUFFER * workers) as u64));
             let fixed: u64 = parts.iter().map(|p| p.1).sum();
             if b.budget < fixed.saturating_add(LEAST_LINKS) {

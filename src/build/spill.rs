@@ -57,18 +57,18 @@ const MERGE_BUFFER: usize = 64 << 10;
 const MERGE_BUFFERS: usize = 16 << 20;
 /// Runs merged at once, at most. More runs are first merged in groups of
 /// consecutive runs into fewer, larger runs (a pass reads and writes the
-/// spilled bytes once more), so that a merge opens at most 512 files
+/// spilled bytes once more), so that a merge opens at most 514 files
 /// (under the usual limit of 1 024 a process; fewer where the process may
-/// open fewer: [`merge_fan_in`]) and its read buffers are no smaller than
-/// 32 KiB.
+/// open fewer: [`merge_fan_in`]) and its read buffers hold about 28 KiB
+/// each.
 const MERGE_FAN_IN: usize = 256;
 /// Files a merge leaves the rest of the process (standard streams, the
 /// archive being written, locks, the spilled per-frame changes).
 const OTHER_FILES: u64 = 32;
 
-/// Runs one merge may open (two files each): [`MERGE_FAN_IN`], or fewer
-/// when the process's soft limit of open files (`ulimit -n`) would not
-/// leave [`OTHER_FILES`] beside them; at least 2.
+/// Runs one merge may open (two files each, and a merge pass writes two):
+/// [`MERGE_FAN_IN`], or fewer when the process's soft limit of open files
+/// (`ulimit -n`) would not leave [`OTHER_FILES`] beside them; at least 2.
 fn merge_fan_in() -> usize {
     let mut limit = libc::rlimit { rlim_cur: 0, rlim_max: 0 };
     // SAFETY: getrlimit only writes the struct it is given, which lives
@@ -76,7 +76,7 @@ fn merge_fan_in() -> usize {
     #[allow(clippy::unnecessary_cast)] // rlim_t is not u64 everywhere
     let soft =
         if unsafe { libc::getrlimit(libc::RLIMIT_NOFILE, &mut limit) } == 0 { limit.rlim_cur as u64 } else { 1024 };
-    (soft.saturating_sub(OTHER_FILES) / 2).clamp(2, MERGE_FAN_IN as u64) as usize
+    (soft.saturating_sub(OTHER_FILES + 2) / 2).clamp(2, MERGE_FAN_IN as u64) as usize
 }
 /// Write buffer of each file a run is written to (one per spilling
 /// worker while tracing: counted as fixed).
@@ -449,6 +449,8 @@ impl Spill {
 
     /// [`Self::finish`] merging at most `fan_in` (≥ 2) runs at once.
     fn finish_with(self, fan_in: usize, progress: &dyn Progress) -> Result<(SpilledLinks, Vec<u64>), BuildError> {
+        // The sort buffers (most of the links' room) go before any merge.
+        drop(self.buffers);
         let mut runs = self.runs.into_inner().expect("no panics while held");
         runs.sort_by_key(|r| r.first);
         let spilled = (runs.len(), runs.iter().map(|r| (r.ends + r.slots) * 12).sum());
@@ -574,8 +576,10 @@ fn merge_slots(
     let mut heap = BinaryHeap::new();
     let buffer = (buffers / (2 * runs.len().max(1))).clamp(4 << 10, MERGE_BUFFER);
     for (i, run) in runs.iter().enumerate() {
-        let ends = BufReader::with_capacity(buffer, File::open(&run.path)?);
-        let mut file = File::open(&run.path)?;
+        let open =
+            || File::open(&run.path).map_err(|e| std::io::Error::new(e.kind(), format!("{}: {e}", run.path.display())));
+        let ends = BufReader::with_capacity(buffer, open()?);
+        let mut file = open()?;
         file.seek(SeekFrom::Start(run.ends * 12))?;
         let mut r = RunReader { ends, slots: BufReader::with_capacity(buffer, file), slots_left: run.slots };
         if let Some((owner, key, count)) = r.next_slot()? {
@@ -610,13 +614,24 @@ fn merge_passes(
         let total: u64 = runs.iter().map(|r| r.ends).sum();
         progress.start(&format!("merging {} runs into {groups}", runs.len()), total);
         let mut merged = Vec::with_capacity(groups);
-        for (g, group) in runs.chunks(size).enumerate() {
+        let mut left = runs.into_iter();
+        for g in 0..groups {
+            let group: Vec<Run> = left.by_ref().take(size).collect();
+            if group.is_empty() {
+                break;
+            }
+            if let [run] = &group[..] {
+                // A group of one is a run already.
+                progress.advance(run.ends);
+                merged.extend(group);
+                continue;
+            }
             let path = dir.join(format!("merge-{pass:02}-{g:06}.bin"));
-            let run = merge_group(group, &path).map_err(|e| {
+            let run = merge_group(&group, &path).map_err(|e| {
                 BuildError::Scratch(format!("cannot merge spilled link ends into {}: {e}", path.display()))
             })?;
             crate::scratch::stop_point("merge pass");
-            for r in group {
+            for r in &group {
                 let _ = std::fs::remove_file(&r.path);
             }
             progress.advance(run.ends);
@@ -671,7 +686,8 @@ fn merge_group(group: &[Run], path: &Path) -> std::io::Result<Run> {
     drop(slots_out);
     let mut file = ends_out.into_inner().map_err(|e| e.into_error())?;
     std::io::copy(&mut File::open(&slots_path)?, &mut file)?;
-    std::fs::remove_file(&slots_path)?;
+    // (If it stays, the scratch directory goes with it.)
+    let _ = std::fs::remove_file(&slots_path);
     Ok(Run { first: group[0].first, path: path.to_path_buf(), ends, slots })
 }
 

@@ -130,8 +130,14 @@ pub fn layout(dirs: &DirectionSet, delta: f32, k: u32) -> BundleLayout {
 /// Bytes of a tracer's per-pair scratch per ray it traces: the link keys,
 /// reserved at one link a ray before the pair is traced and not freed
 /// (nor spillable) until it is done. Rays that cross more surfaces need
-/// more (counted as they grow), so this is the least a pair needs.
+/// more (counted as they grow, an eighth of the pair's rays at a time), so
+/// this is the least a pair needs.
 pub(super) const PAIR_BYTES_PER_RAY: u64 = size_of::<LinkKey>() as u64;
+
+/// Bytes per ray of the bundle a tracer makes from a pair's keys, at one
+/// link a ray, while it still holds them (counted with the other held
+/// bundles only once made).
+pub(super) const BUNDLE_BYTES_PER_RAY: u64 = super::spill::BUNDLE_BYTES_PER_LINK;
 
 /// Rays of the largest direction pair's bundle within `bounds`, or `None`
 /// when the whole build would trace more than its limit (which
@@ -833,7 +839,7 @@ pub fn trace_all(
         s.keys.clear();
         // Room for a link a ray, counted before the pair is traced (what
         // more it needs is counted after it).
-        s.keys.reserve(usize::try_from(g.nu * g.nv).unwrap_or(usize::MAX));
+        s.keys.reserve_exact(usize::try_from(g.nu * g.nv).unwrap_or(usize::MAX));
         if let Some(spill) = spill {
             spill.hold_scratch(s.grown());
         }
@@ -860,6 +866,16 @@ pub fn trace_all(
                 s.hits.sort_unstable_by(|x, y| {
                     x.t.total_cmp(&y.t).then_with(|| key[x.primitive as usize].cmp(&key[y.primitive as usize]))
                 });
+                // A ray gives a link at most per hit: more room for keys,
+                // counted before it is taken, in steps of an eighth of
+                // the pair's rays rather than by doubling.
+                if s.keys.capacity() - s.keys.len() < s.hits.len() {
+                    let more = usize::try_from(g.nu * g.nv / 8).unwrap_or(usize::MAX).max(s.hits.len());
+                    s.keys.reserve_exact(more);
+                    if let Some(spill) = spill {
+                        spill.hold_scratch(s.grown());
+                    }
+                }
                 stats.hits += walk.ray(k, s);
             }
         }
