@@ -611,7 +611,9 @@ fn build_impl(
             let pair_rays = trace::largest_pair_rays(&dirs, settings.ray_spacing, bounds).unwrap_or(0);
             let pair_scratch = pair_rays.saturating_mul(trace::PAIR_BYTES_PER_RAY);
             parts.push(("a direction pair's link keys per tracer", pair_scratch.saturating_mul(workers as u64)));
-            let making = pair_rays.saturating_mul(trace::BUNDLE_BYTES_PER_RAY).saturating_mul(workers as u64);
+            // And the bundle each makes of them while it still holds them
+            // (counted with the held bundles only once made), at a link a ray.
+            let making = pair_rays.saturating_mul(spill::BUNDLE_BYTES_PER_LINK).saturating_mul(workers as u64);
             parts.push(("the bundle each tracer makes of them", making));
             parts.push(("a run writer's buffer per tracer", (spill::RUN_WRITE_BUFFER * workers) as u64));
             let fixed: u64 = parts.iter().map(|p| p.1).sum();

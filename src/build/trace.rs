@@ -134,11 +134,6 @@ pub fn layout(dirs: &DirectionSet, delta: f32, k: u32) -> BundleLayout {
 /// this is the least a pair needs.
 pub(super) const PAIR_BYTES_PER_RAY: u64 = size_of::<LinkKey>() as u64;
 
-/// Bytes per ray of the bundle a tracer makes from a pair's keys, at one
-/// link a ray, while it still holds them (counted with the other held
-/// bundles only once made).
-pub(super) const BUNDLE_BYTES_PER_RAY: u64 = super::spill::BUNDLE_BYTES_PER_LINK;
-
 /// Rays of the largest direction pair's bundle within `bounds`, or `None`
 /// when the whole build would trace more than its limit (which
 /// [`trace_all`] refuses): what one tracer's per-pair scratch grows with,
