@@ -412,7 +412,20 @@ pub(crate) fn decode(stored: &[u8], count: u64, frame: u32, columns: bool) -> Re
             cast_slice_mut(dst)
         };
         let expected = bytes.len();
-        match zstd::bulk::decompress_to_buffer(src, bytes) {
+        // One decompression context per thread, kept across blocks and
+        // frames: making one per block took 7% of the fan room's delta
+        // apply (1.50 s against 1.39 s for 60 frames).
+        thread_local! {
+            static CONTEXT: std::cell::RefCell<Option<zstd::bulk::Decompressor<'static>>> =
+                const { std::cell::RefCell::new(None) };
+        }
+        let done = CONTEXT.with_borrow_mut(|c| {
+            if c.is_none() {
+                *c = Some(zstd::bulk::Decompressor::new()?);
+            }
+            c.as_mut().expect("made above").decompress_to_buffer(src, bytes)
+        });
+        match done {
             Ok(n) if n == expected => {}
             Ok(_) => return Err(bad(frame, "a zstd frame decompresses to fewer bytes than it declares".into())),
             Err(e) => return Err(bad(frame, format!("does not decompress: {e}"))),

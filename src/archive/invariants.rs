@@ -12,7 +12,7 @@ use rayon::prelude::*;
 
 use super::ArchiveError;
 use super::layout::DeltaRecord;
-use super::links::{Columns, LinkWindow, Links};
+use super::links::{Columns, EndRun, LinkWindow, Links};
 use super::weights::Weights;
 
 /// Relative slack on sums of f32 ray counts (exact integers below 2²⁴;
@@ -70,8 +70,32 @@ impl<'a> WeightSums<'a> {
     }
 }
 
-/// A link end: (owner patch, bucket, direction it leaves along, other patch).
-type EndKey = (u32, u8, u32, u32);
+/// A run of a row: (bucket, sender chunk).
+type RunKey = (u8, u16);
+/// An end's place in its run: (direction pair, the link's patch pair, direction).
+type InRun = (u32, (u32, u32), u32);
+
+/// One end of a removal record: the owner patch `q`'s end of the link
+/// with `other`, leaving along `direction`, in `bucket`.
+#[derive(Clone, Copy, Default)]
+struct RemovedEnd {
+    owner: u32,
+    other: u32,
+    direction: u32,
+    bucket: u8,
+    record: u32,
+}
+
+impl RemovedEnd {
+    /// The end's place in its owner's row (§5.10): its run (bucket, sender
+    /// chunk), then direction pair, the link's patch pair and direction.
+    #[inline]
+    fn key(&self) -> (RunKey, InRun) {
+        let (q, d) = (self.owner, self.direction);
+        let link = if d.is_multiple_of(2) { (q, self.other) } else { (self.other, q) };
+        ((self.bucket, chunk_of(self.other)), (d / 2, link, d))
+    }
+}
 
 /// Checks frame `frame`'s decoded `records` (indices already checked)
 /// against the hit counts and frame 0's `links` (rows `offsets`): no
@@ -103,34 +127,45 @@ pub(super) fn check_frame(
         ));
     }
     // The two ends of each removal: at `a` (direction 2k, other `b`,
-    // bucket `bucket_a`) and at `b` (2k + 1, `a`, `bucket_b`). An end's key
-    // recurs for links that differ only in the other end's bucket: their
-    // removals are summed, against frame 0's ends of that key summed too.
-    // (Additions are left out: a valid frame's removals of a key never
-    // exceed what frame 0 gave it, whatever it adds.)
-    let mut keyed: Vec<(EndKey, u32)> = records
-        .par_iter()
-        .enumerate()
-        .filter(|(_, d)| d.count < 0)
-        .flat_map_iter(|(i, d)| {
-            [((d.a, d.bucket_a, 2 * d.pair, d.b), i as u32), ((d.b, d.bucket_b, 2 * d.pair + 1, d.a), i as u32)]
-        })
-        .collect();
-    if keyed.is_empty() {
+    // bucket `bucket_a`) and at `b` (2k + 1, `a`, `bucket_b`), grouped by
+    // owner (a counting sort, so no global sort), each owner's in row
+    // order. An end's key recurs for links that differ only in the other
+    // end's bucket: their removals are summed, against frame 0's ends of
+    // that key summed too. (Additions are left out: a valid frame's
+    // removals of a key never exceed what frame 0 gave it, whatever it
+    // adds.)
+    let patches = offsets.len() - 1;
+    let removals = || records.iter().enumerate().filter(|(_, d)| d.count < 0);
+    let mut start = vec![0u32; patches + 1];
+    for (_, d) in removals() {
+        start[d.a as usize + 1] += 1;
+        start[d.b as usize + 1] += 1;
+    }
+    for q in 0..patches {
+        start[q + 1] += start[q];
+    }
+    if start[patches] == 0 {
         return Ok(());
     }
-    // Keys with their record indices are unique: the order is the same
-    // whatever the threads.
-    keyed.par_sort_unstable();
-    let mut wanted: Vec<u32> = keyed.iter().map(|k| k.0.0).collect();
-    wanted.dedup();
-    let patches = offsets.len() - 1;
+    let mut ends = vec![RemovedEnd::default(); start[patches] as usize];
+    let mut cursor = start.clone();
+    for (i, d) in removals() {
+        for (owner, other, bucket, direction) in
+            [(d.a, d.b, d.bucket_a, 2 * d.pair), (d.b, d.a, d.bucket_b, 2 * d.pair + 1)]
+        {
+            let at = &mut cursor[owner as usize];
+            ends[*at as usize] = RemovedEnd { owner, other, direction, bucket, record: i as u32 };
+            *at += 1;
+        }
+    }
+    // (Record indices make keys unique: the order does not depend on the threads.)
+    ends.par_chunk_by_mut(|x, y| x.owner == y.owner)
+        .for_each(|mine| mine.sort_unstable_by_key(|e| (e.key(), e.record)));
+    let wanted: Vec<u32> = (0..patches as u32).filter(|&q| start[q as usize] < start[q as usize + 1]).collect();
     links.for_each_window_of(Columns::ALL, patches, &wanted, |w: LinkWindow<'_>| {
-        let lo = keyed.partition_point(|k| (k.0.0 as usize) < w.patches.start);
-        let hi = keyed.partition_point(|k| (k.0.0 as usize) < w.patches.end);
-        // Per patch, in patch order, the first end it removes too much from.
-        let found =
-            keyed[lo..hi].par_chunk_by(|x, y| x.0.0 == y.0.0).map(|mine| removal_error(&w, offsets, records, mine));
+        let range = start[w.patches.start] as usize..start[w.patches.end] as usize;
+        // Per patch, in patch order, the first record that removes too much.
+        let found = ends[range].par_chunk_by(|x, y| x.owner == y.owner).map(|mine| removal_error(&w, records, mine));
         match found.find_first(Option::is_some).flatten() {
             Some((first, what)) => Err(bad(first, what)),
             None => Ok(()),
@@ -138,55 +173,45 @@ pub(super) fn check_frame(
     })
 }
 
-/// Of the removals `mine` (keyed ends of one patch, sorted), the first
-/// that takes more rays from an end than frame 0 gave it: its first
-/// record and what is wrong.
-fn removal_error(
-    w: &LinkWindow<'_>,
-    offsets: &[u64],
-    records: &[DeltaRecord],
-    mine: &[(EndKey, u32)],
-) -> Option<(usize, String)> {
-    let q = mine[0].0.0;
-    // Frame 0's weight of each removed end, found by binary search: a row
-    // is ordered by bucket, sender chunk, direction pair and the link's
-    // patch pair (§5.10), that is by `order_key`.
-    let r = w.local(offsets[q as usize] as usize..offsets[q as usize + 1] as usize);
-    debug_assert_eq!(r, w.row(q as usize));
-    let row: Vec<(u32, u8)> = w.ends_of(q as usize).map(|(_, other, bucket)| (other, bucket)).collect();
-    let order_key = |e: usize| {
-        let (d, (other, bucket)) = (w.direction[e], row[e - r.start]);
-        let link = if d.is_multiple_of(2) { (q, other) } else { (other, q) };
-        (bucket, chunk_of(other), d / 2, link, d)
+/// Of the removed ends `mine` (one patch's, in row order), the first
+/// record that takes more rays from an end than frame 0 gave it, and what
+/// is wrong.
+fn removal_error(w: &LinkWindow<'_>, records: &[DeltaRecord], mine: &[RemovedEnd]) -> Option<(usize, String)> {
+    let q = mine[0].owner;
+    // A row is ordered by bucket, sender chunk, direction pair and the
+    // link's patch pair (§5.10): its runs by (bucket, chunk), the ends of
+    // a run by the rest, so frame 0's weight of each removed end is found
+    // by a search within its run that starts where the last one ended
+    // (galloping), without decoding the row.
+    let within = |r: &EndRun<'_>, e: usize| {
+        let (d, other) = (w.direction[e], r.other(e - r.ends().start));
+        (d / 2, if d.is_multiple_of(2) { (q, other) } else { (other, q) }, d)
     };
-    // The removed keys in row order, each with its net count and its
-    // place in `mine`, so that each search starts where the last ended
-    // (galloping), in rows read once instead of once per key.
-    let mut wanted: Vec<(_, i64, usize)> = mine
-        .chunk_by(|x, y| x.0 == y.0)
-        .scan(0, |at, run| {
-            let (_, bucket, direction, other) = run[0].0;
-            let net: i64 = run.iter().map(|&(_, i)| records[i as usize].count as i64).sum();
-            let link = if direction.is_multiple_of(2) { (q, other) } else { (other, q) };
-            let place = *at;
-            *at += run.len();
-            Some(((bucket, chunk_of(other), direction / 2, link, direction), net, place))
-        })
-        .collect();
-    wanted.sort_unstable_by_key(|w| w.0);
-    let mut worst: Option<(usize, u32, u32, i64, f64)> = None;
-    let mut from = r.start;
-    for &(key, net, place) in &wanted {
-        from += gallop(r.end - from, |i| order_key(from + i) < key);
-        let base =
-            (from..r.end).take_while(|&e| order_key(e) == key).map(|e| w.weight.get(e) as f64).sum::<f64>() + 0.0;
-        if base + (net as f64) < 0.0 && worst.is_none_or(|w| place < w.0) {
-            worst = Some((place, key.4, if key.4.is_multiple_of(2) { key.3.1 } else { key.3.0 }, net, base));
+    let mut worst: Option<(u32, u32, u32, i64, f64)> = None;
+    let mut runs = w.runs_of(q as usize).peekable();
+    let mut from = runs.peek().map_or(0, |r| r.ends().start);
+    for same in mine.chunk_by(|x, y| x.key() == y.key()) {
+        let (run_key, key) = same[0].key();
+        let net: i64 = same.iter().map(|e| records[e.record as usize].count as i64).sum();
+        while runs.next_if(|r| (r.bucket(), chunk_of(r.base() as u32)) < run_key).is_some() {
+            from = runs.peek().map_or(0, |r| r.ends().start);
+        }
+        let base = match runs.peek() {
+            Some(r) if (r.bucket(), chunk_of(r.base() as u32)) == run_key => {
+                let end = r.ends().end;
+                from += gallop(end - from, |i| within(r, from + i) < key);
+                (from..end).take_while(|&e| within(r, e) == key).map(|e| w.weight.get(e) as f64).sum::<f64>() + 0.0
+            }
+            _ => 0.0,
+        };
+        // `same` is sorted by record last: its first is its earliest.
+        if base + (net as f64) < 0.0 && worst.is_none_or(|w| same[0].record < w.0) {
+            worst = Some((same[0].record, key.2, same[0].other, net, base));
         }
     }
-    worst.map(|(place, direction, other, net, base)| {
+    worst.map(|(record, direction, other, net, base)| {
         (
-            mine[place].1 as usize,
+            record as usize,
             format!(
                 "removes {} rays from patch {q}'s end of its link with patch {other} along direction \
                  {direction}, which frame 0 gave {base}: a negative weight",
@@ -228,4 +253,88 @@ fn first_false(n: usize, before: impl Fn(usize) -> bool) -> usize {
         }
     }
     lo
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::layout::{CHUNK_PATCHES, LinkRunRecord};
+    use super::super::links::{LinkRuns, LinkSlices};
+    use super::*;
+
+    /// The run walk finds frame 0's weight of every removed end, in rows
+    /// of several buckets and sender chunks: a removal of exactly that
+    /// weight passes, one ray more is named, ends a row lacks have none,
+    /// and removals of one end by several records are summed.
+    #[test]
+    fn removals_are_weighed_against_their_runs_across_buckets_and_chunks() {
+        let (q, far) = (3u32, CHUNK_PATCHES as u32);
+        let n = CHUNK_PATCHES + 100;
+        // Patch q's row: (bucket 0, chunk 0), (bucket 0, chunk 1), (bucket 1, chunk 0).
+        let ends: [(u32, u32, u8); 6] =
+            [(10, 0, 5), (10, 2, 3), (20, 2, 4), (far + 5, 0, 7), (far + 9, 1, 2), (10, 0, 6)];
+        let bucket_of = |i: usize| if i == 5 { 1u8 } else { 0 };
+        let local: Vec<u16> = ends.iter().map(|e| (e.0 as usize % CHUNK_PATCHES) as u16).collect();
+        let direction: Vec<u32> = ends.iter().map(|e| e.1).collect();
+        let counts: Vec<u8> = ends.iter().map(|e| e.2).collect();
+        let link_offsets: Vec<u64> = (0..=n).map(|p| if p <= q as usize { 0 } else { 6 }).collect();
+        let run_offsets: Vec<u64> = (0..=n).map(|p| if p <= q as usize { 0 } else { 3 }).collect();
+        let run = |chunk, bucket, length| LinkRunRecord { chunk, bucket, reserved: 0, length };
+        let runs = [run(0, 0, 3), run(1, 0, 2), run(0, 1, 1)];
+        let runs = LinkRuns::checked(&link_offsets, &run_offsets, &runs, 1).expect("valid runs");
+        let slices = LinkSlices::validated(&local, Weights::whole(&counts, &[]), &direction, runs, n);
+        let w = slices.window();
+        // Removes `count` rays from each end `(other, direction, bucket)`, one record each.
+        let check = |removed: &[(u32, u32, u8, i32)]| {
+            let records: Vec<DeltaRecord> = removed
+                .iter()
+                .map(|&(other, d, bucket, count)| DeltaRecord {
+                    pair: d / 2,
+                    a: if d % 2 == 0 { q } else { other },
+                    b: if d % 2 == 0 { other } else { q },
+                    count,
+                    bucket_a: bucket,
+                    bucket_b: bucket,
+                    reserved: 0,
+                })
+                .collect();
+            let mut mine: Vec<RemovedEnd> = removed
+                .iter()
+                .enumerate()
+                .map(|(i, &(other, direction, bucket, _))| RemovedEnd {
+                    owner: q,
+                    other,
+                    direction,
+                    bucket,
+                    record: i as u32,
+                })
+                .collect();
+            mine.sort_unstable_by_key(|e| (e.key(), e.record));
+            removal_error(&w, &records, &mine).map(|(record, _)| record)
+        };
+        for (i, &(other, d, weight)) in ends.iter().enumerate() {
+            let (k, weight) = (bucket_of(i), weight as i32);
+            assert_eq!(check(&[(other, d, k, -weight)]), None, "end {i}");
+            assert_eq!(check(&[(other, d, k, -weight - 1)]), Some(0), "end {i}");
+            // The same end in the other bucket, or along the other direction of its pair.
+            for (d, k) in [(d, 1 - k), (d ^ 1, k)] {
+                let base: i32 = (0..6)
+                    .filter(|&j| (ends[j].0, ends[j].1, bucket_of(j)) == (other, d, k))
+                    .map(|j| ends[j].2 as i32)
+                    .sum();
+                assert_eq!(check(&[(other, d, k, -base - 1)]), Some(0), "end {i}, {d}, {k}");
+                assert_eq!(check(&[(other, d, k, -base)]), None, "end {i}, {d}, {k}");
+            }
+            // Every end at once, and this one twice (two records that sum).
+            let mut all: Vec<_> =
+                ends.iter().enumerate().map(|(j, e)| (e.0, e.1, bucket_of(j), -(e.2 as i32))).collect();
+            all.push((other, d, k, -1));
+            let last = all.len() - 1;
+            all[i].3 += 1;
+            assert_eq!(check(&all), None, "end {i} in all");
+            all[last].3 -= 1;
+            assert_eq!(check(&all), Some(i.min(last)), "end {i} in all, one ray too many");
+        }
+        // An end of chunk 1 whose id lies in chunk 0's run is not that run's.
+        assert_eq!(check(&[(far + 10, 0, 0, -1)]), Some(0));
+    }
 }

@@ -361,15 +361,31 @@ impl<'a> InetView<'a> {
     /// and the hit counts: no record moves more rays than cross its
     /// patches, no link is left a negative weight. Empty for frame 0.
     pub fn frame_links(&self, frame: u32) -> Result<Vec<DeltaRecord>, ArchiveError> {
+        self.frame_links_with(frame, |_| ()).map(|(records, ())| records)
+    }
+
+    /// [`Self::frame_links`], with `f` of the records (decoded, their
+    /// indices in range) run while they are checked against frame 0's
+    /// links: its result is returned only if the check passes. For work
+    /// that would otherwise wait on the check, such as a frame's overlay.
+    pub fn frame_links_with<T: Send>(
+        &self,
+        frame: u32,
+        f: impl FnOnce(&[DeltaRecord]) -> T + Send,
+    ) -> Result<(Vec<DeltaRecord>, T), ArchiveError> {
         let Some(s) = &self.sequence else {
             return match frame {
-                0 => Ok(Vec::new()),
+                0 => Ok((Vec::new(), f(&[]))),
                 _ => Err(ArchiveError::corrupt(format!("frame {frame} asked of a still archive"))),
             };
         };
         let records = s.frame_delta(frame)?;
-        invariants::check_frame(frame, &records, self.patch_hits, self.link_offsets, &self.links)?;
-        Ok(records)
+        let (checked, made) = rayon::join(
+            || invariants::check_frame(frame, &records, self.patch_hits, self.link_offsets, &self.links),
+            || f(&records),
+        );
+        checked?;
+        Ok((records, made))
     }
 
     /// Number of patches.

@@ -55,7 +55,12 @@ pub fn state_bytes(s: &StateShape) -> u64 {
     // A frame's overlay (records, and the ends sorted per patch and
     // bucket), twice: the frame's and the one the warm start carries.
     let records = s.max_delta_records;
-    let overlay = if s.sequence { 2 * (records * (20 + 2 * 12 + 2 * 12) + p * (4 * nb + 4 + 8)) } else { 0 };
+    // The overlay is made while the records are checked against frame 0
+    // (`InetView::frame_links_with`): the check's two 20-byte ends per
+    // removal and three 4-byte entries per patch (two offsets, the patches
+    // wanted) are held beside it.
+    let check = records * 2 * 20 + p * 12;
+    let overlay = if s.sequence { 2 * (records * (20 + 2 * 12 + 2 * 12) + p * (4 * nb + 4 + 8)) + check } else { 0 };
     // Glossy: per ray slot two [f32; 4] vectors and the running radiance
     // (12), rays, linked, incoming scale (at most 12); the directional
     // radiance of two solutions and its direct part; the copied ends; the

@@ -77,8 +77,9 @@ impl<'a> Distributor<'a> {
                         emit[p] = keyed[surface];
                     }
                 }
-                let records = v.frame_links(frame)?;
-                (Some(Overlay::new(self.nb, &records, &presence, self.nd.is_some())), Some(presence))
+                let (_, overlay) =
+                    v.frame_links_with(frame, |r| Overlay::new(self.nb, r, &presence, self.nd.is_some()))?;
+                (Some(overlay), Some(presence))
             }
             None if frame == 0 => (None, None),
             None => return Err(DistributeError::NotASequence { frame }),
