@@ -56,10 +56,10 @@ pub fn state_bytes(s: &StateShape) -> u64 {
     // bucket), twice: the frame's and the one the warm start carries.
     let records = s.max_delta_records;
     // The overlay is made while the records are checked against frame 0
-    // (`InetView::frame_links_with`): the check's two 20-byte ends per
+    // (`InetView::frame_links_with`): the check's two 24-byte ends per
     // removal and three 4-byte entries per patch (two offsets, the patches
     // wanted) are held beside it.
-    let check = records * 2 * 20 + p * 12;
+    let check = records * 2 * 24 + p * 12;
     let overlay = if s.sequence { 2 * (records * (20 + 2 * 12 + 2 * 12) + p * (4 * nb + 4 + 8)) + check } else { 0 };
     // Glossy: per ray slot two [f32; 4] vectors and the running radiance
     // (12), rays, linked, incoming scale (at most 12); the directional
