@@ -566,13 +566,20 @@ struct FrameRays {
 const NO_HIT: SampleHit =
     SampleHit { t: f32::INFINITY, primitive: u32::MAX, vertices: [NO_VERTEX; 4], weights: [0.0; 4], uv: [0.0; 2] };
 
+/// Bytes a [`Renderer`]'s sample cache takes for `pixels` pixels of
+/// `per_pixel` samples: the samples and a flag per pixel.
+pub(crate) fn sample_cache_bytes(pixels: u64, per_pixel: u64) -> u64 {
+    pixels * (per_pixel * std::mem::size_of::<SampleHit>() as u64 + 1)
+}
+
 /// Renders the frames of one archive, keeping what every image sample saw
 /// (48 bytes per sample: 59 MB at 320×240 with 16 samples per pixel; up to
 /// 1 GiB, larger images are shaded without the cache) so that
 /// later frames with the same camera re-trace only the samples that moving
 /// geometry may change: those that saw a temporal instance, and those whose
 /// ray meets a temporal instance present in the frame nearer than what they
-/// saw. Images are bit-identical to tracing every sample (tested).
+/// saw. Pixels with neither kind of sample are not read (a flag per pixel).
+/// Images are bit-identical to tracing every sample (tested).
 pub struct Renderer<'a> {
     v: InetView<'a>,
     opts: RenderOptions,
@@ -583,7 +590,10 @@ pub struct Renderer<'a> {
     detail: SurfaceDetail<'a>,
     /// Primitives of temporal instances (present in only some frames).
     temporal: Vec<bool>,
-    cache: Option<(crate::archive::layout::CameraRecord, Vec<SampleHit>)>,
+    /// The last frame's camera, samples, and per pixel whether one of its
+    /// samples sees a temporal primitive (a pixel with none, outside the
+    /// moving primitives' rectangles, keeps its samples unread).
+    cache: Option<(crate::archive::layout::CameraRecord, Vec<SampleHit>, Vec<bool>)>,
     cache_budget: u64,
     /// The camera given at render time, replacing the archive's.
     camera: Option<crate::archive::layout::CameraRecord>,
@@ -807,7 +817,7 @@ impl<'a> Renderer<'a> {
         // Images whose samples would not fit the cache budget are shaded
         // directly, sample by sample, keeping nothing.
         let sample_count = (w as u64) * (h as u64) * per_pixel as u64;
-        if sample_count * std::mem::size_of::<SampleHit>() as u64 > self.cache_budget {
+        if sample_cache_bytes((w as u64) * (h as u64), per_pixel as u64) > self.cache_budget {
             self.cache = None;
             self.retraced = sample_count as usize;
             let vrad = if direct.is_some() {
@@ -826,12 +836,16 @@ impl<'a> Renderer<'a> {
         }
         // Reuse what the samples saw last frame when the camera is the same.
         let mut samples = match self.cache.take() {
-            Some((cam, samples)) if cam == record && samples.len() == (w * h) as usize * per_pixel => Some(samples),
+            Some((cam, samples, flags)) if cam == record && samples.len() == (w * h) as usize * per_pixel => {
+                Some((samples, flags))
+            }
             _ => None,
         };
         let retraced = std::sync::atomic::AtomicUsize::new(0);
+        let on_temporal =
+            |pixel: &[SampleHit]| pixel.iter().any(|s| s.primitive != u32::MAX && self.temporal[s.primitive as usize]);
         match &mut samples {
-            Some(cached) => {
+            Some((cached, flags)) => {
                 // Temporal primitives present now, in a small BVH of their own.
                 let moving: Vec<u32> = kept.iter().copied().filter(|&i| self.temporal[i as usize]).collect();
                 let moving_prims: Vec<Primitive> = moving.iter().map(|&i| self.all_prims[i as usize]).collect();
@@ -867,19 +881,28 @@ impl<'a> Renderer<'a> {
                     }
                 }
                 let inside = |x: u32, y: u32| covered[(y * w + x) as usize];
-                cached.par_chunks_mut(w as usize * per_pixel).enumerate().for_each(|(y, row)| {
-                    for (i, sample) in row.iter_mut().enumerate() {
-                        let (x, k) = ((i / per_pixel) as u32, i % per_pixel);
-                        let (sx, sy) = ((k as u32) % n, (k as u32) / n);
-                        let stale = (sample.primitive != u32::MAX && self.temporal[sample.primitive as usize])
-                            || moving_bvh.as_ref().filter(|_| inside(x, y as u32)).is_some_and(|b| {
-                                let (o, d) = sample_ray(x, y as u32, sx, sy);
-                                b.closest_hit(o, d, 0.0).is_some_and(|hit| hit.hit.t <= sample.t)
-                            });
-                        if stale {
-                            *sample = trace(x, y as u32, sx, sy);
-                            retraced.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                let rows = cached.par_chunks_mut(w as usize * per_pixel).zip(flags.par_chunks_mut(w as usize));
+                rows.enumerate().for_each(|(y, (row, row_flags))| {
+                    for (x, (pixel, flag)) in row.chunks_mut(per_pixel).zip(row_flags).enumerate() {
+                        let (x, y) = (x as u32, y as u32);
+                        // Only a sample of a temporal primitive, or one a
+                        // moving primitive may now hide, can be stale.
+                        if !*flag && !inside(x, y) {
+                            continue;
                         }
+                        for (k, sample) in pixel.iter_mut().enumerate() {
+                            let (sx, sy) = ((k as u32) % n, (k as u32) / n);
+                            let stale = (sample.primitive != u32::MAX && self.temporal[sample.primitive as usize])
+                                || moving_bvh.as_ref().filter(|_| inside(x, y)).is_some_and(|b| {
+                                    let (o, d) = sample_ray(x, y, sx, sy);
+                                    b.closest_hit(o, d, 0.0).is_some_and(|hit| hit.hit.t <= sample.t)
+                                });
+                            if stale {
+                                *sample = trace(x, y, sx, sy);
+                                retraced.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                            }
+                        }
+                        *flag = on_temporal(pixel);
                     }
                 });
             }
@@ -892,10 +915,11 @@ impl<'a> Renderer<'a> {
                     }
                 });
                 retraced.store(fresh.len(), std::sync::atomic::Ordering::Relaxed);
-                samples = Some(fresh);
+                let flags = fresh.par_chunks(per_pixel).map(on_temporal).collect();
+                samples = Some((fresh, flags));
             }
         }
-        let samples = samples.expect("filled above");
+        let (samples, flags) = samples.expect("filled above");
         self.retraced = retraced.into_inner();
         let vrad =
             if direct.is_some() { vertex_radiance_seen(v, patch_radiance) } else { vertex_radiance(v, patch_radiance) };
@@ -908,7 +932,7 @@ impl<'a> Renderer<'a> {
         let (image, direct_image, back) = shade_image((w, h), &hits_of, &vrad, &self.detail, pixel_light.as_ref());
         self.back_faces = (back * per_pixel as f64).round() as usize;
         let images = (image, direct_image);
-        self.cache = Some((record, samples));
+        self.cache = Some((record, samples, flags));
         images
     }
 }

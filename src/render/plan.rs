@@ -31,8 +31,6 @@ const MIN_WINDOW_ENDS: u64 = CHUNK_ENDS as u64;
 /// The buffer a streamed open reads its columns through (16 chunks of
 /// `LDIR`, the widest column).
 const OPEN_BUFFER: u64 = 16 * CHUNK_ENDS as u64 * 4;
-/// Bytes a sample of the sample cache takes.
-const SAMPLE_BYTES: u64 = std::mem::size_of::<super::SampleHit>() as u64;
 /// The largest sample cache kept (as without a budget).
 const MAX_CACHE: u64 = 1 << 30;
 
@@ -206,9 +204,12 @@ const IMAGES: &str = "images and radiance";
 pub fn plan(s: &ArchiveSummary, job: &RenderJob, budget: MemoryBudget) -> Result<MemoryPlan, BudgetError> {
     let distribution = distribution_bytes(s, job);
     let renderer = renderer_bytes(s, job);
-    let samples = job.width as u64 * job.height as u64 * (job.samples_per_axis as u64).pow(2);
+    let pixels = job.width as u64 * job.height as u64;
     // The cache pays off only when a later frame reuses the samples.
-    let cache = if job.frames > 1 { (samples * SAMPLE_BYTES).min(MAX_CACHE) } else { 0 };
+    let cache = match job.frames > 1 {
+        true => super::sample_cache_bytes(pixels, (job.samples_per_axis as u64).pow(2)).min(MAX_CACHE),
+        false => 0,
+    };
     let fixed = [("distribution", distribution), (IMAGES, renderer)];
     let with = |mut parts: Vec<(&'static str, u64)>| {
         parts.extend(fixed);
