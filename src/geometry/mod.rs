@@ -137,7 +137,10 @@ impl Primitive {
 
     /// [`Primitive::intersect`] with a quad's precomputed [`QuadFilter`]
     /// (ignored for triangles): the same hits, fewer operations per miss.
-    #[inline]
+    /// Always inlined: left to the compiler, an unrelated change elsewhere
+    /// in the crate once moved it out of line and made every build's trace
+    /// 13% slower (the fan room's still frame, 0.83 → 0.95 s).
+    #[inline(always)]
     pub fn intersect_filtered(
         &self,
         filter: &QuadFilter,
