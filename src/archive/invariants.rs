@@ -139,7 +139,8 @@ pub(super) fn check_frame(
     // adds.)
     let patches = offsets.len() - 1;
     let removals = || records.iter().enumerate().filter(|(_, d)| d.count < 0);
-    let mut start = vec![0u32; patches + 1];
+    // (usize: a frame may hold up to 2³² records, so twice as many ends.)
+    let mut start = vec![0usize; patches + 1];
     for (_, d) in removals() {
         start[d.a as usize + 1] += 1;
         start[d.b as usize + 1] += 1;
@@ -150,14 +151,19 @@ pub(super) fn check_frame(
     if start[patches] == 0 {
         return Ok(());
     }
-    let mut ends = vec![RemovedEnd::default(); start[patches] as usize];
+    let total = start[patches];
+    let mut ends = Vec::new();
+    ends.try_reserve_exact(total).map_err(|_| {
+        ArchiveError::corrupt(format!("DELT frame {frame}: its {total} removed link ends do not fit in memory"))
+    })?;
+    ends.resize(total, RemovedEnd::default());
     let mut cursor = start.clone();
     for (i, d) in removals() {
         for (owner, other, bucket, direction) in
             [(d.a, d.b, d.bucket_a, 2 * d.pair), (d.b, d.a, d.bucket_b, 2 * d.pair + 1)]
         {
             let at = &mut cursor[owner as usize];
-            ends[*at as usize] = RemovedEnd { owner, other, direction, bucket, record: i as u32, count: d.count };
+            ends[*at] = RemovedEnd { owner, other, direction, bucket, record: i as u32, count: d.count };
             *at += 1;
         }
     }
@@ -166,7 +172,7 @@ pub(super) fn check_frame(
         .for_each(|mine| mine.sort_unstable_by_key(|e| (e.key(), e.record)));
     let wanted: Vec<u32> = (0..patches as u32).filter(|&q| start[q as usize] < start[q as usize + 1]).collect();
     links.for_each_window_of(Columns::ALL, patches, &wanted, |w: LinkWindow<'_>| {
-        let range = start[w.patches.start] as usize..start[w.patches.end] as usize;
+        let range = start[w.patches.start]..start[w.patches.end];
         // Per patch, in patch order, the first record that removes too much.
         let found = ends[range].par_chunk_by(|x, y| x.owner == y.owner).map(|mine| removal_error(&w, mine));
         match found.find_first(Option::is_some).flatten() {

@@ -57,9 +57,10 @@ pub fn state_bytes(s: &StateShape) -> u64 {
     let records = s.max_delta_records;
     // The overlay is made while the records are checked against frame 0
     // (`InetView::frame_links_with`): the check's two 24-byte ends per
-    // removal and three 4-byte entries per patch (two offsets, the patches
-    // wanted) are held beside it.
-    let check = records * 2 * 24 + p * 12;
+    // removal, two 8-byte offsets per patch and the patches wanted (4) are
+    // held beside it, and beside the overlay's cursor while it is built
+    // (4 bytes per patch and bucket).
+    let check = records * 2 * 24 + p * (20 + 4 * nb + 4);
     let overlay = if s.sequence { 2 * (records * (20 + 2 * 12 + 2 * 12) + p * (4 * nb + 4 + 8)) + check } else { 0 };
     // Glossy: per ray slot two [f32; 4] vectors and the running radiance
     // (12), rays, linked, incoming scale (at most 12); the directional
