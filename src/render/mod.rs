@@ -842,8 +842,8 @@ impl<'a> Renderer<'a> {
             _ => None,
         };
         let retraced = std::sync::atomic::AtomicUsize::new(0);
-        let on_temporal =
-            |pixel: &[SampleHit]| pixel.iter().any(|s| s.primitive != u32::MAX && self.temporal[s.primitive as usize]);
+        let sees_temporal = |s: &SampleHit| s.primitive != u32::MAX && self.temporal[s.primitive as usize];
+        let on_temporal = |pixel: &[SampleHit]| pixel.iter().any(sees_temporal);
         match &mut samples {
             Some((cached, flags)) => {
                 // Temporal primitives present now, in a small BVH of their own.
@@ -887,13 +887,14 @@ impl<'a> Renderer<'a> {
                         let (x, y) = (x as u32, y as u32);
                         // Only a sample of a temporal primitive, or one a
                         // moving primitive may now hide, can be stale.
-                        if !*flag && !inside(x, y) {
+                        let near = inside(x, y);
+                        if !*flag && !near {
                             continue;
                         }
                         for (k, sample) in pixel.iter_mut().enumerate() {
                             let (sx, sy) = ((k as u32) % n, (k as u32) / n);
-                            let stale = (sample.primitive != u32::MAX && self.temporal[sample.primitive as usize])
-                                || moving_bvh.as_ref().filter(|_| inside(x, y)).is_some_and(|b| {
+                            let stale = sees_temporal(sample)
+                                || moving_bvh.as_ref().filter(|_| near).is_some_and(|b| {
                                     let (o, d) = sample_ray(x, y, sx, sy);
                                     b.closest_hit(o, d, 0.0).is_some_and(|hit| hit.hit.t <= sample.t)
                                 });
