@@ -1,10 +1,12 @@
 //! Would a spatial patch order help the distribution's gather? Renumbers
-//! an archive's patches by a Morton curve over its primitives' centres
-//! (patches stay in their primitive's order), re-lays the link ends' rows
-//! to match (u32 ids, each row ordered by sender chunk), and times a
-//! row gather like the distribution's over both orders, alternating,
-//! three times each; it also prints how many sender chunks (2¹⁶
-//! patches) a row touches in each. Numbers for `docs/PERFORMANCE.md`:
+//! an archive's patches by a Morton curve over centres: of primitives
+//! within each surface (what format 10 allows), of all primitives
+//! (patches stay in their primitive's order), and of the patches
+//! themselves; re-lays the link ends' rows to match (u32 ids, each row
+//! ordered by sender chunk), and times a row gather like the
+//! distribution's over each order and the archive's, alternating, three
+//! times each; it also prints how many sender chunks (2¹⁶ patches) a row
+//! touches in each. Numbers for `docs/PERFORMANCE.md`:
 //!
 //! ```text
 //! cargo run --release --example patch_order -- ARCHIVE.inet
@@ -62,7 +64,57 @@ fn main() {
     // The new id of every patch, and the rows in the new order.
     let first = |i: usize| prims[i].first_patch as usize;
     let end = |i: usize| prims.get(i + 1).map_or(patches, |p| p.first_patch as usize);
-    let old_of: Vec<usize> = order.iter().flat_map(|&i| first(i)..end(i)).collect();
+    let by_primitive: Vec<usize> = order.iter().flat_map(|&i| first(i)..end(i)).collect();
+    // Primitives along the curve within each surface (surfaces keep their
+    // ranges, as the format asks).
+    let mut within: Vec<usize> = (0..prims.len()).collect();
+    within.sort_by_key(|&i| (prims[i].surface, key(&centre[i]), i));
+    let by_surface: Vec<usize> = within.iter().flat_map(|&i| first(i)..end(i)).collect();
+    // Patches along a Morton curve over their own centres (a primitive
+    // that spans rooms, a floor, is cut among them).
+    let mut by_patch: Vec<usize> = (0..patches).collect();
+    by_patch.sort_by_key(|&p| (key(&v.patch_centre[p]), p));
+    let (primitive_rows, patch_rows) =
+        (renumber(offsets, &other, count, &by_primitive), renumber(offsets, &other, count, &by_patch));
+    let surface_rows = renumber(offsets, &other, count, &by_surface);
+    println!(
+        "{path}: {patches} patches, {} primitives; sender chunks a row: archive order {:.2}, Morton order within surfaces {:.2}, of primitives {:.2}, of patches {:.2}",
+        prims.len(),
+        chunks_a_row(offsets, &other),
+        chunks_a_row(&surface_rows.0, &surface_rows.1),
+        chunks_a_row(&primitive_rows.0, &primitive_rows.1),
+        chunks_a_row(&patch_rows.0, &patch_rows.1)
+    );
+
+    let shoot: Vec<[f32; 4]> = (0..patches).map(|i| [i as f32 * 1e-6, 1.0, 2.0, 0.0]).collect();
+    let mut recv = vec![[0f32; 4]; patches];
+    let orders: [(&str, Rows<'_>); 4] = [
+        ("archive order", Rows { offsets, other: &other, count }),
+        (
+            "Morton order within surfaces",
+            Rows { offsets: &surface_rows.0, other: &surface_rows.1, count: &surface_rows.2 },
+        ),
+        (
+            "Morton order of primitives",
+            Rows { offsets: &primitive_rows.0, other: &primitive_rows.1, count: &primitive_rows.2 },
+        ),
+        ("Morton order of patches", Rows { offsets: &patch_rows.0, other: &patch_rows.1, count: &patch_rows.2 }),
+    ];
+    for _ in 0..3 {
+        for (what, rows) in &orders {
+            let t = Instant::now();
+            for _ in 0..3 {
+                gather(rows, &shoot, &mut recv);
+            }
+            println!("{what}: {:.0} M ends/s", 3.0 * other.len() as f64 / t.elapsed().as_secs_f64() / 1e6);
+        }
+    }
+}
+
+/// The rows renumbered so that patch `old_of[n]` becomes patch `n`: new
+/// offsets, other patches (each row ordered by sender chunk) and counts.
+fn renumber(offsets: &[u64], other: &[u32], count: &[u8], old_of: &[usize]) -> (Vec<u64>, Vec<u32>, Vec<u8>) {
+    let patches = old_of.len();
     let mut new_id = vec![0u32; patches];
     for (n, &p) in old_of.iter().enumerate() {
         new_id[p] = n as u32;
@@ -79,28 +131,7 @@ fn main() {
         new_count.extend(row.iter().map(|e| e.1));
         new_offsets[n + 1] = new_other.len() as u64;
     }
-    println!(
-        "{path}: {patches} patches, {} primitives; sender chunks a row: archive order {:.2}, Morton order {:.2}",
-        prims.len(),
-        chunks_a_row(offsets, &other),
-        chunks_a_row(&new_offsets, &new_other)
-    );
-
-    let shoot: Vec<[f32; 4]> = (0..patches).map(|i| [i as f32 * 1e-6, 1.0, 2.0, 0.0]).collect();
-    let mut recv = vec![[0f32; 4]; patches];
-    let orders: [(&str, Rows<'_>); 2] = [
-        ("archive order", Rows { offsets, other: &other, count }),
-        ("Morton order", Rows { offsets: &new_offsets, other: &new_other, count: &new_count }),
-    ];
-    for _ in 0..3 {
-        for (what, rows) in &orders {
-            let t = Instant::now();
-            for _ in 0..3 {
-                gather(rows, &shoot, &mut recv);
-            }
-            println!("{what}: {:.0} M ends/s", 3.0 * other.len() as f64 / t.elapsed().as_secs_f64() / 1e6);
-        }
-    }
+    (new_offsets, new_other, new_count)
 }
 
 /// The low 21 bits of `x`, two zero bits after each (a Morton code's axis).
