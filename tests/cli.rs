@@ -148,6 +148,8 @@ fn exit_codes_tell_the_kind_of_failure() {
     assert_eq!(failing(&["render", "--no-such-option", "x.inet"]).0, 2);
     std::fs::write(path("bad.toml"), "[camera]\nposition = [0, 0]\n").unwrap();
     assert_eq!(failing(&["build", &path("bad.toml"), "-o", &path("x.inet")]).0, 3);
+    // A scene that cannot be read at all: I/O, as for an archive.
+    assert_eq!(failing(&["build", &path("none.toml"), "-o", &path("x.inet")]).0, 5);
     assert_eq!(failing(&["build", scene, "-o", &path("x.inet"), "--frame", "3"]).0, 3);
     assert_eq!(failing(&["build", scene, "-o", &path("x.inet"), "--turn", "nothing"]).0, 3);
     std::fs::write(path("junk.inet"), b"hello").unwrap();
@@ -553,19 +555,21 @@ fn any_view_from_one_archive() {
         "0",
     ]);
     assert!(read_exr(Path::new(&path("k.exr"))).unwrap() == frames[0], "frame 0 is the first key's view");
-    // Cameras that cannot be, refused before any work (exit 3).
-    for bad in [
-        vec!["--fov", "180"],
-        vec!["--look-at", "0.278,0.9,-0.8"],
-        vec!["--size", "0x10"],
-        vec!["--camera-position", "1,2"],
-        vec!["--camera-from", "nothing.toml"],
+    // Cameras that cannot be, refused before any work: a value out of its
+    // range is bad input (3), one of the wrong form a usage error (2), a
+    // file that cannot be read an I/O failure (5).
+    for (bad, want) in [
+        (vec!["--fov", "180"], 3),
+        (vec!["--look-at", "0.278,0.9,-0.8"], 3),
+        (vec!["--size", "0x10"], 3),
+        (vec!["--camera-position", "1,2"], 2),
+        (vec!["--camera-from", "nothing.toml"], 5),
     ] {
         let x = path("x.png");
         let mut args = vec!["render", boxed.as_str(), "-o", x.as_str()];
         args.extend(bad.iter().copied());
         let (code, err) = failing(&args);
-        assert!(code == 2 || code == 3, "{bad:?}: exit {code}: {err}");
+        assert_eq!(code, want, "{bad:?}: {err}");
         assert!(!Path::new(&x).exists(), "{bad:?}: an image was written");
     }
 }

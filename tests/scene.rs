@@ -187,6 +187,24 @@ fn parser_errors_name_the_field_in_plain_words() {
             "surface[0].emission",
             "[0, 1e9]",
         ),
+        // A misspelt key in an inline table of a list: the element named.
+        (
+            format!(
+                "{HEAD}{surface}quad = [[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]]\nkeyframes = [{{ frame = 0, translate = [0, 0, 0] }}, {{ frame = 1, rotate_dg = [0, 0, 0] }}]\n"
+            ),
+            15,
+            "surface[0].keyframes[1].rotate_dg",
+            "rotate_dg",
+        ),
+        // The same over several lines.
+        (
+            format!(
+                "{HEAD}{surface}quad = [[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]]\nkeyframes = [\n  {{ frame = 0 }}, # first\n  {{ frame = 1, translate = [0, 0, 0] }},\n  {{ frame = 2, rotate_dg = [0, 0, 0] }},\n]\n"
+            ),
+            18,
+            "surface[0].keyframes[2].rotate_dg",
+            "rotate_dg",
+        ),
         // Too long: serde's fixed arrays would take the first values.
         (
             HEAD.replace("position = [0, 0, -3]", "position = [0, 0, -3, 0]"),

@@ -224,6 +224,19 @@ fn upgrades_replace_in_place_refuse_the_wrong_files_and_leave_damage_alone() {
     let before = std::fs::read(&path).unwrap();
     assert!(upgrade::upgrade(&path, &path).unwrap().already_current);
     assert_eq!(std::fs::read(&path).unwrap(), before);
+    // To another file, a current archive is copied (and checked).
+    let copy = dir.path().join("copy.inet");
+    assert!(upgrade::upgrade(&path, &copy).unwrap().already_current);
+    assert_eq!(std::fs::read(&copy).unwrap(), before);
+    // A damaged current archive is not copied.
+    let mut bad = before.clone();
+    let (e, _) = sections(&before).into_iter().find(|(e, _)| e.tag == tag::PATCH_CENTRE).unwrap();
+    bad[e.offset as usize + 4] ^= 0x40;
+    let damaged_current = dir.path().join("damaged_current.inet");
+    std::fs::write(&damaged_current, &bad).unwrap();
+    let copy2 = dir.path().join("copy2.inet");
+    assert!(upgrade::upgrade(&damaged_current, &copy2).is_err());
+    assert!(!copy2.exists());
     // A flipped byte in LWGT: refused, nothing written, nothing left.
     let mut bytes = std::fs::read(data("v6_glossy_floor.inet")).unwrap();
     let (e, _) = sections(&bytes.clone()).into_iter().find(|(e, _)| e.tag == tag::LINK_WEIGHT_V6).unwrap();
@@ -234,8 +247,10 @@ fn upgrades_replace_in_place_refuse_the_wrong_files_and_leave_damage_alone() {
     let err = upgrade::upgrade(&damaged, &out).unwrap_err().to_string();
     assert!(err.contains("LWGT") && err.contains("checksum"), "{err}");
     assert!(!out.exists());
-    let left: Vec<_> = std::fs::read_dir(dir.path()).unwrap().map(|e| e.unwrap().file_name()).collect();
-    assert_eq!(left.len(), 2, "no temporaries left: {left:?}");
+    let mut left: Vec<_> =
+        std::fs::read_dir(dir.path()).unwrap().map(|e| e.unwrap().file_name().into_string().unwrap()).collect();
+    left.sort();
+    assert_eq!(left, ["a.inet", "copy.inet", "damaged.inet", "damaged_current.inet"], "no temporaries left");
 }
 
 #[test]
@@ -255,6 +270,11 @@ fn the_cli_says_to_upgrade_and_upgrades() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(4), "{err}");
     assert!(err.contains("format version 6") && err.contains("illumnet upgrade"), "{err}");
+    // `verify` says the same, as a finding: the file is sound, not corrupt.
+    let out = std::process::Command::new(bin).args(["verify", path.to_str().unwrap()]).output().unwrap();
+    let text = String::from_utf8_lossy(&out.stdout).into_owned() + &String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(4), "{text}");
+    assert!(text.contains("illumnet upgrade") && !text.contains("corrupt"), "{text}");
     let out = std::process::Command::new(bin).args(["upgrade", path.to_str().unwrap()]).output().unwrap();
     let text = String::from_utf8_lossy(&out.stdout);
     assert!(out.status.success() && text.contains("to format version 10"), "{text}");

@@ -58,9 +58,10 @@ pub struct Upgraded {
 const BATCH_ENDS: usize = 1 << 20;
 
 /// Rewrites the archive `input` (format version 6 to 9) in the current
-/// format at `output` (which may be `input`: it is replaced atomically).
-/// Fails, leaving `output` as it was, on a file of another version, a
-/// damaged one, or one whose result does not validate.
+/// format at `output` (which may be `input`: it is replaced atomically);
+/// a file in the current format is copied (nothing done if `output` is
+/// `input`). Fails, leaving `output` as it was, on a file of another
+/// version, a damaged one, or one whose result does not validate.
 pub fn upgrade(input: &Path, output: &Path) -> Result<Upgraded, ArchiveError> {
     let io_in = |e: std::io::Error| ArchiveError::Io { path: input.into(), source: e };
     let file = File::open(input).map_err(io_in)?;
@@ -76,19 +77,34 @@ pub fn upgrade(input: &Path, output: &Path) -> Result<Upgraded, ArchiveError> {
             version_before: version,
         });
     }
-    if !(layout::UPGRADABLE..layout::OLDEST_READABLE).contains(&version) {
-        return Err(match version {
-            v if v >= layout::OLDEST_READABLE => ArchiveError::corrupt(format!(
-                "{} is already in format version {v}: copy it instead of upgrading it",
-                input.display()
-            )),
-            v => ArchiveError::Outdated { written: v },
+    let io_out = |e: std::io::Error| ArchiveError::Io { path: output.into(), source: e };
+    if version >= layout::OLDEST_READABLE {
+        // Nothing to rewrite: the result is a copy, checked as a render
+        // would check it before it replaces `output`.
+        let dir = scratch::dir_of(output);
+        std::fs::create_dir_all(dir).map_err(|e| ArchiveError::Io { path: dir.into(), source: e })?;
+        let _ = scratch::remove_stale(output);
+        let (mut tmp_file, tmp_path) = scratch::temp_file(output).map_err(io_out)?.into_parts();
+        let mut from = &file;
+        std::io::copy(&mut from, &mut tmp_file).map_err(|e| either(e, input, output))?;
+        tmp_file.sync_all().map_err(io_out)?;
+        Archive::open_streamed(tmp_path.as_ref(), 1 << 18)?;
+        tmp_path.persist(output).map_err(|e| io_out(e.error))?;
+        let len = header.file_length;
+        return Ok(Upgraded {
+            bytes_before: len,
+            bytes_after: len,
+            escapes: 0,
+            already_current: true,
+            version_before: version,
         });
+    }
+    if version < layout::UPGRADABLE {
+        return Err(ArchiveError::Outdated { written: version });
     }
     let (_, mut entries) = read_structure_of(&file, input, Some(&required_before(version)))?;
     entries.sort_by_key(|e| e.offset);
     let old = OldLinks::open(&file, input, &entries, version)?;
-    let io_out = |e: std::io::Error| ArchiveError::Io { path: output.into(), source: e };
     let dir = scratch::dir_of(output);
     std::fs::create_dir_all(dir).map_err(|e| ArchiveError::Io { path: dir.into(), source: e })?;
     let _ = scratch::remove_stale(output);

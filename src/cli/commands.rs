@@ -194,7 +194,10 @@ pub fn build(
     }
     let frames = scene.frame_count();
     match frame {
-        Some(f) if f >= frames => bail_input!("--frame {f} is outside the sequence 0..{frames}"),
+        Some(f) if frames == 1 && f > 0 => bail_input!("--frame {f}: the scene is a still (its one frame is 0)"),
+        Some(f) if f >= frames => {
+            bail_input!("--frame {f} is outside the sequence 0..{frames} (frames 0 to {})", frames - 1)
+        }
         Some(f) => scene = scene.at_frame(f),
         None => {}
     }
@@ -492,7 +495,15 @@ pub fn render(
         None => 0..total_frames,
     };
     if range.end > total_frames {
-        bail_input!("frames {}..{} are outside the archive's sequence 0..{total_frames}", range.start, range.end);
+        if total_frames == 1 {
+            bail_input!("--frames: the archive is a still (its one frame is 0)");
+        }
+        bail_input!(
+            "frames {}..{} are outside the archive's sequence 0..{total_frames} (frames 0 to {})",
+            range.start,
+            range.end,
+            total_frames - 1
+        );
     }
     // Every frame's camera, checked before any work.
     let mut frame_cameras = Vec::new();
@@ -1355,7 +1366,7 @@ pub fn verify(path: &Path, json: bool) -> Result<()> {
     if r.sound() {
         Ok(())
     } else {
-        let e = archive::ArchiveError::Corrupt(format!(
+        let e = super::exit::Findings(format!(
             "{} finding{} in {}",
             r.finding_count,
             if r.finding_count == 1 { "" } else { "s" },
@@ -1371,7 +1382,16 @@ pub fn upgrade(input: &Path, output: &Path) -> Result<()> {
     let started = Instant::now();
     let done = archive::upgrade::upgrade(input, output)?;
     if done.already_current {
-        println!("{} is in a current format (version 7 or later) already: nothing to do", input.display());
+        let v = done.version_before;
+        if input == output {
+            println!("{} is in the current format (version {v}) already: nothing to do", input.display());
+        } else {
+            println!(
+                "{} is in the current format (version {v}) already: copied to {}",
+                input.display(),
+                output.display()
+            );
+        }
         return Ok(());
     }
     println!(

@@ -5,7 +5,7 @@
 //! | 0 | success |
 //! | 1 | failure not covered below |
 //! | 2 | usage: unknown option, missing argument (clap) |
-//! | 3 | bad input: a scene file, an option's value, a frame the archive does not have |
+//! | 3 | bad input: a scene file, an option's value out of its range, a frame the archive does not have |
 //! | 4 | corrupt or unsupported archive, or one in an older format (`illumnet upgrade`) |
 //! | 5 | I/O: a file could not be read or written |
 //! | 6 | the job does not fit the memory budget (said before work starts) |
@@ -49,6 +49,20 @@ impl fmt::Display for ResultRefused {
 }
 
 impl std::error::Error for ResultRefused {}
+
+/// What `verify` found wrong with an archive (listed before it): exits
+/// as a corrupt archive does, without calling every finding corruption
+/// (an archive in an older format is sound but must be upgraded).
+#[derive(Debug)]
+pub struct Findings(pub String);
+
+impl fmt::Display for Findings {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl std::error::Error for Findings {}
 
 /// An option value or other input the CLI refuses.
 #[derive(Debug)]
@@ -135,11 +149,17 @@ fn archive_code(e: &ArchiveError) -> u8 {
 /// The exit code of `err` (module docs).
 pub fn code(err: &anyhow::Error) -> u8 {
     for cause in err.chain() {
-        if cause.is::<BadInput>() || cause.is::<SceneError>() {
+        if let Some(e) = cause.downcast_ref::<SceneError>() {
+            return if e.unreadable { IO } else { BAD_INPUT };
+        }
+        if cause.is::<BadInput>() {
             return BAD_INPUT;
         }
         if cause.is::<IoFailure>() || cause.is::<std::io::Error>() {
             return IO;
+        }
+        if cause.is::<Findings>() {
+            return CORRUPT_ARCHIVE;
         }
         if cause.is::<ResultRefused>() {
             return RESULT;

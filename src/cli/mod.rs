@@ -422,10 +422,11 @@ enum Command {
         #[arg(long, default_value_t = 1.0, value_name = "RADIANCE")]
         below: f32,
     },
-    /// Rewrite an archive written in the previous format (version 6) in
-    /// the current one: the same light, 3 bytes fewer per link end. Writes
-    /// a temporary file, validates it, then renames it over OUTPUT
-    /// (default: the archive itself).
+    /// Rewrite an archive written in an older format (versions 6 to 9) in
+    /// the current one (version 10): the same light, 7 bytes per link end
+    /// instead of 10 (or 13). Writes a temporary file, validates it, then
+    /// renames it over OUTPUT (default: the archive itself); an archive in
+    /// the current format is copied.
     Upgrade {
         /// Archive to rewrite.
         archive: PathBuf,

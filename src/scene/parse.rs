@@ -25,11 +25,21 @@ pub struct SceneError {
     pub field: String,
     /// What is wrong.
     pub message: String,
+    /// The file could not be read at all (an I/O failure, not a mistake
+    /// in it): the CLI exits with its I/O code.
+    pub unreadable: bool,
 }
 
 impl SceneError {
     pub(super) fn io(path: &Path, e: std::io::Error) -> Self {
-        Self { file: path.into(), line: 0, column: 0, field: String::new(), message: format!("cannot read: {e}") }
+        Self {
+            file: path.into(),
+            line: 0,
+            column: 0,
+            field: String::new(),
+            message: format!("cannot read: {e}"),
+            unreadable: true,
+        }
     }
 }
 
@@ -274,7 +284,14 @@ impl Ctx<'_> {
 
     fn err(&self, span: Range<usize>, field: impl Into<String>, message: impl Into<String>) -> SceneError {
         let (line, column) = line_col(self.text, span.start);
-        SceneError { file: self.file.into(), line, column, field: field.into(), message: message.into() }
+        SceneError {
+            file: self.file.into(),
+            line,
+            column,
+            field: field.into(),
+            message: message.into(),
+            unreadable: false,
+        }
     }
 }
 
@@ -299,17 +316,20 @@ fn field_at(text: &str, offset: usize) -> String {
     // Brackets open at the start of each line (outside strings and
     // comments): a line inside a multi-line array is no table header.
     let mut depth = 0i32;
-    // The key of the last line that began outside any bracket: the one a
+    // The line of the last key that began outside any bracket: the one a
     // value continued over several lines belongs to.
-    let mut outer_key = String::new();
-    for line in text[..line_start].lines().map(str::trim) {
+    let mut outer_start = 0..0;
+    let mut at = 0;
+    for raw in text[..line_start].split_inclusive('\n') {
+        let (line, start) = (raw.trim(), at);
+        at += raw.len();
         let open = depth;
         if open == 0
             && let Some((k, _)) = line.split_once('=')
             && !k.trim().is_empty()
             && k.trim().chars().all(|c| c.is_alphanumeric() || c == '_' || c == '-')
         {
-            outer_key = k.trim().to_string();
+            outer_start = start..at;
         }
         for c in code_chars(line) {
             match c {
@@ -342,38 +362,15 @@ fn field_at(text: &str, offset: usize) -> String {
             header = name.trim().to_string();
         }
     }
-    // Keys on the line up to the offset, nested by inline tables; if none
+    // Keys on the line up to the offset, nested by inline tables and
+    // arrays (an inline table in an array is named by its index); if none
     // comes before it (a duplicate key is reported at the line's start),
     // the line's first key; if the line has none (a value continued from
     // the line above), the nearest key above.
-    let keys = |segment: &str| -> Vec<String> {
-        let (mut stack, mut last): (Vec<String>, Option<String>) = (Vec::new(), None);
-        let mut word = String::new();
-        for c in code_chars(segment) {
-            match c {
-                c if c.is_alphanumeric() || c == '_' || c == '-' => word.push(c),
-                '=' => {
-                    if !word.is_empty() {
-                        last = Some(std::mem::take(&mut word));
-                    }
-                }
-                '{' => {
-                    word.clear();
-                    if let Some(k) = last.take() {
-                        stack.push(k);
-                    }
-                }
-                '}' => {
-                    word.clear();
-                    stack.pop();
-                    last = None;
-                }
-                c if c.is_whitespace() => {}
-                _ => word.clear(),
-            }
-        }
-        stack.extend(last);
-        stack
+    let keys = |segment: &str| {
+        let mut p = KeyPath::default();
+        p.feed(segment);
+        p.path(None)
     };
     let line_end = text[offset..].find('\n').map_or(text.len(), |p| offset + p);
     // The error is in a table header itself (a table given twice).
@@ -382,12 +379,23 @@ fn field_at(text: &str, offset: usize) -> String {
     {
         return name.trim_start_matches('[').split(']').next().unwrap_or("").trim().to_string();
     }
-    let mut path = keys(&text[line_start..offset]);
-    if depth > 0 && !outer_key.is_empty() {
-        // Inside a value continued from above: its key, and any inline
-        // table keys before the error on this line.
-        path.insert(0, outer_key);
-    }
+    // A key that starts at the offset (an unknown field is reported at
+    // its key) names the field itself.
+    let word: String = text[offset..].chars().take_while(|&c| c.is_alphanumeric() || c == '_' || c == '-').collect();
+    let at_key = (!word.is_empty() && text[offset + word.len()..].trim_start().starts_with('=')).then_some(word);
+    let mut path = if depth > 0 && !outer_start.is_empty() {
+        // Inside a value continued from above: the path from its key on,
+        // line by line.
+        let mut p = KeyPath::default();
+        for line in text[outer_start.start..offset].split_inclusive('\n') {
+            p.feed(line);
+        }
+        p.path(at_key)
+    } else {
+        let mut p = KeyPath::default();
+        p.feed(&text[line_start..offset]);
+        p.path(at_key)
+    };
     if path.is_empty() {
         path = keys(&text[line_start..line_end]).into_iter().take(1).collect();
     }
@@ -406,6 +414,67 @@ fn field_at(text: &str, offset: usize) -> String {
         (true, _) => tail,
         (false, true) => header,
         (false, false) => format!("{header}.{tail}"),
+    }
+}
+
+/// Where a position in TOML text lies among the inline tables and arrays
+/// of a value, fed the text before it line by line.
+#[derive(Default)]
+struct KeyPath {
+    /// Open inline tables (named by their key; empty: an array's element)
+    /// and arrays (their key and the element at hand).
+    open: Vec<(String, Option<usize>)>,
+    /// The key whose value is being read.
+    last: Option<String>,
+    word: String,
+}
+
+impl KeyPath {
+    fn feed(&mut self, line: &str) {
+        for c in code_chars(line) {
+            match c {
+                c if c.is_alphanumeric() || c == '_' || c == '-' => self.word.push(c),
+                '=' => {
+                    if !self.word.is_empty() {
+                        self.last = Some(std::mem::take(&mut self.word));
+                    }
+                }
+                '{' | '[' => {
+                    self.word.clear();
+                    let key = self.last.take().unwrap_or_default();
+                    self.open.push((key, (c == '[').then_some(0)));
+                }
+                '}' | ']' => {
+                    self.word.clear();
+                    self.open.pop();
+                    self.last = None;
+                }
+                ',' => {
+                    self.word.clear();
+                    if let Some((_, Some(i))) = self.open.last_mut() {
+                        *i += 1;
+                    }
+                }
+                c if c.is_whitespace() => {}
+                _ => self.word.clear(),
+            }
+        }
+    }
+
+    /// The keys down to the position (`key`: one that starts there): an
+    /// array holding inline tables gives its element's index.
+    fn path(&self, key: Option<String>) -> Vec<String> {
+        let mut out = Vec::new();
+        for (i, (k, element)) in self.open.iter().enumerate() {
+            let table_inside = self.open.get(i + 1).is_some_and(|n| n.1.is_none());
+            match element {
+                Some(e) if table_inside && !k.is_empty() => out.push(format!("{k}[{e}]")),
+                _ if !k.is_empty() => out.push(k.clone()),
+                _ => {}
+            }
+        }
+        out.extend(key.or_else(|| self.last.clone()));
+        out
     }
 }
 
@@ -1066,7 +1135,12 @@ fn transform_matrix(t: &RawTransform) -> Result<(Mat3, Vec3), String> {
 fn load_obj(path: &Path) -> Result<Vec<Primitive>, String> {
     let opts = tobj::LoadOptions { triangulate: true, single_index: true, ..Default::default() };
     match std::fs::metadata(path) {
-        Err(e) => return Err(format!("cannot read OBJ `{}`: {e}", path.display())),
+        Err(e) => {
+            return Err(format!(
+                "cannot read OBJ `{}` (a mesh path is taken from the scene file's folder): {e}",
+                path.display()
+            ));
+        }
         Ok(m) if m.is_dir() => return Err(format!("`{}` is a directory, not an OBJ file", path.display())),
         Ok(_) => {}
     }

@@ -64,7 +64,14 @@ const MAX_TRIANGLES: usize = 50_000_000;
 /// An error at a field of an imported file (a JSON pointer for glTF; an
 /// object or material for OBJ): no line or column.
 pub(in crate::scene) fn error(file: &Path, pointer: impl Into<String>, message: impl Into<String>) -> SceneError {
-    SceneError { file: file.into(), line: 0, column: 0, field: pointer.into(), message: message.into() }
+    SceneError {
+        file: file.into(),
+        line: 0,
+        column: 0,
+        field: pointer.into(),
+        message: message.into(),
+        unreadable: false,
+    }
 }
 
 /// What the importer could not map, each said once; after
