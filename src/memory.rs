@@ -142,6 +142,15 @@ pub fn peak_resident() -> Option<u64> {
     proc_kib("/proc/self/status", "VmHWM:")
 }
 
+/// Starts [`peak_resident`] afresh from what is resident now (writes 5 to
+/// `/proc/self/clear_refs`, on Linux; elsewhere, or where that is not
+/// allowed, the peak stays the process's): so that one process running
+/// two stages (`demo`: a build, then a render) reports each stage's peak.
+/// Returns whether it did.
+pub fn reset_peak_resident() -> bool {
+    std::fs::write("/proc/self/clear_refs", "5").is_ok()
+}
+
 /// The resident set size of this process now (`VmRSS` of
 /// `/proc/self/status`), on Linux: what a plan made mid-run starts from.
 pub fn resident_now() -> Option<u64> {

@@ -412,6 +412,13 @@ fn a_new_users_mistakes_get_plain_answers() {
     illumnet(&["render", "-q", &path("box.inet"), "-o", &path("a.png"), "--exr", &path("a.exr"), "--samples", "1"]);
     let (code, err) = failing(&["compare", &path("a.png"), &path("a.exr")]);
     assert!(code == 3 && err.contains("sRGB"), "{err}");
+    let (code, err) = failing(&["compare", &path("box.inet"), &path("a.exr")]);
+    assert!(code == 3 && err.contains("OpenEXR") && !err.contains("sRGB"), "{err}");
+    // An archive named as an image, and demo into a file: refused.
+    let (code, err) = failing(&["build", scene, "-o", &path("box.png")]);
+    assert!(code == 3 && err.contains("name it .inet") && !dir.path().join("box.png").exists(), "{err}");
+    let (code, err) = failing(&["demo", "-o", &path("a.png")]);
+    assert!(code == 3 && err.contains("folder"), "{err}");
     illumnet(&["compare", &path("a.exr"), &path("a.exr")]);
     // Brighter pixels judged with --below (the emitters too, above their radiance).
     let all = illumnet(&["compare", &path("a.exr"), &path("a.exr"), "--below", "1000"]);

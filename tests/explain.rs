@@ -122,4 +122,11 @@ fn render_draws_false_colour_pictures_with_their_scale() {
         assert!(code == 2 || code == 3, "{bad:?}: exit {code}: {err}");
     }
     assert!(!Path::new("never.png").exists());
+    // A reference of another size: refused before the distribution runs.
+    let (a, r) = (path("a.inet"), path("x.exr"));
+    let (code, out, err) =
+        illumnet(&["render", &a, "-o", "never.png", "--false-color", "error", "--reference", &r, "--size", "32x24"]);
+    assert!(code == 3 && err.contains("256×256") && err.contains("32×24"), "exit {code}: {err}");
+    assert!(!out.contains("distribution"), "{out}");
+    assert!(!Path::new("never.png").exists());
 }

@@ -384,6 +384,15 @@ quad = [[-1.0, 3.0, -1.0], [-1.0, 3.0, 1.0], [1.0, 3.0, 1.0], [1.0, 3.0, -1.0]]
     let e = Scene::from_toml("[gltf]\nfile = 'features.gltf'\n[animation]\nframes = 3\n", &dir.join("a.toml"), &dir)
         .unwrap_err();
     assert!(e.field == "animation" && e.line == 3, "{e}");
+    // A material that overrides nothing and that no surface uses: a
+    // misspelt override, refused where a silent one would change nothing.
+    let typo = "[gltf]\nfile = 'features.gltf'\n[[material]]\nname = 'gery'\ntype = 'diffuse'\nreflectance = [0.2, 0.3, 0.4]\n";
+    let e = Scene::from_toml(typo, &dir.join("t.toml"), &dir).unwrap_err();
+    assert!(e.field == "material[0].name" && e.line == 4 && e.message.contains("grey"), "{e}");
+    // Used by a surface of this file, it is a new material.
+    let new =
+        format!("{typo}[[surface]]\nname = 'extra'\nmaterial = 'gery'\nquad = [[0,0,0],[1,0,0],[1,0,1],[0,0,1]]\n");
+    Scene::from_toml(&new, &dir.join("n.toml"), &dir).unwrap_or_else(|e| panic!("{e}"));
 }
 
 /// OBJ + MTL scenes (format-spec/scene.md, "OBJ + MTL scenes"), written by

@@ -23,6 +23,17 @@ fn hints(a: &BuildArgs) -> BuildHints {
 }
 
 fn build_scene(scene: &Scene, output: &Path, args: &BuildArgs, progress: &dyn Progress) -> Result<()> {
+    // An archive named as an image is a slip (`-o scene.png` meant for
+    // `render`): refused before any work.
+    if let Some(ext) = output.extension().and_then(|e| e.to_str())
+        && ["png", "exr", "jpg", "jpeg", "gif", "tif", "tiff", "hdr", "toml", "gltf", "glb", "obj"]
+            .contains(&ext.to_ascii_lowercase().as_str())
+    {
+        bail_input!(
+            "-o {}: an archive is written there, not a .{ext} file (name it .inet; `render` writes images)",
+            output.display()
+        );
+    }
     let quality = match args.quality {
         super::Quality::Draft => build::Quality::Draft,
         super::Quality::Default => build::Quality::Default,
@@ -517,6 +528,22 @@ pub fn render(
         true => (summary.camera.width, summary.camera.height),
         false => frame_cameras.iter().fold((1, 1), |(w, h), c| (w.max(c.width), h.max(c.height))),
     };
+    // An error picture compares each frame's image with the reference.
+    if let Some(r) = &reference {
+        let sizes: Vec<(u32, u32)> = match frame_cameras.is_empty() {
+            true => vec![(summary.camera.width, summary.camera.height)],
+            false => frame_cameras.iter().map(|c| (c.width, c.height)).collect(),
+        };
+        if let Some(&(w, h)) = sizes.iter().find(|&&s| s != (r.width, r.height)) {
+            bail_input!(
+                "--reference is {}×{} pixels but the image is {w}×{h}: render at the reference's size (--size {}x{})",
+                r.width,
+                r.height,
+                r.width,
+                r.height
+            );
+        }
+    }
     let job = plan::RenderJob {
         width,
         height,
@@ -750,11 +777,16 @@ pub fn render(
             (
                 "illumnet.settings".to_string(),
                 format!(
-                    "shading {:?}, samples {}x{}, light samples {}, tolerance {:e}, exposure {}, tone map {:?}",
+                    "shading {:?}, samples {}x{}, light samples {}, gather {} rays within {} patch sides, edge \
+                     samples {}x{}, tolerance {:e}, exposure {}, tone map {:?}",
                     args.shading,
                     args.samples,
                     args.samples,
                     args.light_samples,
+                    gather_rays,
+                    args.gather_reach,
+                    edge_samples,
+                    edge_samples,
                     args.tolerance,
                     args.exposure,
                     args.tone_map
@@ -1166,19 +1198,31 @@ pub fn compare(image: &Path, reference: &Path, heatmap: Option<&Path>, full_scal
         return Err(anyhow::Error::new(BadInput(format!("--below must be a positive radiance, got {below}"))));
     }
     for (path, what) in [(image, "IMAGE"), (reference, "REFERENCE")] {
-        require_extension(
-            path,
-            "exr",
-            what,
+        let is_image = path.extension().and_then(|e| e.to_str()).is_some_and(|e| {
+            ["png", "jpg", "jpeg", "tif", "tiff", "bmp", "gif", "hdr"].contains(&e.to_ascii_lowercase().as_str())
+        });
+        let why = if is_image {
             "compare measures linear radiance and takes OpenEXR images; PNG and other 8-bit formats hold \
-             sRGB-encoded values (write linear images with `render --exr`)",
-        )?;
+             sRGB-encoded values (write linear images with `render --exr`)"
+        } else {
+            "compare measures linear radiance and takes OpenEXR images (`render --exr` writes one)"
+        };
+        require_extension(path, "exr", what, why)?;
     }
     if let Some(map) = heatmap {
         require_extension(map, "png", "--heatmap", "--heatmap writes a PNG: name it .png")?;
     }
-    let a = image_io::read_exr(image).map_err(IoFailure)?;
-    let r = image_io::read_exr(reference).map_err(IoFailure)?;
+    let read = |p: &Path| {
+        image_io::read_exr(p).map_err(|e| {
+            let hint = if e.contains("missing bytes") || e.contains("end of file") {
+                " (the file looks truncated)"
+            } else {
+                ""
+            };
+            IoFailure(format!("{e}{hint}"))
+        })
+    };
+    let (a, r) = (read(image)?, read(reference)?);
     let (err, map) = image_io::compare_below(&a, &r, below).map_err(BadInput)?;
     println!(
         "relative L2 {:.4}, relative MSE {:.3e}, mean absolute error {:.4e} over {} pixels",
@@ -1407,10 +1451,16 @@ pub fn upgrade(input: &Path, output: &Path) -> Result<()> {
 }
 
 pub fn demo(dir: &Path, build_args: BuildArgs, render_args: RenderArgs, progress: &dyn Progress) -> Result<()> {
-    std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    if dir.is_file() {
+        bail_input!("-o {}: demo writes its archive and images into a folder, and this is a file", dir.display());
+    }
+    std::fs::create_dir_all(dir).with_context(|| format!("cannot create the folder {}", dir.display()))?;
     let scene = Scene::cornell_box();
     let archive = dir.join("cornell_box.inet");
     build_scene(&scene, &archive, &build_args, progress)?;
+    // The render's summary reports its own peak, not the build's.
+    crate::return_freed_memory();
+    illumnet::memory::reset_peak_resident();
     render(
         &archive,
         &dir.join("cornell_box.png"),

@@ -22,7 +22,7 @@ struct Cli {
     /// No progress bars (summaries and errors still print).
     #[arg(short, long, global = true)]
     quiet: bool,
-    /// Worker threads (default: all cores). Output does not depend on it.
+    /// Worker threads (default, or 0: all cores). Output does not depend on it.
     #[arg(long, global = true, value_name = "N")]
     threads: Option<usize>,
     #[command(subcommand)]

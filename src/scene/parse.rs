@@ -874,6 +874,26 @@ pub(super) fn parse(text: &str, file: &Path, base_dir: &Path, name: String) -> R
     if surfaces.is_empty() {
         return Err(cx.err(0..0, "surface", "the scene has no surfaces"));
     }
+    // Over a glTF scene, a material of this file overrides the glTF's of
+    // its name, or is new for this file's surfaces: one that does neither
+    // is a misspelt override, which would change nothing.
+    if imported.is_some() {
+        for (i, m) in raw.material.iter().enumerate() {
+            let name = m.get_ref().name.get_ref();
+            let at = materials.iter().position(|x| x.name == *name).expect("every material was added");
+            if at >= from_gltf && !surfaces.iter().any(|s| s.material as usize == at) {
+                let known: Vec<&str> = materials[..from_gltf].iter().map(|x| x.name.as_str()).collect();
+                return Err(cx.err(
+                    m.get_ref().name.span(),
+                    format!("material[{i}].name"),
+                    format!(
+                        "`{name}` names no material of the glTF file ({}) and no surface uses it: a misspelt override?",
+                        if known.is_empty() { "it has none".to_string() } else { known.join(", ") }
+                    ),
+                ));
+            }
+        }
+    }
     let animation = match &raw.animation {
         None if imported.is_some() => imported.as_ref().and_then(|g| g.animation),
         Some(a) => {
