@@ -408,6 +408,9 @@ fn a_new_users_mistakes_get_plain_answers() {
     assert!(code == 3 && err.contains("rebuild"), "{err}");
     let (code, err) = failing(&["render", &path("box.inet"), "-o", &path("x.png"), "--set", "light.colour=1,1,1"]);
     assert!(code == 3 && err.contains("unknown field `colour`"), "{err}");
+    // A negative number is a value (not an option), and out of range here.
+    let (code, err) = failing(&["render", &path("box.inet"), "-o", &path("x.png"), "--exposure", "-1"]);
+    assert!(code == 3 && err.contains("--exposure") && err.contains("positive"), "{err}");
     // compare judges linear radiance only.
     illumnet(&["render", "-q", &path("box.inet"), "-o", &path("a.png"), "--exr", &path("a.exr"), "--samples", "1"]);
     let (code, err) = failing(&["compare", &path("a.png"), &path("a.exr")]);

@@ -150,6 +150,12 @@ fn parser_errors_name_the_field_in_plain_words() {
             "expected a list of 3 numbers",
         ),
         (HEAD.replace("width = 8", "width = 200.0"), 5, "camera.width", "expected a whole number, got 200.0"),
+        (
+            HEAD.replace("width = 8", "width = -5"),
+            5,
+            "camera.width",
+            "expected a whole number, not a negative one, got -5",
+        ),
         (HEAD.replace("width = 8", "width = 18446744073709551615"), 5, "camera.width", "18446744073709551615"),
         (format!("{HEAD}[camera]\n"), 11, "camera", "camera"),
         (HEAD.replace("height = 8", "height = 8\nwidth = 9"), 7, "camera.width", "`width` is given twice"),

@@ -435,6 +435,9 @@ pub fn render(
     if !(args.tolerance > 0.0 && args.tolerance < 1.0) {
         bail_input!("--tolerance must be in (0, 1), got {}", args.tolerance);
     }
+    if !(args.exposure > 0.0 && args.exposure.is_finite()) {
+        bail_input!("--exposure multiplies radiance: it must be a positive number, got {}", args.exposure);
+    }
     if !(1..=1_000_000).contains(&args.max_iterations) {
         bail_input!("--max-iterations must be in 1..=1000000, got {}", args.max_iterations);
     }

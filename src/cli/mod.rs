@@ -121,7 +121,7 @@ struct RenderArgs {
     edge_samples: Option<u32>,
     /// Multiply radiance by this before tone mapping and sRGB encoding the
     /// PNG (the EXR keeps radiance as it is).
-    #[arg(long, default_value_t = 1.0, value_name = "X")]
+    #[arg(long, default_value_t = 1.0, value_name = "X", allow_negative_numbers = true)]
     exposure: f32,
     /// How the PNG maps radiance to display values: `clamp` (exact below
     /// 1, highlights clipped), `reinhard` (x/(1+x): nothing clipped),

@@ -534,7 +534,11 @@ fn plain_message(message: &str, key: &str) -> String {
             "i32" => " from -2147483648 to 2147483647",
             _ => "",
         };
-        return format!("expected {}{range}, got {}", words(expected), got.replace('`', ""));
+        let got = got.replace('`', "");
+        if got.starts_with('-') && expected.trim().starts_with('u') {
+            return format!("expected {}, not a negative one, got {got}", words(expected));
+        }
+        return format!("expected {}{range}, got {got}", words(expected));
     }
     if let Some(rest) = message.strip_prefix("invalid type: ")
         && let Some((got, expected)) = rest.split_once(", expected ")
