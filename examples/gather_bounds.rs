@@ -127,20 +127,32 @@ fn main() {
             let line = |what: &str, rate: f64| println!("{threads} thread(s): {what:<44} {:>6.0} M ends/s", rate / 1e6);
             line(&format!("stream only ({:.1} GB/s; {sum})", ends * 5.0 / s / 1e9), ends / s);
             let variants = [
-                ("gather", u32::MAX, false),
-                ("gather, ids masked", MASK, false),
-                ("gather, stream prefetched", u32::MAX, true),
+                ("gather", u32::MAX, Prefetch::No),
+                ("gather, ids masked", MASK, Prefetch::No),
+                ("gather, stream prefetched", u32::MAX, Prefetch::T0),
+                ("gather, stream prefetched non-temporally", u32::MAX, Prefetch::Nta),
+                ("gather, masked and prefetched", MASK, Prefetch::T0),
             ];
-            for (what, mask, prefetch) in variants.into_iter().chain([("gather, masked and prefetched", MASK, true)]) {
+            let masks: Vec<(String, u32, Prefetch)> = (15..=19)
+                .map(|k| {
+                    (
+                        format!("gather, ids masked into 2^{k} ({} KiB)", (16u64 << k) >> 10),
+                        (1u32 << k) - 1,
+                        Prefetch::No,
+                    )
+                })
+                .collect();
+            let variants = variants.into_iter().map(|(w, m, p)| (w.to_string(), m, p)).chain(masks);
+            for (what, mask, prefetch) in variants {
                 let t = Instant::now();
                 for _ in 0..PASSES {
                     gather(offsets, other, count, &shoot, mask, prefetch, &mut recv);
                 }
-                line(what, ends / t.elapsed().as_secs_f64());
+                line(&what, ends / t.elapsed().as_secs_f64());
             }
             let t = Instant::now();
             for _ in 0..PASSES * reps {
-                gather(&offsets[..sub + 1], other, count, &shoot, MASK, false, &mut recv[..sub]);
+                gather(&offsets[..sub + 1], other, count, &shoot, MASK, Prefetch::No, &mut recv[..sub]);
             }
             let n = offsets[sub] as f64 * (PASSES * reps) as f64;
             line(&format!("gather, masked, first {sub} patches x{reps}"), n / t.elapsed().as_secs_f64());
@@ -184,7 +196,7 @@ fn main() {
                 }
                 let rate = ends / t.elapsed().as_secs_f64();
                 let mut err = 0f64;
-                gather(offsets, other, count, &shoot, u32::MAX, false, &mut recv);
+                gather(offsets, other, count, &shoot, u32::MAX, Prefetch::No, &mut recv);
                 for (a, b) in recv.iter().zip(&recv2) {
                     for c in 0..3 {
                         err = err.max(((a[c] - b[c]) as f64).abs() / (a[c] as f64).abs().max(1e-30));
@@ -447,7 +459,7 @@ fn gather(
     count: &[u8],
     shoot: &[[f32; 4]],
     mask: u32,
-    prefetch: bool,
+    prefetch: Prefetch,
     recv: &mut [[f32; 4]],
 ) {
     let last = shoot.len() - 1;
@@ -455,8 +467,10 @@ fn gather(
         for (i, r) in out.iter_mut().enumerate() {
             let q = block * BLOCK + i;
             let row = offsets[q] as usize..offsets[q + 1] as usize;
-            if prefetch {
-                prefetch_ahead(other, count, row.clone());
+            match prefetch {
+                Prefetch::No => {}
+                Prefetch::T0 => prefetch_ahead::<false>(other, count, row.clone()),
+                Prefetch::Nta => prefetch_ahead::<true>(other, count, row.clone()),
             }
             let (o, w) = (&other[row.clone()], &count[row]);
             let mut acc = [[0f32; 4]; 4];
@@ -473,21 +487,34 @@ fn gather(
     });
 }
 
-/// Asks for the cache lines of both columns 1 024 ends past `row`.
+/// Whether and how the gather asks for the stream ahead of use.
+#[derive(Clone, Copy)]
+enum Prefetch {
+    No,
+    /// Into every cache level (`_MM_HINT_T0`).
+    T0,
+    /// Non-temporal (`_MM_HINT_NTA`): kept out of the shared L3, so that
+    /// the stream passing through does not evict the per-patch state.
+    Nta,
+}
+
+/// Asks for the cache lines of both columns 1 024 ends past `row`
+/// (non-temporally if `NTA`).
 #[cfg(target_arch = "x86_64")]
-fn prefetch_ahead(other: &[u32], count: &[u8], row: std::ops::Range<usize>) {
-    use std::arch::x86_64::{_MM_HINT_T0, _mm_prefetch};
-    for k in row.step_by(16) {
+fn prefetch_ahead<const NTA: bool>(other: &[u32], count: &[u8], row: std::ops::Range<usize>) {
+    use std::arch::x86_64::{_MM_HINT_NTA, _MM_HINT_T0, _mm_prefetch};
+    let ask = |p: *const i8| {
         // SAFETY: a prefetch is a hint that reads no memory and faults on
         // no address; the pointers are formed with wrapping arithmetic.
-        unsafe {
-            _mm_prefetch::<_MM_HINT_T0>(other.as_ptr().wrapping_add(k + 1024).cast());
-            if k % 64 == 0 {
-                _mm_prefetch::<_MM_HINT_T0>(count.as_ptr().wrapping_add(k + 1024).cast());
-            }
+        unsafe { if NTA { _mm_prefetch::<_MM_HINT_NTA>(p) } else { _mm_prefetch::<_MM_HINT_T0>(p) } }
+    };
+    for k in row.step_by(16) {
+        ask(other.as_ptr().wrapping_add(k + 1024).cast());
+        if k % 64 == 0 {
+            ask(count.as_ptr().wrapping_add(k + 1024).cast());
         }
     }
 }
 
 #[cfg(not(target_arch = "x86_64"))]
-fn prefetch_ahead(_: &[u32], _: &[u8], _: std::ops::Range<usize>) {}
+fn prefetch_ahead<const NTA: bool>(_: &[u32], _: &[u8], _: std::ops::Range<usize>) {}
