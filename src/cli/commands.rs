@@ -594,8 +594,14 @@ pub fn render(
     let view = archive.view();
     let t_open = t.elapsed().as_secs_f64();
     let sequence_output = range.len() > 1;
-    let gather_rays =
-        args.gather.unwrap_or(if sequence_output { 0 } else { illumnet::render::direct::DEFAULT_GATHER_RAYS });
+    // A false-colour picture other than the error's does not show the
+    // shaded image: no gather for it by default.
+    let picture_only = extras.false_colour.is_some_and(|f| !matches!(f, FalseColour::Error));
+    let gather_rays = args.gather.unwrap_or(if sequence_output || picture_only {
+        0
+    } else {
+        illumnet::render::direct::DEFAULT_GATHER_RAYS
+    });
     let out_path = |pattern: &Path, f: u32| -> Result<std::path::PathBuf> {
         match frame_path(pattern, f) {
             Some(p) => Ok(p),
