@@ -67,29 +67,27 @@ pub fn upgrade(input: &Path, output: &Path) -> Result<Upgraded, ArchiveError> {
     let file = File::open(input).map_err(io_in)?;
     let (header, _) = read_structure_of(&file, input, Some(&[]))?;
     let version = header.version_write;
-    if version >= layout::OLDEST_READABLE && input == output {
-        let len = header.file_length;
-        return Ok(Upgraded {
-            bytes_before: len,
-            bytes_after: len,
-            escapes: 0,
-            already_current: true,
-            version_before: version,
-        });
-    }
     let io_out = |e: std::io::Error| ArchiveError::Io { path: output.into(), source: e };
-    if version >= layout::OLDEST_READABLE {
-        // Nothing to rewrite: the result is a copy, checked as a render
-        // would check it before it replaces `output`.
+    // The temporary file `output` is written to (its folder made, a
+    // crashed writer's leftovers removed), renamed over it once checked.
+    let temporary = || {
         let dir = scratch::dir_of(output);
         std::fs::create_dir_all(dir).map_err(|e| ArchiveError::Io { path: dir.into(), source: e })?;
         let _ = scratch::remove_stale(output);
-        let (mut tmp_file, tmp_path) = scratch::temp_file(output).map_err(io_out)?.into_parts();
-        let mut from = &file;
-        std::io::copy(&mut from, &mut tmp_file).map_err(|e| either(e, input, output))?;
-        tmp_file.sync_all().map_err(io_out)?;
-        Archive::open_streamed(tmp_path.as_ref(), 1 << 18)?;
-        tmp_path.persist(output).map_err(|e| io_out(e.error))?;
+        Ok::<_, ArchiveError>(scratch::temp_file(output).map_err(io_out)?.into_parts())
+    };
+    if version >= layout::OLDEST_READABLE {
+        // Nothing to rewrite: the result is the file itself, or a copy of
+        // it, checked as a render would check it before it replaces
+        // `output`.
+        if input != output {
+            let (mut tmp_file, tmp_path) = temporary()?;
+            let mut from = &file;
+            std::io::copy(&mut from, &mut tmp_file).map_err(|e| either(e, input, output))?;
+            tmp_file.sync_all().map_err(io_out)?;
+            Archive::open_streamed(tmp_path.as_ref(), 1 << 18)?;
+            tmp_path.persist(output).map_err(|e| io_out(e.error))?;
+        }
         let len = header.file_length;
         return Ok(Upgraded {
             bytes_before: len,
@@ -105,10 +103,7 @@ pub fn upgrade(input: &Path, output: &Path) -> Result<Upgraded, ArchiveError> {
     let (_, mut entries) = read_structure_of(&file, input, Some(&required_before(version)))?;
     entries.sort_by_key(|e| e.offset);
     let old = OldLinks::open(&file, input, &entries, version)?;
-    let dir = scratch::dir_of(output);
-    std::fs::create_dir_all(dir).map_err(|e| ArchiveError::Io { path: dir.into(), source: e })?;
-    let _ = scratch::remove_stale(output);
-    let (tmp_file, tmp_path) = scratch::temp_file(output).map_err(io_out)?.into_parts();
+    let (tmp_file, tmp_path) = temporary()?;
     let mut w = SectionWriter::new(BufWriter::with_capacity(1 << 20, tmp_file)).map_err(io_out)?;
     // The new link columns go where the first old one was (by index: with
     // no link ends, several sections share an offset).

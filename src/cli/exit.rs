@@ -38,54 +38,35 @@ pub const BUDGET: u8 = 6;
 /// The result is refused: not finite, or not converged.
 pub const RESULT: u8 = 7;
 
-/// A result the CLI will not write: not converged, or not finite.
-#[derive(Debug)]
-pub struct ResultRefused(pub String);
+/// Error kinds that are a message: the type says which exit code.
+macro_rules! message_errors {
+    ($($(#[$doc:meta])* $name:ident;)*) => {$(
+        $(#[$doc])*
+        #[derive(Debug)]
+        pub struct $name(pub String);
 
-impl fmt::Display for ResultRefused {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(&self.0)
-    }
+        impl fmt::Display for $name {
+            fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+                f.write_str(&self.0)
+            }
+        }
+
+        impl std::error::Error for $name {}
+    )*};
 }
 
-impl std::error::Error for ResultRefused {}
-
-/// What `verify` found wrong with an archive (listed before it): exits
-/// as a corrupt archive does, without calling every finding corruption
-/// (an archive in an older format is sound but must be upgraded).
-#[derive(Debug)]
-pub struct Findings(pub String);
-
-impl fmt::Display for Findings {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(&self.0)
-    }
+message_errors! {
+    /// A result the CLI will not write: not converged, or not finite.
+    ResultRefused;
+    /// What `verify` found wrong with an archive (listed before it): exits
+    /// as a corrupt archive does, without calling every finding corruption
+    /// (an archive in an older format is sound but must be upgraded).
+    Findings;
+    /// An option value or other input the CLI refuses.
+    BadInput;
+    /// A file the CLI could not read or write (image encoders report strings).
+    IoFailure;
 }
-
-impl std::error::Error for Findings {}
-
-/// An option value or other input the CLI refuses.
-#[derive(Debug)]
-pub struct BadInput(pub String);
-
-/// A file the CLI could not read or write (image encoders report strings).
-#[derive(Debug)]
-pub struct IoFailure(pub String);
-
-impl fmt::Display for BadInput {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(&self.0)
-    }
-}
-
-impl fmt::Display for IoFailure {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(&self.0)
-    }
-}
-
-impl std::error::Error for BadInput {}
-impl std::error::Error for IoFailure {}
 
 /// `Err(BadInput(format!(…)))` from the enclosing function.
 macro_rules! bail_input {
