@@ -122,6 +122,23 @@ fn render_draws_false_colour_pictures_with_their_scale() {
         assert!(code == 2 || code == 3, "{bad:?}: exit {code}: {err}");
     }
     assert!(!Path::new("never.png").exists());
+    // A picture other than the error's does not gather for its shaded
+    // image by default, unless that image is written too (--exr): then it
+    // is the image a plain render writes.
+    let (code, _, err) = illumnet(&[
+        "render",
+        "-q",
+        &path("a.inet"),
+        "-o",
+        &path("fc.png"),
+        "--false-color",
+        "patches",
+        "--exr",
+        &path("fc.exr"),
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let (code, out, err) = illumnet(&["compare", &path("fc.exr"), &path("x.exr"), "--below", "1e9"]);
+    assert!(code == 0 && out.contains("relative L2 0.0000,"), "{out}{err}");
     // A reference of another size: refused before the distribution runs.
     let (a, r) = (path("a.inet"), path("x.exr"));
     let (code, out, err) =

@@ -37,7 +37,7 @@ fn obj_mesh_loads_relative_to_the_scene_and_is_transformed() {
     std::fs::write(&scene_path, format!("{HEAD}[[surface]]\nname = 'm'\nmaterial = 'w'\nmesh = 'nope.obj'\n")).unwrap();
     let e = Scene::from_file(&scene_path).unwrap_err();
     assert_eq!((e.line, e.field.as_str()), (14, "surface[0].mesh"), "{e}");
-    assert!(e.message.contains("nope.obj"), "{e}");
+    assert!(e.message.contains("nope.obj") && e.unreadable, "{e}");
 }
 
 #[test]
@@ -57,9 +57,17 @@ fn mirroring_transforms_keep_box_faces_outward() {
 #[test]
 fn missing_file_is_an_error_naming_it() {
     let e = Scene::from_file(std::path::Path::new("/nonexistent/scene.toml")).unwrap_err();
-    assert!(e.to_string().starts_with("/nonexistent/scene.toml: cannot read"), "{e}");
-    // An OBJ path that names a directory says so.
+    assert!(e.to_string().starts_with("/nonexistent/scene.toml: cannot read") && e.unreadable, "{e}");
+    // Bytes that are not UTF-8 were read: bad input, not an I/O failure.
     let dir = tempfile::tempdir().unwrap();
+    let latin1 = dir.path().join("latin1.toml");
+    std::fs::write(&latin1, b"[camera]\n# caf\xe9\n").unwrap();
+    let e = Scene::from_file(&latin1).unwrap_err();
+    assert!(e.message.contains("not UTF-8") && !e.unreadable, "{e}");
+    // A glTF file that is not there: named at the field that names it.
+    let e = Scene::from_toml("[gltf]\nfile = 'gone.gltf'\n", &dir.path().join("g.toml"), dir.path()).unwrap_err();
+    assert!(e.field == "gltf.file" && e.line == 2 && e.unreadable && e.message.contains("gone.gltf"), "{e}");
+    // An OBJ path that names a directory says so.
     std::fs::create_dir(dir.path().join("meshes")).unwrap();
     let text = format!("{HEAD}[[surface]]\nname = 's'\nmaterial = 'w'\nmesh = 'meshes'\n");
     let e = Scene::from_toml(&text, &dir.path().join("s.toml"), dir.path()).unwrap_err();
@@ -210,6 +218,23 @@ fn parser_errors_name_the_field_in_plain_words() {
             18,
             "surface[0].keyframes[2].rotate_dg",
             "rotate_dg",
+        ),
+        // A field an element of the list lacks: the element named.
+        (
+            format!(
+                "{HEAD}{surface}quad = [[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]]\nkeyframes = [{{ frame = 0 }}, {{ rotate_deg = [0, 0, 0] }}]\n"
+            ),
+            15,
+            "surface[0].keyframes[1]",
+            "frame",
+        ),
+        // A string with an escaped quote and a bracket does not open a
+        // bracket: the next table is still found.
+        (
+            format!("{HEAD}[[material]]\nname = \"v\\\"[\"\ntype = 'diffuse'\nreflectance = [0.5, 2]\n"),
+            14,
+            "material[1].reflectance",
+            "got 2 values",
         ),
         // Too long: serde's fixed arrays would take the first values.
         (

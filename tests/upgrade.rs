@@ -235,8 +235,17 @@ fn upgrades_replace_in_place_refuse_the_wrong_files_and_leave_damage_alone() {
     let damaged_current = dir.path().join("damaged_current.inet");
     std::fs::write(&damaged_current, &bad).unwrap();
     let copy2 = dir.path().join("copy2.inet");
-    assert!(upgrade::upgrade(&damaged_current, &copy2).is_err());
+    let err = upgrade::upgrade(&damaged_current, &copy2).unwrap_err().to_string();
+    assert!(
+        err.contains("damaged_current.inet") && err.contains("nothing was written") && err.contains("PCEN"),
+        "{err}"
+    );
     assert!(!copy2.exists());
+    // The same file spelt another way: nothing to do, nothing written.
+    let spelt = dir.path().join(".").join("a.inet");
+    assert!(upgrade::same_file(&path, &spelt) && !upgrade::same_file(&path, &copy));
+    assert!(upgrade::upgrade(&path, &spelt).unwrap().already_current);
+    assert_eq!(std::fs::read(&path).unwrap(), before);
     // A flipped byte in LWGT: refused, nothing written, nothing left.
     let mut bytes = std::fs::read(data("v6_glossy_floor.inet")).unwrap();
     let (e, _) = sections(&bytes.clone()).into_iter().find(|(e, _)| e.tag == tag::LINK_WEIGHT_V6).unwrap();

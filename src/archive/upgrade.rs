@@ -25,7 +25,7 @@
 //! into place.
 
 use std::fs::File;
-use std::io::BufWriter;
+use std::io::{BufWriter, Read, Write};
 use std::path::Path;
 
 use xxhash_rust::xxh3::Xxh3;
@@ -57,6 +57,12 @@ pub struct Upgraded {
 /// Link ends read from the old file per batch of rows (at least a row).
 const BATCH_ENDS: usize = 1 << 20;
 
+/// Whether `a` and `b` name one file, however spelt (`x.inet`,
+/// `./x.inet`, a link to it): an upgrade in place.
+pub fn same_file(a: &Path, b: &Path) -> bool {
+    a == b || matches!((std::fs::canonicalize(a), std::fs::canonicalize(b)), (Ok(x), Ok(y)) if x == y)
+}
+
 /// Rewrites the archive `input` (format version 6 to 9) in the current
 /// format at `output` (which may be `input`: it is replaced atomically);
 /// a file in the current format is copied (nothing done if `output` is
@@ -80,12 +86,25 @@ pub fn upgrade(input: &Path, output: &Path) -> Result<Upgraded, ArchiveError> {
         // Nothing to rewrite: the result is the file itself, or a copy of
         // it, checked as a render would check it before it replaces
         // `output`.
-        if input != output {
+        if !same_file(input, output) {
             let (mut tmp_file, tmp_path) = temporary()?;
-            let mut from = &file;
-            std::io::copy(&mut from, &mut tmp_file).map_err(|e| either(e, input, output))?;
+            let (mut from, mut buf) = (&file, vec![0u8; 1 << 20]);
+            loop {
+                let n = from.read(&mut buf).map_err(io_in)?;
+                if n == 0 {
+                    break;
+                }
+                tmp_file.write_all(&buf[..n]).map_err(io_out)?;
+            }
             tmp_file.sync_all().map_err(io_out)?;
-            Archive::open_streamed(tmp_path.as_ref(), 1 << 18)?;
+            Archive::open_streamed(tmp_path.as_ref(), 1 << 18).map_err(|e| match e {
+                ArchiveError::Corrupt(m) => ArchiveError::corrupt(format!(
+                    "{} does not validate, so nothing was written to {}: {m}",
+                    input.display(),
+                    output.display()
+                )),
+                other => other,
+            })?;
             tmp_path.persist(output).map_err(|e| io_out(e.error))?;
         }
         let len = header.file_length;

@@ -596,7 +596,10 @@ pub fn render(
     let sequence_output = range.len() > 1;
     // A false-colour picture other than the error's does not show the
     // shaded image: no gather for it by default.
-    let picture_only = extras.false_colour.is_some_and(|f| !matches!(f, FalseColour::Error));
+    let picture_only = extras.false_colour.is_some_and(|f| !matches!(f, FalseColour::Error))
+        && exr.is_none()
+        && extras.gif.is_none()
+        && extras.contact_sheet.is_none();
     let gather_rays = args.gather.unwrap_or(if sequence_output || picture_only {
         0
     } else {
@@ -1436,7 +1439,7 @@ pub fn upgrade(input: &Path, output: &Path) -> Result<()> {
     let done = archive::upgrade::upgrade(input, output)?;
     if done.already_current {
         let v = done.version_before;
-        if input == output {
+        if archive::upgrade::same_file(input, output) {
             println!("{} is in the current format (version {v}) already: nothing to do", input.display());
         } else {
             println!(

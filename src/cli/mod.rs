@@ -167,7 +167,8 @@ struct RenderArgs {
     /// off). Default: 256 for one frame; 0 for several (a sequence or a
     /// walkthrough, where each frame's cost counts and fresh noise would
     /// flicker) and for a `--false-color` picture other than `error`
-    /// (which does not show the shaded image).
+    /// written alone (it does not show the shaded image; with `--exr`,
+    /// `--gif` or `--contact-sheet`, which do, the default is a frame's).
     #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(0..=4096))]
     gather: Option<u32>,
     /// Where the gather applies: samples whose nearest geometry is within

@@ -32,14 +32,12 @@ pub struct SceneError {
 
 impl SceneError {
     pub(super) fn io(path: &Path, e: std::io::Error) -> Self {
-        Self {
-            file: path.into(),
-            line: 0,
-            column: 0,
-            field: String::new(),
-            message: format!("cannot read: {e}"),
-            unreadable: true,
-        }
+        // Text that is not UTF-8 was read: a mistake in the file.
+        let (message, unreadable) = match e.kind() {
+            std::io::ErrorKind::InvalidData => ("is not UTF-8 text".to_string(), false),
+            _ => (format!("cannot read: {e}"), true),
+        };
+        Self { file: path.into(), line: 0, column: 0, field: String::new(), message, unreadable }
     }
 }
 
@@ -370,7 +368,7 @@ fn field_at(text: &str, offset: usize) -> String {
     let keys = |segment: &str| {
         let mut p = KeyPath::default();
         p.feed(segment);
-        p.path(None)
+        p.path(None, false)
     };
     let line_end = text[offset..].find('\n').map_or(text.len(), |p| offset + p);
     // The error is in a table header itself (a table given twice).
@@ -383,6 +381,9 @@ fn field_at(text: &str, offset: usize) -> String {
     // its key) names the field itself.
     let word: String = text[offset..].chars().take_while(|&c| c.is_alphanumeric() || c == '_' || c == '-').collect();
     let at_key = (!word.is_empty() && text[offset + word.len()..].trim_start().starts_with('=')).then_some(word);
+    // An error about a whole inline table (a field it lacks) is reported
+    // at its brace.
+    let at_table = text[offset..].starts_with('{');
     let mut path = if depth > 0 && !outer_start.is_empty() {
         // Inside a value continued from above: the path from its key on,
         // line by line.
@@ -390,11 +391,11 @@ fn field_at(text: &str, offset: usize) -> String {
         for line in text[outer_start.start..offset].split_inclusive('\n') {
             p.feed(line);
         }
-        p.path(at_key)
+        p.path(at_key.clone(), at_table)
     } else {
         let mut p = KeyPath::default();
         p.feed(&text[line_start..offset]);
-        p.path(at_key)
+        p.path(at_key.clone(), at_table)
     };
     if path.is_empty() {
         path = keys(&text[line_start..line_end]).into_iter().take(1).collect();
@@ -461,12 +462,13 @@ impl KeyPath {
         }
     }
 
-    /// The keys down to the position (`key`: one that starts there): an
-    /// array holding inline tables gives its element's index.
-    fn path(&self, key: Option<String>) -> Vec<String> {
+    /// The keys down to the position (`key`: one that starts there;
+    /// `at_table`: an inline table starts there): an array holding inline
+    /// tables gives its element's index.
+    fn path(&self, key: Option<String>, at_table: bool) -> Vec<String> {
         let mut out = Vec::new();
         for (i, (k, element)) in self.open.iter().enumerate() {
-            let table_inside = self.open.get(i + 1).is_some_and(|n| n.1.is_none());
+            let table_inside = self.open.get(i + 1).map_or(at_table, |n| n.1.is_none());
             match element {
                 Some(e) if table_inside && !k.is_empty() => out.push(format!("{k}[{e}]")),
                 _ if !k.is_empty() => out.push(k.clone()),
@@ -481,9 +483,19 @@ impl KeyPath {
 /// The characters of a TOML line outside strings (each string stands as
 /// one `"`) up to a `#` comment.
 fn code_chars(line: &str) -> impl Iterator<Item = char> + '_ {
-    let mut quote = None;
+    let (mut quote, mut escaped) = (None, false);
     line.chars()
         .filter_map(move |c| match (quote, c) {
+            // A basic string's escape (`\"`, `\\`): the next character is
+            // the string's.
+            (Some('"'), _) if escaped => {
+                escaped = false;
+                None
+            }
+            (Some('"'), '\\') => {
+                escaped = true;
+                None
+            }
             (Some(q), c) if c == q => {
                 quote = None;
                 None
@@ -599,7 +611,15 @@ pub(super) fn parse(text: &str, file: &Path, base_dir: &Path, name: String) -> R
             if !super::gltf::is_gltf_path(&path) {
                 return Err(cx.err(gs.file.span(), "gltf.file", "must name a .gltf or .glb file"));
             }
-            Some(super::gltf::import_unchecked(&path, &options)?)
+            // A file that cannot be read is named at the field naming it.
+            let imported = super::gltf::import_unchecked(&path, &options).map_err(|e| match e.unreadable {
+                true => SceneError {
+                    unreadable: true,
+                    ..cx.err(gs.file.span(), "gltf.file", format!("`{}` {}", path.display(), e.message))
+                },
+                false => e,
+            })?;
+            Some(imported)
         }
     };
     let (camera, camera_keys) = match (&raw.camera, &imported) {
@@ -801,7 +821,12 @@ pub(super) fn parse(text: &str, file: &Path, base_dir: &Path, name: String) -> R
             geometry_span = m.span();
             geometry_field = field("mesh");
             let path = base_dir.join(m.get_ref());
-            prims.extend(load_obj(&path).map_err(|msg| cx.err(m.span(), field("mesh"), msg))?);
+            // (A file that is not there is an I/O failure, still named at
+            // its field.)
+            prims.extend(load_obj(&path).map_err(|msg| SceneError {
+                unreadable: std::fs::metadata(&path).is_err(),
+                ..cx.err(m.span(), field("mesh"), msg)
+            })?);
         }
         if let Some(t) = &s.transform {
             let m = transform_matrix(t.get_ref()).map_err(|msg| cx.err(t.span(), field("transform"), msg))?;
