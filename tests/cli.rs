@@ -422,6 +422,9 @@ fn a_new_users_mistakes_get_plain_answers() {
     assert!(code == 3 && err.contains("name it .inet") && !dir.path().join("box.png").exists(), "{err}");
     let (code, err) = failing(&["demo", "-o", &path("a.png")]);
     assert!(code == 3 && err.contains("folder"), "{err}");
+    // demo checks its render options before it builds.
+    let (code, err) = failing(&["demo", "-o", &path("d"), "--exposure", "0"]);
+    assert!(code == 3 && err.contains("--exposure") && !dir.path().join("d/cornell_box.inet").exists(), "{err}");
     illumnet(&["compare", &path("a.exr"), &path("a.exr")]);
     // Brighter pixels judged with --below (the emitters too, above their radiance).
     let all = illumnet(&["compare", &path("a.exr"), &path("a.exr"), "--below", "1000"]);

@@ -417,18 +417,9 @@ pub struct Extras<'a> {
     pub error_scale: f32,
 }
 
-#[allow(clippy::too_many_arguments)]
-pub fn render(
-    path: &Path,
-    png: &Path,
-    exr: Option<&Path>,
-    frames: Option<&str>,
-    args: RenderArgs,
-    cameras: &RenderCameras,
-    sets: &[String],
-    extras: Extras<'_>,
-    progress: &dyn Progress,
-) -> Result<()> {
+/// `render`'s options checked on their own (values and combinations), so
+/// that `demo` refuses a bad one before it builds.
+fn check_render_args(args: &RenderArgs) -> Result<()> {
     if args.anderson > distribute::MAX_ANDERSON_DEPTH {
         bail_input!("--anderson keeps at most {} secant pairs, got {}", distribute::MAX_ANDERSON_DEPTH, args.anderson);
     }
@@ -447,13 +438,29 @@ pub fn render(
     if !(1..=64).contains(&args.light_samples) {
         bail_input!("--light-samples must be in 1..=64, got {}", args.light_samples);
     }
-    let direct_shading = args.shading == Shading::Direct;
-    if args.gather.is_some_and(|n| n > 0) && !direct_shading {
+    if args.gather.is_some_and(|n| n > 0) && args.shading != Shading::Direct {
         bail_input!("--gather takes the indirect light of direct shading from rays: it needs --shading direct");
     }
     if args.gather_reach.is_nan() || args.gather_reach < 0.0 {
         bail_input!("--gather-reach {}: expected a number of patch sides ≥ 0, or inf", args.gather_reach);
     }
+    Ok(())
+}
+
+#[allow(clippy::too_many_arguments)]
+pub fn render(
+    path: &Path,
+    png: &Path,
+    exr: Option<&Path>,
+    frames: Option<&str>,
+    args: RenderArgs,
+    cameras: &RenderCameras,
+    sets: &[String],
+    extras: Extras<'_>,
+    progress: &dyn Progress,
+) -> Result<()> {
+    check_render_args(&args)?;
+    let direct_shading = args.shading == Shading::Direct;
     if args.layers && (exr.is_none() || !direct_shading) {
         bail_input!("--layers writes EXR layers of direct and indirect light: it needs --exr and --shading direct");
     }
@@ -1466,6 +1473,7 @@ pub fn demo(dir: &Path, build_args: BuildArgs, render_args: RenderArgs, progress
     if dir.is_file() {
         bail_input!("-o {}: demo writes its archive and images into a folder, and this is a file", dir.display());
     }
+    check_render_args(&render_args)?;
     std::fs::create_dir_all(dir).with_context(|| format!("cannot create the folder {}", dir.display()))?;
     let scene = Scene::cornell_box();
     let archive = dir.join("cornell_box.inet");
