@@ -25,7 +25,7 @@
 //! into place.
 
 use std::fs::File;
-use std::io::{BufWriter, Read, Write};
+use std::io::{BufWriter, Read, Seek, Write};
 use std::path::Path;
 
 use xxhash_rust::xxh3::Xxh3;
@@ -89,6 +89,8 @@ pub fn upgrade(input: &Path, output: &Path) -> Result<Upgraded, ArchiveError> {
         if !same_file(input, output) {
             let (mut tmp_file, tmp_path) = temporary()?;
             let (mut from, mut buf) = (&file, vec![0u8; 1 << 20]);
+            // From the start, whatever reading the header did to the cursor.
+            from.seek(std::io::SeekFrom::Start(0)).map_err(io_in)?;
             loop {
                 let n = from.read(&mut buf).map_err(io_in)?;
                 if n == 0 {
