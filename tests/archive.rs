@@ -88,12 +88,12 @@ fn truncated_and_garbage_files_are_errors() {
 #[test]
 fn newer_reader_version_is_refused_with_a_clear_message() {
     let mut bytes = archive::write_to_vec(&small_contents()).unwrap();
-    bytes[8..12].copy_from_slice(&11u32.to_le_bytes()); // version_write
-    bytes[12..16].copy_from_slice(&11u32.to_le_bytes()); // version_read
+    bytes[8..12].copy_from_slice(&12u32.to_le_bytes()); // version_write
+    bytes[12..16].copy_from_slice(&12u32.to_le_bytes()); // version_read
     let sum = xxhash_rust::xxh3::xxh3_64(&bytes[..120]);
     bytes[120..128].copy_from_slice(&sum.to_le_bytes());
     let err = Archive::from_bytes(&bytes).err().unwrap();
-    assert!(matches!(err, ArchiveError::UnsupportedVersion { needs: 11, supports: 10 }), "{err}");
+    assert!(matches!(err, ArchiveError::UnsupportedVersion { needs: 12, supports: 11 }), "{err}");
 }
 
 #[test]
@@ -113,12 +113,23 @@ fn versions_follow_the_compatibility_rule() {
     // Version 10 changed the link ends' ids to 16 bits in runs: every
     // archive needs a reader of version 10 (7 before, for the one-byte
     // weights; geodesic stills were readable by version 1 before that).
+    // Version 11 lets patch blocks come in a spatial order: only files
+    // that use it need a reader of version 11.
     let bytes = archive::write_to_vec(&small_contents()).unwrap();
     let a = Archive::from_bytes(&bytes).unwrap();
-    assert_eq!((a.header().version_write, a.header().version_read), (10, 10));
+    assert_eq!((a.header().version_write, a.header().version_read), (11, 11));
     assert!(
         a.view().build.max_bucket > 0 && a.view().links.resident().unwrap().runs.records().iter().any(|r| r.bucket > 0)
     );
+    {
+        let scene = Scene::cornell_box();
+        let hints = BuildHints { patch_size: Some(0.08), frequency: Some(4), ray_spacing: Some(0.02), buckets: None };
+        let mut settings = BuildSettings::resolve(&scene, hints);
+        settings.patch_order = illumnet::patch::order::PatchOrder::Primitives;
+        let contents = build::build(&scene, &settings, &NoProgress).unwrap().0;
+        let a = Archive::from_bytes(&archive::write_to_vec(&contents).unwrap()).unwrap();
+        assert_eq!((a.header().version_write, a.header().version_read), (11, 10), "primitive order");
+    }
     // Ray-space baseline archives (version_read 2 before version 7).
     let scene = Scene::cornell_box();
     let hints = BuildHints { patch_size: Some(0.08), frequency: Some(4), ray_spacing: Some(0.02), buckets: None };
@@ -126,7 +137,7 @@ fn versions_follow_the_compatibility_rule() {
     settings.direction_set = illumnet::geodesic::DirectionSetKind::RaySpace;
     let contents = build::build(&scene, &settings, &NoProgress).unwrap().0;
     let a = Archive::from_bytes(&archive::write_to_vec(&contents).unwrap()).unwrap();
-    assert_eq!((a.header().version_write, a.header().version_read), (10, 10));
+    assert_eq!((a.header().version_write, a.header().version_read), (11, 11));
     // f = 4 gives 162 geodesic directions; m = round(√(162/6)) = 5 gives 150.
     assert_eq!(a.view().directions.len(), 6 * 5 * 5);
 }

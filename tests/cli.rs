@@ -60,8 +60,8 @@ fn build_inspect_render_with_json() {
     illumnet(&["build", "-q", scene.to_str().unwrap(), "-o", a, "--frequency", "6", "--patch-size", "0.05"]);
     let out = illumnet(&["inspect", a, "--json"]);
     let json: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
-    assert_eq!(json["format_version"], 10);
-    assert_eq!(json["version_read"], 10);
+    assert_eq!(json["format_version"], 11);
+    assert_eq!(json["version_read"], 11, "a still numbers its patches in a spatial order");
     assert_eq!(json["directions"], 362);
     assert!(json["patches"].as_u64().unwrap() > 500);
     assert!(json["links"].as_u64().unwrap() > 1000);
@@ -72,7 +72,14 @@ fn build_inspect_render_with_json() {
     assert!(light["power_w"][0].as_f64().unwrap() > 0.0 && light["area_m2"].as_f64().unwrap() > 0.0);
     // One patch explained: the floor's first, its ends carrying no more
     // rays than cross it, every other patch it reaches on another surface.
-    let out = illumnet(&["inspect", a, "--patch", "0", "--json"]);
+    // (Patches are numbered along a spatial curve: find its id.)
+    let floor = {
+        let archive = illumnet::archive::Archive::open(Path::new(a)).unwrap();
+        let v = archive.view();
+        let s = archive.meta().surface_names.iter().position(|n| n == "floor").unwrap();
+        v.primitives[v.surfaces[s].first_primitive as usize].first_patch.to_string()
+    };
+    let out = illumnet(&["inspect", a, "--patch", &floor, "--json"]);
     let p: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!((p["surface"].as_str(), p["kind"].as_str()), (Some("floor"), Some("quad")), "{p}");
     let (ends, rays, hits) =
@@ -81,7 +88,7 @@ fn build_inspect_render_with_json() {
     let heaviest = p["heaviest"].as_array().unwrap();
     assert!(!heaviest.is_empty() && heaviest.iter().all(|h| h["surface"] != "floor"), "{p}");
     assert!(heaviest.windows(2).all(|w| w[0]["rays"].as_f64() >= w[1]["rays"].as_f64()), "{p}");
-    let text = String::from_utf8_lossy(&illumnet(&["inspect", a, "--patch", "0"]).stdout).to_string();
+    let text = String::from_utf8_lossy(&illumnet(&["inspect", a, "--patch", &floor]).stdout).to_string();
     assert!(text.contains("surface floor (white)") && text.contains("heaviest:"), "{text}");
     let out =
         Command::new(env!("CARGO_BIN_EXE_illumnet")).args(["inspect", a, "--patch", "99999999"]).output().unwrap();
@@ -341,7 +348,8 @@ fn brushed_plate_turns_relights_and_reports_its_reflectance() {
     let out = illumnet(&["build", "-q", s, "-o", a, "--turn", "plate=45", "--prototype-library", l]);
     assert!(String::from_utf8_lossy(&out.stdout).contains("(1 from the library)"));
     let json: serde_json::Value = serde_json::from_slice(&illumnet(&["inspect", a, "--json"]).stdout).unwrap();
-    assert_eq!((json["format_version"].as_u64(), json["version_read"].as_u64()), (Some(10), Some(10)));
+    // Its two quads lie along the curve already: primitive order, version 10.
+    assert_eq!((json["format_version"].as_u64(), json["version_read"].as_u64()), (Some(11), Some(10)));
     assert_eq!((json["prototype_tables"].as_u64(), json["nondiffuse_patches"].as_u64()), (Some(1), Some(364)));
     // Its rays per glossy patch and direction pair: one count for each of
     // the 364 patches × N/2 pairs, and as many rays as NDHC holds in all.

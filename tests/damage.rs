@@ -329,7 +329,7 @@ fn flipped_zeroed_misdeclared_and_cut_archives_are_errors() {
         for (what, at, value) in [
             ("version_write 0", 8, 0u32),
             ("version_read 0", 12, 0),
-            ("version_read 11", 12, 11),
+            ("version_read above this reader's", 12, illumnet::archive::layout::READER_VERSION + 1),
             ("version_write 6", 8, 6),
         ] {
             let mut b = good.clone();

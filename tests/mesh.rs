@@ -255,12 +255,12 @@ fn grouped_triangles_round_trip_and_forgeries_are_refused() {
     // One patch per triangle: no TVTX.
     let (plain, _) = mesh_archive_bytes(false);
     let a = Archive::from_bytes(&plain).unwrap();
-    assert_eq!((a.header().version_write, a.header().version_read), (10, 10));
+    assert_eq!((a.header().version_write, a.header().version_read), (11, 11), "a spatial patch order");
     assert!(a.sections().iter().all(|e| e.tag != tag::GROUPED_TRIANGLE_VERTICES));
     assert_eq!((grouped_count(&a.view()), a.view().patch_count()), (0, 288 + 25));
     let (good, prims) = mesh_archive_bytes(true);
     let a = Archive::from_bytes(&good).unwrap();
-    assert_eq!((a.header().version_write, a.header().version_read), (10, 10));
+    assert_eq!((a.header().version_write, a.header().version_read), (11, 11));
     let v = a.view();
     let n = grouped_count(&v);
     assert_eq!(n, 288);
@@ -300,7 +300,7 @@ fn grouped_triangles_round_trip_and_forgeries_are_refused() {
     forge("a corner beyond the vertices", tvtx.offset as usize + 4, vertex_count, "TVTX[0]");
     forge("a corner among the grid vertices", tvtx.offset as usize + 4, 0, "TVTX[0]");
     let p = prim.offset as usize + joins * record;
-    forge("a join of another patch", p + 16, prims[joins].first_patch - 1, "grouped triangle");
+    forge("a join of another patch", p + 16, prims[joins].first_patch ^ 1, "grouped triangle");
     forge("a TVTX row out of order", p + 20, prims[joins].first_vertex + 1, "grouped triangle");
     forge("a grouped triangle with a grid", p + 8, 2, "grouped triangle");
     forge("a join across surfaces", p + 4, 0, "grouped triangle");

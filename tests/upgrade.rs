@@ -136,7 +136,8 @@ fn version_6_archives_upgrade_to_the_same_sections_and_light() {
         let new = std::fs::read(&out).unwrap();
         assert_eq!(done.bytes_after, new.len() as u64);
         let a = Archive::open(&out).unwrap();
-        assert_eq!((a.header().version_write, a.header().version_read), (10, 10));
+        // Patches stay in primitive order: readable by version 10.
+        assert_eq!((a.header().version_write, a.header().version_read), (11, 10));
         assert_eq!(done.version_before, 6);
         same_but_link_order(name, &old, &new, &a);
         assert!(new.len() < old.len(), "{name}: 6 bytes fewer per link end");
@@ -188,10 +189,12 @@ fn version_9_archives_upgrade_to_the_bytes_of_a_fresh_build() {
         let new = std::fs::read(&out).unwrap();
         let a = Archive::open(&out).unwrap();
         same_but_link_order(name, &old, &new, &a);
-        // What a version 10 build of the same scene writes, byte for byte.
+        // What a build of the same scene in primitive order writes (the
+        // upgrade keeps the file's patch numbers), byte for byte.
         let scene = Scene::from_file(&scene).unwrap();
         let mut settings = BuildSettings::resolve(&scene, hints);
         settings.prototype_library = None;
+        settings.patch_order = illumnet::patch::order::PatchOrder::Primitives;
         let fresh = match scene.animation.is_some() {
             true => build::build_sequence(&scene, &settings, &NoProgress).unwrap().contents,
             false => build::build(&scene, &settings, &NoProgress).unwrap().0,
@@ -286,7 +289,7 @@ fn the_cli_says_to_upgrade_and_upgrades() {
     assert!(text.contains("illumnet upgrade") && !text.contains("corrupt"), "{text}");
     let out = std::process::Command::new(bin).args(["upgrade", path.to_str().unwrap()]).output().unwrap();
     let text = String::from_utf8_lossy(&out.stdout);
-    assert!(out.status.success() && text.contains("to format version 10"), "{text}");
+    assert!(out.status.success() && text.contains("to format version 11"), "{text}");
     let out = render();
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     assert!(dir.path().join("f_3.png").exists());

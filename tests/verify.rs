@@ -102,7 +102,7 @@ fn sound_archives_of_every_kind_verify_clean() {
         // inspect --json answers with the archive's summary.
         let (code, summary) = inspect_json(dir.path(), &bytes, &[]);
         assert_eq!(code, Some(0), "{name}: {summary}");
-        assert_eq!(summary["format_version"], 10, "{name}");
+        assert_eq!(summary["format_version"], 11, "{name}");
         assert!(summary["patches"].as_u64().unwrap() > 0, "{name}");
         assert_eq!(json["frames"], if name == "sequence" { 4 } else { 1 }, "{name}");
         assert!(json["link_ends"].as_u64().unwrap() > 1000 && json["gb_per_s"].as_f64().unwrap() > 0.0, "{name}");

@@ -1,4 +1,4 @@
-//! On-disk records of the archive format (version 10).
+//! On-disk records of the archive format (version 11).
 //!
 //! Every type here is `#[repr(C)]`, made of little-endian `u32`/`u64`/`f32`
 //! fields with no implicit padding, and is read zero-copy with `bytemuck`
@@ -10,12 +10,16 @@ use bytemuck::{Pod, Zeroable};
 /// File magic, bytes 0..8 (§3).
 pub const MAGIC: [u8; 8] = *b"ILLUMNET";
 /// The format version this code writes (§3, `version_write`).
-pub const VERSION_WRITE: u32 = 10;
+pub const VERSION_WRITE: u32 = 11;
 /// `version_read` of the archives this code writes: version 10 stores a
 /// link end's other patch in 16 bits, local to the sender chunk of its
 /// run (`LOTH`, `LROF`, `LRUN`, §5.10), which older readers would take for
 /// 32-bit ids.
 pub const VERSION_READ: u32 = 10;
+/// `version_read` of archives whose primitives' patch blocks are not in
+/// primitive order (a spatial patch order, since version 11, §5.5), which
+/// version 10 readers would refuse as not contiguous.
+pub const VERSION_READ_SPATIAL: u32 = 11;
 /// The oldest `version_write` this code reads: older files are rewritten
 /// by `illumnet upgrade` ([`super::upgrade`]).
 pub const OLDEST_READABLE: u32 = 10;
@@ -33,7 +37,7 @@ pub const CHUNK_PATCHES: usize = 1 << 16;
 /// as blocks of columns, checksummed as stored (§5.13).
 pub const VERSION_DELTA_BLOCKS: u32 = 5;
 /// The highest `version_read` this code can read (§6).
-pub const READER_VERSION: u32 = 10;
+pub const READER_VERSION: u32 = 11;
 /// Header size in bytes (§3).
 pub const HEADER_SIZE: usize = 128;
 /// Section table entry size in bytes (§4).

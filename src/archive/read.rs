@@ -1219,7 +1219,10 @@ fn validate_contents(v: &InetView<'_>, meta: &ArchiveMeta) -> Result<(), Archive
             || format!("SURF[{i}]: a non-diffuse material needs the reflectance sections"),
         )?;
     }
-    let (mut next_patch, mut next_vertex, mut next_grouped) = (0u64, 0u64, 0u64);
+    let (mut next_vertex, mut next_grouped) = (0u64, 0u64);
+    // Each primitive's patch block (first patch, patches): since version
+    // 11 in any order, tiling the patches (checked below).
+    let mut blocks: Vec<(u64, u64)> = Vec::new();
     for (i, r) in v.primitives.iter().enumerate() {
         check(r.kind <= layout::kind::GROUPED_TRIANGLE, || format!("PRIM[{i}]: unknown kind {}", r.kind))?;
         check(
@@ -1238,18 +1241,12 @@ fn validate_contents(v: &InetView<'_>, meta: &ArchiveMeta) -> Result<(), Archive
                 let q = &v.primitives[i - 1];
                 q.kind == layout::kind::GROUPED_TRIANGLE && q.surface == r.surface && q.first_patch == r.first_patch
             };
-            check(
-                gu == 1
-                    && gv == 1
-                    && r.first_vertex as u64 == next_grouped
-                    && (r.first_patch as u64 == next_patch || joins),
-                || {
-                    format!(
-                        "PRIM[{i}]: a grouped triangle must have one cell, its patch new or its predecessor's, and its TVTX row in order"
-                    )
-                },
-            )?;
-            next_patch += u64::from(!joins);
+            check(gu == 1 && gv == 1 && r.first_vertex as u64 == next_grouped, || {
+                format!("PRIM[{i}]: a grouped triangle must have one cell and its TVTX row in order")
+            })?;
+            if !joins {
+                blocks.push((r.first_patch as u64, 1));
+            }
             next_grouped += 1;
             continue;
         }
@@ -1258,11 +1255,24 @@ fn validate_contents(v: &InetView<'_>, meta: &ArchiveMeta) -> Result<(), Archive
         })?;
         let (cells, verts) =
             if r.kind == 0 { (gu * gv, (gu + 1) * (gv + 1)) } else { (gu * gu, (gu + 1) * (gu + 2) / 2) };
-        check(r.first_patch as u64 == next_patch && r.first_vertex as u64 == next_vertex, || {
-            format!("PRIM[{i}]: patches or vertices not contiguous")
+        check(r.first_vertex as u64 == next_vertex, || format!("PRIM[{i}]: vertices not contiguous"))?;
+        blocks.push((r.first_patch as u64, cells));
+        next_vertex += verts;
+    }
+    // The blocks tile 0..P: in primitive order before version 11, in any
+    // order since (a spatial patch order, §5.5).
+    if !blocks.windows(2).all(|w| w[0].0 < w[1].0) {
+        blocks.sort_unstable();
+    }
+    let mut next_patch = 0u64;
+    for &(first, cells) in &blocks {
+        check(first == next_patch, || {
+            format!(
+                "PRIM: the primitives' patch blocks do not tile the patches at patch {next_patch} \
+                 (each grid's cells and each grouped triangle's patch, new or its predecessor's, once)"
+            )
         })?;
         next_patch += cells;
-        next_vertex += verts;
     }
     // Grouped triangles' corners come after the grids' vertices.
     check(

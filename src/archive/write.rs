@@ -412,6 +412,11 @@ fn write_all<W: Write + Seek>(
         .map_err(|e| ArchiveError::corrupt(format!("cannot serialise META: {e}")))?;
     let meta_z = zstd::bulk::compress(&meta, 3).map_err(io)?;
     let mut w = SectionWriter::new(out).map_err(io)?;
+    // Patch blocks in a spatial order, not primitive order: older readers
+    // would take them for a corrupt file (§5.5).
+    if !c.primitives.windows(2).all(|p| p[0].first_patch <= p[1].first_patch) {
+        w.version_read = layout::VERSION_READ_SPATIAL;
+    }
     let mut sections = || -> std::io::Result<()> {
         w.column(tag::BUILD, std::slice::from_ref(&c.build))?;
         w.column(tag::CAMERA, std::slice::from_ref(&c.camera))?;

@@ -571,8 +571,15 @@ fn build_impl(
         .enumerate()
         .flat_map(|(i, inst)| std::iter::repeat_n(i as u32, inst.primitives.len()))
         .collect();
-    let patches =
+    let mut patches =
         Patches::with_groups(&prims, &prim_instance, &triangle_group, settings.patch_size, settings.cell_order)?;
+    // A spatial patch order where nothing moves: a sequence's instances,
+    // and a moved frame's surfaces (compared with a sequence's), keep their
+    // patches in primitive order.
+    let still = scene.surfaces.iter().all(|s| s.motion.is_none() && !s.moved);
+    if settings.patch_order == crate::patch::order::PatchOrder::Spatial && still {
+        patches.renumber(&crate::patch::order::spatial_order(&prims, &patches));
+    }
     if let Some(p) = patches.area.iter().position(|&a| a > crate::limits::MAX_PATCH_AREA) {
         return Err(format!(
             "patch {p} has an area of {:e} m², above the {:e} an archive holds: use a smaller --patch-size",

@@ -31,6 +31,11 @@ pub struct BuildSettings {
     /// How a quad's patches are numbered: tiles (default), or rows as
     /// archives before version 7 (for comparisons).
     pub cell_order: crate::geometry::grid::CellOrder,
+    /// How patches are numbered across primitives: along a Morton curve
+    /// over the primitives' centres (default; applied only where nothing
+    /// moves, since a sequence's instances keep their patches together),
+    /// or in primitive order as archives before version 11.
+    pub patch_order: crate::patch::order::PatchOrder,
     /// Whether small triangles of still, diffuse surfaces are grouped into
     /// patches of several (`patch::mesh`; default), or each keeps its own.
     pub group_triangles: bool,
@@ -105,6 +110,7 @@ impl BuildSettings {
             map_method: crate::reflectance::MapMethod::default(),
             table_threshold: crate::reflectance::prototype::DEFAULT_THRESHOLD,
             cell_order: crate::patch::DEFAULT_CELL_ORDER,
+            patch_order: crate::patch::order::PatchOrder::Spatial,
             group_triangles: true,
         }
     }

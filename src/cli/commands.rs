@@ -44,6 +44,10 @@ fn build_scene(scene: &Scene, output: &Path, args: &BuildArgs, progress: &dyn Pr
         settings.direction_set = DirectionSetKind::RaySpace;
     }
     settings.group_triangles = !args.no_grouping;
+    settings.patch_order = match args.patch_order {
+        super::PatchOrder::Spatial => illumnet::patch::order::PatchOrder::Spatial,
+        super::PatchOrder::Primitives => illumnet::patch::order::PatchOrder::Primitives,
+    };
     if args.no_prototype_library {
         settings.prototype_library = None;
     } else if let Some(dir) = &args.prototype_library {

@@ -83,6 +83,13 @@ struct BuildArgs {
     /// patches of several (for comparison: docs/MESHES.md).
     #[arg(long)]
     no_grouping: bool,
+    /// How patches are numbered: `spatial` (default) along a Morton curve
+    /// over the primitives' centres, so that the distribution reads
+    /// neighbouring per-patch state together (scenes where something moves
+    /// keep primitive order); `primitives` in primitive order, as archives
+    /// before format version 11.
+    #[arg(long, value_enum, default_value_t = PatchOrder::Spatial)]
+    patch_order: PatchOrder,
     /// Turn a planar surface about its normal by DEG degrees before building
     /// (repeatable), e.g. `--turn plate=45` for the brushed plate.
     #[arg(long, value_name = "SURFACE=DEG")]
@@ -267,6 +274,16 @@ enum Quality {
     Default,
     /// Frequency 24, patches of diagonal/64, rays diagonal/256 apart.
     High,
+}
+
+/// How a build numbers patches (see `--patch-order`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, clap::ValueEnum)]
+enum PatchOrder {
+    /// Along a Morton curve over the primitives' centres.
+    #[default]
+    Spatial,
+    /// In primitive order.
+    Primitives,
 }
 
 /// How images are shaded (see `--shading`).

@@ -65,16 +65,6 @@ pub(crate) fn position_key(p: Vec3) -> [u32; 3] {
     (p + Vec3::ZERO).to_array().map(f32::to_bits)
 }
 
-/// Spreads the low 21 bits of `x` to every third bit.
-fn spread3(x: u64) -> u64 {
-    let mut x = x & 0x1f_ffff;
-    x = (x | (x << 32)) & 0x1f_0000_0000_ffff;
-    x = (x | (x << 16)) & 0x1f_0000_ff00_00ff;
-    x = (x | (x << 8)) & 0x100f_00f0_0f00_f00f;
-    x = (x | (x << 4)) & 0x10c3_0c30_c30c_30c3;
-    (x | (x << 2)) & 0x1249_2492_4924_9249
-}
-
 /// Groups the triangles of `prims` (one instance of a surface that does
 /// not move) whose grid at patch size `size` would be a single cell:
 /// triangles sharing an edge (corners at exactly the same points) join a
@@ -135,15 +125,9 @@ pub fn group_triangles(prims: &[Primitive], size: f32) -> TriangleGroups {
     }
     // Seeds along a Morton curve over the triangles' centres.
     let centre: Vec<Vec3> = small.iter().map(|&i| prims[i as usize].p[..3].iter().sum::<Vec3>() / 3.0).collect();
-    let (lo, hi) =
-        centre.iter().fold((Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)), |(l, h), &c| (l.min(c), h.max(c)));
-    let scale = ((1u64 << 21) - 1) as f32 / (hi - lo).max_element().max(f32::MIN_POSITIVE);
-    let morton = |c: Vec3| {
-        let q = ((c - lo) * scale).to_array().map(|x| x.clamp(0.0, ((1u64 << 21) - 1) as f32) as u64);
-        spread3(q[0]) | (spread3(q[1]) << 1) | (spread3(q[2]) << 2)
-    };
+    let morton = super::order::morton_keys(&centre);
     let mut seeds: Vec<u32> = (0..small.len() as u32).collect();
-    seeds.sort_by_key(|&t| (morton(centre[t as usize]), t));
+    seeds.sort_by_key(|&t| (morton[t as usize], t));
     let normal: Vec<Vec3> = small.iter().map(|&i| prims[i as usize].normal()).collect();
     let area: Vec<f64> = small.iter().map(|&i| prims[i as usize].area() as f64).collect();
     let (radius, most_area) = (GROUP_RADIUS * size, (size as f64) * (size as f64));

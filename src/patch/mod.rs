@@ -12,6 +12,7 @@
 //! where spreading light would be wrong.
 
 pub mod mesh;
+pub mod order;
 
 use crate::geometry::grid::{CellOrder, NO_VERTEX, PatchGrid};
 use glam::Vec3;
