@@ -1,8 +1,8 @@
 //! Would a spatial patch order help the distribution's gather? Renumbers
 //! an archive's patches by a Morton curve over centres: of primitives
-//! within each surface (what format 10 allows), of all primitives
-//! (patches stay in their primitive's order), and of the patches
-//! themselves; re-lays the link ends' rows to match (u32 ids, each row
+//! within each surface (what format 10 allowed), of all primitives
+//! (patches stay in their primitive's order: what builds of still scenes
+//! do since format 11, `patch::order`), and of the patches themselves; re-lays the link ends' rows to match (u32 ids, each row
 //! ordered by sender chunk), and times a row gather like the
 //! distribution's over each order and the archive's, alternating, three
 //! times each; it also prints how many sender chunks (2¹⁶ patches) a row

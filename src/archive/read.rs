@@ -1132,6 +1132,60 @@ fn camera_geometry(c: &CameraRecord) -> bool {
 
 /// Checks counts and every stored index, so that later code can index
 /// without bounds surprises.
+/// Whether the primitives' patch blocks tile the patches `0..P` (§5.5):
+/// blocks in primitive order are checked by where the last ended, with no
+/// memory; from the first block out of that order on (a spatial patch
+/// order, since version 11), by a bit per patch (P/8 bytes, 1/128 of the
+/// distribution's per-patch state), so that no block overlaps another.
+/// Blocks within 0..P that do not overlap and cover P patches in all tile
+/// them.
+struct BlockTiling {
+    patches: u64,
+    covered: u64,
+    /// Set once a block comes out of primitive order: every patch of the
+    /// blocks seen so far.
+    seen: Option<Vec<u64>>,
+}
+
+impl BlockTiling {
+    fn new(patches: u64) -> Self {
+        Self { patches, covered: 0, seen: None }
+    }
+
+    /// Adds a block of `cells` patches from `first`: false when it lies
+    /// beyond the patches or overlaps a block added before.
+    fn add(&mut self, first: u64, cells: u64) -> bool {
+        let Some(end) = first.checked_add(cells).filter(|&e| e <= self.patches) else { return false };
+        if self.seen.is_none() {
+            if first == self.covered {
+                self.covered = end;
+                return true;
+            }
+            // Out of order: the blocks so far cover 0..covered.
+            let mut bits = vec![0u64; self.patches.div_ceil(64) as usize];
+            for q in 0..self.covered {
+                bits[(q / 64) as usize] |= 1 << (q % 64);
+            }
+            self.seen = Some(bits);
+        }
+        let bits = self.seen.as_mut().expect("set above");
+        for q in first..end {
+            let (w, b) = ((q / 64) as usize, 1u64 << (q % 64));
+            if bits[w] & b != 0 {
+                return false;
+            }
+            bits[w] |= b;
+        }
+        self.covered += cells;
+        true
+    }
+
+    /// Patches the blocks cover (P when they tile them).
+    fn covered(&self) -> u64 {
+        self.covered
+    }
+}
+
 fn validate_contents(v: &InetView<'_>, meta: &ArchiveMeta) -> Result<(), ArchiveError> {
     let b = v.build;
     let (p, nv, nd) = (b.patch_count as usize, b.vertex_count as usize, b.direction_count as usize);
@@ -1220,9 +1274,17 @@ fn validate_contents(v: &InetView<'_>, meta: &ArchiveMeta) -> Result<(), Archive
         )?;
     }
     let (mut next_vertex, mut next_grouped) = (0u64, 0u64);
-    // Each primitive's patch block (first patch, patches): since version
-    // 11 in any order, tiling the patches (checked below).
-    let mut blocks: Vec<(u64, u64)> = Vec::new();
+    // Each primitive's patch block: since version 11 in any order, tiling
+    // the patches.
+    let mut tiling = BlockTiling::new(p as u64);
+    let tiles = |i: usize, ok: bool| {
+        check(ok, || {
+            format!(
+                "PRIM[{i}]: its patches overlap another primitive's or lie beyond the {p} patches \
+                 (each grid's cells and each grouped triangle's patch, new or its predecessor's, once)"
+            )
+        })
+    };
     for (i, r) in v.primitives.iter().enumerate() {
         check(r.kind <= layout::kind::GROUPED_TRIANGLE, || format!("PRIM[{i}]: unknown kind {}", r.kind))?;
         check(
@@ -1245,7 +1307,7 @@ fn validate_contents(v: &InetView<'_>, meta: &ArchiveMeta) -> Result<(), Archive
                 format!("PRIM[{i}]: a grouped triangle must have one cell and its TVTX row in order")
             })?;
             if !joins {
-                blocks.push((r.first_patch as u64, 1));
+                tiles(i, tiling.add(r.first_patch as u64, 1))?;
             }
             next_grouped += 1;
             continue;
@@ -1256,27 +1318,12 @@ fn validate_contents(v: &InetView<'_>, meta: &ArchiveMeta) -> Result<(), Archive
         let (cells, verts) =
             if r.kind == 0 { (gu * gv, (gu + 1) * (gv + 1)) } else { (gu * gu, (gu + 1) * (gu + 2) / 2) };
         check(r.first_vertex as u64 == next_vertex, || format!("PRIM[{i}]: vertices not contiguous"))?;
-        blocks.push((r.first_patch as u64, cells));
+        tiles(i, tiling.add(r.first_patch as u64, cells))?;
         next_vertex += verts;
-    }
-    // The blocks tile 0..P: in primitive order before version 11, in any
-    // order since (a spatial patch order, §5.5).
-    if !blocks.windows(2).all(|w| w[0].0 < w[1].0) {
-        blocks.sort_unstable();
-    }
-    let mut next_patch = 0u64;
-    for &(first, cells) in &blocks {
-        check(first == next_patch, || {
-            format!(
-                "PRIM: the primitives' patch blocks do not tile the patches at patch {next_patch} \
-                 (each grid's cells and each grouped triangle's patch, new or its predecessor's, once)"
-            )
-        })?;
-        next_patch += cells;
     }
     // Grouped triangles' corners come after the grids' vertices.
     check(
-        next_patch == p as u64
+        tiling.covered() == p as u64
             && next_vertex <= nv as u64
             && (next_grouped > 0 || next_vertex == nv as u64)
             && next_grouped == v.grouped_triangles.len() as u64,
@@ -1562,4 +1609,32 @@ fn csr(name: &str, offsets: impl Iterator<Item = u64>, len: usize) -> Result<(),
         first = false;
     }
     check(prev == len as u64, || format!("{name}: last offset {prev} ≠ {len} entries"))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::BlockTiling;
+
+    /// Adds the blocks `(first, cells)` in turn: whether each was taken,
+    /// and the patches covered.
+    fn tile(patches: u64, blocks: &[(u64, u64)]) -> (Vec<bool>, u64) {
+        let mut t = BlockTiling::new(patches);
+        (blocks.iter().map(|&(f, c)| t.add(f, c)).collect(), t.covered())
+    }
+
+    #[test]
+    fn blocks_tile_the_patches_in_any_order_and_never_overlap() {
+        // In primitive order, and out of it (a spatial order).
+        assert_eq!(tile(10, &[(0, 4), (4, 1), (5, 5)]), (vec![true; 3], 10));
+        assert_eq!(tile(10, &[(6, 4), (0, 4), (4, 2)]), (vec![true; 3], 10));
+        assert_eq!(tile(10, &[(0, 4), (7, 3), (4, 3)]), (vec![true; 3], 10));
+        // Overlapping a block of the in-order stretch, or a later one.
+        assert_eq!(tile(10, &[(0, 4), (7, 3), (3, 2)]).0, vec![true, true, false]);
+        assert_eq!(tile(10, &[(5, 3), (0, 5), (7, 1)]).0, vec![true, true, false]);
+        // Beyond the patches, or wrapping.
+        assert_eq!(tile(10, &[(8, 3)]).0, vec![false]);
+        assert_eq!(tile(10, &[(u64::MAX, 2)]).0, vec![false]);
+        // A gap is left uncovered.
+        assert_eq!(tile(10, &[(0, 4), (5, 5)]), (vec![true, true], 9));
+    }
 }
