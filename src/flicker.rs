@@ -39,6 +39,9 @@ pub fn measure(
     frames: u32,
     watched: &[usize],
 ) -> Result<Flicker, String> {
+    // Patches in primitive order: every frame's keep their ids (a
+    // spatial order would follow the moving surface).
+    let settings = &BuildSettings { patch_order: build::PatchOrder::Primitives, ..settings.clone() };
     let mut previous: Option<Vec<f32>> = None;
     let mut changes = Vec::new();
     let mut ends = 0.0;

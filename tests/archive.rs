@@ -213,3 +213,60 @@ fn every_weight_escape_record_is_checked_mapped_or_streamed() {
     std::fs::write(&path, &good).unwrap();
     assert!(Archive::open_streamed(&path, 1000).is_ok());
 }
+
+#[test]
+fn patch_blocks_out_of_primitive_order_need_version_11_and_a_still() {
+    use illumnet::archive::layout::{PrimitiveRecord, tag};
+    // First patch of primitive i, at byte 16 of its PRIM record.
+    let at = |bytes: &[u8], i: usize| {
+        let a = Archive::from_bytes(bytes).unwrap();
+        let prim = *a.sections().iter().find(|e| e.tag == tag::PRIMITIVES).unwrap();
+        prim.offset as usize + i * std::mem::size_of::<PrimitiveRecord>() + 16
+    };
+    let forge = |bytes: &mut Vec<u8>, f: &dyn Fn(&mut Vec<u8>)| {
+        f(bytes);
+        archive::reseal(bytes);
+    };
+    let refused = |bytes: &[u8], says: &str| match Archive::from_bytes(bytes) {
+        Err(e @ ArchiveError::Corrupt(_)) => assert!(e.to_string().contains(says), "{e}"),
+        Err(e) => panic!("{says}: {e}"),
+        Ok(_) => panic!("{says}: accepted"),
+    };
+    // A still in a spatial order, labelled as readable by version 10.
+    let good = archive::write_to_vec(&small_contents()).unwrap();
+    let mut bad = good.clone();
+    forge(&mut bad, &|b| b[12..16].copy_from_slice(&10u32.to_le_bytes()));
+    refused(&bad, "out of primitive order in a file whose version_read is 10");
+    // A sequence whose blocks are swapped (two primitives of the same
+    // grid), labelled version 11: tiling, but not in primitive order.
+    let scene =
+        Scene::from_file(&std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/fan_room.toml")).unwrap();
+    let hints = BuildHints { frequency: Some(4), patch_size: Some(0.4), ray_spacing: Some(0.1), buckets: None };
+    let mut settings = BuildSettings::resolve(&scene, hints);
+    settings.prototype_library = None;
+    let seq_bytes =
+        archive::write_to_vec(&build::build_sequence(&scene, &settings, &NoProgress).unwrap().contents).unwrap();
+    let seq = Archive::from_bytes(&seq_bytes).unwrap();
+    assert_eq!(seq.header().version_read, 10, "sequences keep primitive order");
+    let v = seq.view();
+    let grid = |r: &PrimitiveRecord| (r.kind, r.grid_u, r.grid_v);
+    let (i, j) = (0..v.primitives.len())
+        .flat_map(|i| (i + 1..v.primitives.len()).map(move |j| (i, j)))
+        .find(|&(i, j)| v.primitives[i].kind == 0 && grid(&v.primitives[i]) == grid(&v.primitives[j]))
+        .expect("two primitives of one grid");
+    let (pi, pj) = (v.primitives[i].first_patch, v.primitives[j].first_patch);
+    let mut bytes = seq_bytes.clone();
+    let (oi, oj) = (at(&bytes, i), at(&bytes, j));
+    forge(&mut bytes, &|b| {
+        b[oi..oi + 4].copy_from_slice(&pj.to_le_bytes());
+        b[oj..oj + 4].copy_from_slice(&pi.to_le_bytes());
+        b[12..16].copy_from_slice(&11u32.to_le_bytes());
+    });
+    refused(&bytes, "out of primitive order in a sequence archive");
+    // Blocks that overlap, and blocks that leave a patch uncovered.
+    let mut bytes = good.clone();
+    let (o0, o1) = (at(&good, 0), at(&good, 1));
+    let first1 = u32::from_le_bytes(good[o1..o1 + 4].try_into().unwrap());
+    forge(&mut bytes, &|b| b[o0..o0 + 4].copy_from_slice(&first1.to_le_bytes()));
+    refused(&bytes, "overlap another primitive's");
+}

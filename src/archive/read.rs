@@ -599,7 +599,7 @@ impl Archive {
         };
         let links = LinkStream::open(file, path, columns, escapes, offsets, runs, &limits, window_ends)?;
         archive.stream = Some(links);
-        validate_contents(&archive.view_unchecked()?, &archive.meta)?;
+        validate_contents(&archive.view_unchecked()?, &archive.meta, archive.header.version_read)?;
         Ok(archive)
     }
 
@@ -665,7 +665,7 @@ impl Archive {
         let mut archive =
             Self { storage, header, entries, meta: ArchiveMeta::default(), stream: None, deltas_on_disk: None };
         archive.meta = archive.read_meta()?;
-        validate_contents(&archive.view_unchecked()?, &archive.meta)?;
+        validate_contents(&archive.view_unchecked()?, &archive.meta, archive.header.version_read)?;
         Ok(archive)
     }
 
@@ -1130,8 +1130,6 @@ fn camera_geometry(c: &CameraRecord) -> bool {
     crate::limits::camera_is_usable(c.position, c.look_at, c.up)
 }
 
-/// Checks counts and every stored index, so that later code can index
-/// without bounds surprises.
 /// Whether the primitives' patch blocks tile the patches `0..P` (§5.5):
 /// blocks in primitive order are checked by where the last ended, with no
 /// memory; from the first block out of that order on (a spatial patch
@@ -1184,9 +1182,17 @@ impl BlockTiling {
     fn covered(&self) -> u64 {
         self.covered
     }
+
+    /// Whether every block so far began where the one before it ended.
+    fn in_order(&self) -> bool {
+        self.seen.is_none()
+    }
 }
 
-fn validate_contents(v: &InetView<'_>, meta: &ArchiveMeta) -> Result<(), ArchiveError> {
+/// Checks counts and every stored index, so that later code can index
+/// without bounds surprises; `version_read` is the header's (rules that
+/// depend on it).
+fn validate_contents(v: &InetView<'_>, meta: &ArchiveMeta, version_read: u32) -> Result<(), ArchiveError> {
     let b = v.build;
     let (p, nv, nd) = (b.patch_count as usize, b.vertex_count as usize, b.direction_count as usize);
     let count = |name: &str, got: usize, want: usize| {
@@ -1277,11 +1283,12 @@ fn validate_contents(v: &InetView<'_>, meta: &ArchiveMeta) -> Result<(), Archive
     // Each primitive's patch block: since version 11 in any order, tiling
     // the patches.
     let mut tiling = BlockTiling::new(p as u64);
-    let tiles = |i: usize, ok: bool| {
+    let tiles = |i: usize, first: u32, cells: u64, ok: bool| {
         check(ok, || {
             format!(
-                "PRIM[{i}]: its patches overlap another primitive's or lie beyond the {p} patches \
-                 (each grid's cells and each grouped triangle's patch, new or its predecessor's, once)"
+                "PRIM[{i}]: its patches {first}..{} overlap another primitive's or lie beyond the {p} patches \
+                 (a grid's cells, or a grouped triangle's patch, new or its predecessor's)",
+                first as u64 + cells
             )
         })
     };
@@ -1307,7 +1314,7 @@ fn validate_contents(v: &InetView<'_>, meta: &ArchiveMeta) -> Result<(), Archive
                 format!("PRIM[{i}]: a grouped triangle must have one cell and its TVTX row in order")
             })?;
             if !joins {
-                tiles(i, tiling.add(r.first_patch as u64, 1))?;
+                tiles(i, r.first_patch, 1, tiling.add(r.first_patch as u64, 1))?;
             }
             next_grouped += 1;
             continue;
@@ -1318,8 +1325,21 @@ fn validate_contents(v: &InetView<'_>, meta: &ArchiveMeta) -> Result<(), Archive
         let (cells, verts) =
             if r.kind == 0 { (gu * gv, (gu + 1) * (gv + 1)) } else { (gu * gu, (gu + 1) * (gu + 2) / 2) };
         check(r.first_vertex as u64 == next_vertex, || format!("PRIM[{i}]: vertices not contiguous"))?;
-        tiles(i, tiling.add(r.first_patch as u64, cells))?;
+        tiles(i, r.first_patch, cells, tiling.add(r.first_patch as u64, cells))?;
         next_vertex += verts;
+    }
+    check(tiling.covered() == p as u64, || {
+        format!("PRIM: the primitives' patch blocks cover {} of the {p} patches", tiling.covered())
+    })?;
+    // A spatial patch order (§5.5): version 10 readers refuse it, so the
+    // file must say it needs 11; a sequence's instances keep their
+    // patches together (the warm starts pair an instance's patches with
+    // its predecessor's as ranges).
+    if !tiling.in_order() {
+        check(version_read >= layout::VERSION_READ_SPATIAL, || {
+            format!("PRIM: patch blocks out of primitive order in a file whose version_read is {version_read}, not 11")
+        })?;
+        check(v.sequence.is_none(), || "PRIM: patch blocks out of primitive order in a sequence archive".into())?;
     }
     // Grouped triangles' corners come after the grids' vertices.
     check(

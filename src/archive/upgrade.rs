@@ -16,9 +16,10 @@
 //! So an upgrade copies every other section as it is and rewrites the
 //! link ends: each row re-ordered by a stable sort on (bucket, chunk) —
 //! the order a version 10 build gives — through the archive writer, the
-//! same weights exactly. Its bytes are those a version 10 build of the
-//! same links would write, and it renders the same light up to the order
-//! of sums. It streams: memory holds `LOFF`, the escapes and a batch of
+//! same weights exactly. Its bytes are those a build of the same links
+//! in primitive order (`--patch-order primitives`; the upgrade keeps the
+//! file's patch numbers) would write, and it renders the same light up
+//! to the order of sums. It streams: memory holds `LOFF`, the escapes and a batch of
 //! rows, whatever the file's size. The old columns are checked against
 //! their checksums as they are read, and the result is validated in full
 //! before it replaces anything; the write goes to a temporary file renamed

@@ -22,6 +22,7 @@ use std::time::Instant;
 
 use rayon::prelude::*;
 
+pub use crate::patch::order::PatchOrder;
 pub use settings::{BuildSettings, DEFAULT_MAX_BUCKET, MAX_BUCKET, Quality, ray_space_divisions};
 pub use spill::SpilledLinks;
 pub use trace::BundleStats;
@@ -573,10 +574,13 @@ fn build_impl(
         .collect();
     let mut patches =
         Patches::with_groups(&prims, &prim_instance, &triangle_group, settings.patch_size, settings.cell_order)?;
-    // A spatial patch order where nothing moves: a sequence's instances,
-    // and a moved frame's surfaces (compared with a sequence's), keep their
-    // patches in primitive order.
-    let still = scene.surfaces.iter().all(|s| s.motion.is_none() && !s.moved);
+    // A spatial patch order for still scenes. Sequences keep primitive
+    // order (an instance's patches stay together, and frames are compared
+    // by patch id), and so do the stills compared with them: a frame of a
+    // sequence (moved surfaces), or one built on a sequence's ray grid.
+    let still = scene.animation.is_none()
+        && settings.grid_bounds.is_none()
+        && scene.surfaces.iter().all(|s| s.motion.is_none() && !s.moved);
     if settings.patch_order == crate::patch::order::PatchOrder::Spatial && still {
         patches.renumber(&crate::patch::order::spatial_order(&prims, &patches));
     }
@@ -878,10 +882,13 @@ fn build_impl(
         reflectance: reflectance_contents,
         shading: shading_contents(scene, &instances),
     };
-    let mut patch_identity = Vec::with_capacity(prims.len());
+    // Indexed by patch id, whatever order the patches are numbered in.
+    let n_patches: usize = seq_primitives.iter().map(|pp| pp.owned_patches() as usize).sum();
+    let mut patch_identity = vec![(0, 0, 0); n_patches];
     for (pi, pp) in seq_primitives.iter().enumerate() {
         for cell in 0..pp.owned_patches() {
-            patch_identity.push((prim_surface[pi], (sort_key[pi] & 0xffff_ffff) as u32, cell));
+            patch_identity[(pp.first_patch + cell) as usize] =
+                (prim_surface[pi], (sort_key[pi] & 0xffff_ffff) as u32, cell);
         }
     }
     Ok((

@@ -32,9 +32,10 @@ pub struct BuildSettings {
     /// archives before version 7 (for comparisons).
     pub cell_order: crate::geometry::grid::CellOrder,
     /// How patches are numbered across primitives: along a Morton curve
-    /// over the primitives' centres (default; applied only where nothing
-    /// moves, since a sequence's instances keep their patches together),
-    /// or in primitive order as archives before version 11.
+    /// over the primitives' centres (default; applied to still scenes
+    /// only: sequences, frames of sequences and stills built on a
+    /// sequence's ray grid keep primitive order, so that their patch ids
+    /// agree), or in primitive order as archives before version 11.
     pub patch_order: crate::patch::order::PatchOrder,
     /// Whether small triangles of still, diffuse surfaces are grouped into
     /// patches of several (`patch::mesh`; default), or each keeps its own.
