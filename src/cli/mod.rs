@@ -85,9 +85,9 @@ struct BuildArgs {
     no_grouping: bool,
     /// How patches are numbered: `spatial` (default) along a Morton curve
     /// over the primitives' centres, so that the distribution reads
-    /// neighbouring per-patch state together (scenes where something moves
-    /// keep primitive order); `primitives` in primitive order, as archives
-    /// before format version 11.
+    /// neighbouring per-patch state together (sequences keep primitive
+    /// order); `primitives` in primitive order, as archives before format
+    /// version 11.
     #[arg(long, value_enum, default_value_t = PatchOrder::Spatial)]
     patch_order: PatchOrder,
     /// Turn a planar surface about its normal by DEG degrees before building

@@ -2,7 +2,7 @@
 //! state of every link end's other patch; a patch's links mostly stay in
 //! its room, so numbering the patches of primitives near each other
 //! together keeps a receiver's senders within a few cache-sized stretches
-//! of state (`docs/PERFORMANCE.md`, "A spatial patch order"). Primitives
+//! of state (`docs/PERFORMANCE.md`, "Format version 11"). Primitives
 //! come in scene order, a surface's primitives together (every wall of a
 //! building, then every floor): a spatial order takes their patch blocks
 //! along a Morton curve over the primitives' centres instead.
@@ -19,7 +19,7 @@ pub enum PatchOrder {
     /// version 11; `--patch-order primitives`).
     Primitives,
     /// Primitives' patch blocks along a Morton curve over their centres
-    /// (the default for scenes where nothing moves).
+    /// (the default; builds apply it to still scenes, not sequences).
     Spatial,
 }
 
@@ -58,8 +58,7 @@ pub fn spatial_order(primitives: &[Primitive], patches: &Patches) -> Vec<u32> {
         .iter()
         .map(|&i| {
             let p = &primitives[i as usize];
-            let n = if p.kind == crate::geometry::PrimitiveKind::Quad { 4 } else { 3 };
-            p.p[..n].iter().sum::<Vec3>() / n as f32
+            p.p[..p.corner_count()].iter().sum::<Vec3>() / p.corner_count() as f32
         })
         .collect();
     let keys = morton_keys(&centres);
