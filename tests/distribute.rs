@@ -110,84 +110,77 @@ fn weights_kept_apart_give_the_reference_light_resident_and_streamed() {
     }
 }
 
-#[test]
-fn patches_in_tiles_give_the_light_of_patches_in_rows() {
-    // Version 7 numbers a quad's patches in tiles (§5.5): the same links
-    // between renumbered patches, so only the order of the gather's sums
-    // changes. At the same iteration count the light agrees within 1e-6.
-    use illumnet::build::{self, BuildSettings};
-    use illumnet::geometry::PrimitiveKind;
-    use illumnet::geometry::grid::{CellOrder, PatchGrid};
+/// The default Cornell box built with `tweak` applied to its settings.
+fn cornell_with(tweak: impl FnOnce(&mut illumnet::build::BuildSettings)) -> Archive {
     let scene = Scene::cornell_box();
-    let archive = |order: CellOrder| {
-        let mut settings = BuildSettings::resolve(&scene, BuildHints::default());
-        settings.cell_order = order;
-        let (contents, _) = build::build(&scene, &settings, &NoProgress).unwrap();
-        Archive::from_bytes(&illumnet::archive::write_to_vec(&contents).unwrap()).unwrap()
-    };
-    let (rows, tiles) = (archive(CellOrder::Rows), archive(CellOrder::Tiles));
+    let mut settings = illumnet::build::BuildSettings::resolve(&scene, BuildHints::default());
+    tweak(&mut settings);
+    let (contents, _) = illumnet::build::build(&scene, &settings, &NoProgress).unwrap();
+    Archive::from_bytes(&illumnet::archive::write_to_vec(&contents).unwrap()).unwrap()
+}
+
+/// Holds two builds of the same links between renumbered patches to the
+/// same light: 12 iterations of each, and every patch `p` of `a` against
+/// patch `q_of(p)` of `b` (which also checks what else they must share)
+/// within 1e-6 relative, only the order of the gather's sums changed;
+/// most patches must be renumbered, or the test would show nothing.
+fn same_light_renumbered(what: &str, a: &Archive, b: &Archive, q_of: impl Fn(usize) -> usize) {
     let opts = DistributeOptions { tolerance: 0.0, max_iterations: 12, ..Default::default() };
-    let solve = |a: &Archive| distribute::distribute(&a.view(), &opts, &NoProgress).unwrap();
-    let (r, t) = (solve(&rows), solve(&tiles));
+    let solve = |x: &Archive| distribute::distribute(&x.view(), &opts, &NoProgress).unwrap();
+    let (r, t) = (solve(a), solve(b));
     assert_eq!(r.balance.iterations, t.balance.iterations);
-    let (vr, vt) = (rows.view(), tiles.view());
-    assert_eq!(vr.link_end_count(), vt.link_end_count());
+    let (va, vb) = (a.view(), b.view());
+    assert_eq!(va.link_end_count(), vb.link_end_count());
     let (mut worst, mut moved) = (0.0f64, 0);
-    for (p, &prim) in vr.patch_primitive.iter().enumerate() {
-        let (a, b) = (&vr.primitives[prim as usize], &vt.primitives[prim as usize]);
-        assert_eq!((a.cell_order, b.cell_order), (0, 1));
-        let grid = |order| PatchGrid { kind: PrimitiveKind::Quad, n_u: a.grid_u, n_v: a.grid_v, order };
-        let (i, j) = grid(CellOrder::Rows).quad_ij(p as u32 - a.first_patch);
-        let q = (b.first_patch + grid(CellOrder::Tiles).quad_cell(i, j)) as usize;
+    for p in 0..va.patch_count() {
+        let q = q_of(p);
         moved += usize::from(q != p);
-        assert_eq!(vr.patch_hits[p], vt.patch_hits[q]);
+        assert_eq!(va.patch_hits[p], vb.patch_hits[q]);
         for c in 0..3 {
             let (x, y) = (r.radiance[p][c] as f64, t.radiance[q][c] as f64);
             worst = worst.max((x - y).abs() / x.abs().max(1e-3));
         }
     }
-    assert!(moved > vr.patch_count() / 2, "tiles renumber most patches");
-    eprintln!("tiles against rows: worst patch {worst:.2e} apart, {moved} patches renumbered");
-    assert!(worst < 1e-6, "worst patch {worst:.2e} apart");
+    assert!(moved > va.patch_count() / 2, "{what}: most patches renumbered ({moved})");
+    eprintln!("{what}: worst patch {worst:.2e} apart, {moved} patches renumbered");
+    assert!(worst < 1e-6, "{what}: worst patch {worst:.2e} apart");
+}
+
+#[test]
+fn patches_in_tiles_give_the_light_of_patches_in_rows() {
+    // Version 7 numbers a quad's patches in tiles (§5.5).
+    use illumnet::geometry::PrimitiveKind;
+    use illumnet::geometry::grid::{CellOrder, PatchGrid};
+    let rows = cornell_with(|s| s.cell_order = CellOrder::Rows);
+    let tiles = cornell_with(|s| s.cell_order = CellOrder::Tiles);
+    let (vr, vt) = (rows.view(), tiles.view());
+    same_light_renumbered("tiles against rows", &rows, &tiles, |p| {
+        let prim = vr.patch_primitive[p] as usize;
+        let (a, b) = (&vr.primitives[prim], &vt.primitives[prim]);
+        assert_eq!((a.cell_order, b.cell_order), (0, 1));
+        let grid = |order| PatchGrid { kind: PrimitiveKind::Quad, n_u: a.grid_u, n_v: a.grid_v, order };
+        let (i, j) = grid(CellOrder::Rows).quad_ij(p as u32 - a.first_patch);
+        (b.first_patch + grid(CellOrder::Tiles).quad_cell(i, j)) as usize
+    });
 }
 
 #[test]
 fn a_spatial_patch_order_gives_the_light_of_primitive_order() {
     // Version 11 may number primitives' patch blocks along a Morton curve
-    // (§5.5): the same links between renumbered patches, so only the order
-    // of the gather's sums changes. At the same iteration count the light
-    // agrees within 1e-6; only the reordered file needs a version 11 reader.
-    use illumnet::build::{self, BuildSettings};
-    use illumnet::patch::order::PatchOrder;
-    let scene = Scene::cornell_box();
-    let archive = |order: PatchOrder| {
-        let mut settings = BuildSettings::resolve(&scene, BuildHints::default());
-        settings.patch_order = order;
-        let (contents, _) = build::build(&scene, &settings, &NoProgress).unwrap();
-        Archive::from_bytes(&illumnet::archive::write_to_vec(&contents).unwrap()).unwrap()
-    };
-    let (plain, spatial) = (archive(PatchOrder::Primitives), archive(PatchOrder::Spatial));
+    // (§5.5); only the reordered file needs a version 11 reader.
+    use illumnet::build::PatchOrder;
+    let plain = cornell_with(|s| s.patch_order = PatchOrder::Primitives);
+    let spatial = cornell_with(|s| s.patch_order = PatchOrder::Spatial);
     assert_eq!((plain.header().version_read, spatial.header().version_read), (10, 11));
-    let opts = DistributeOptions { tolerance: 0.0, max_iterations: 12, ..Default::default() };
-    let solve = |a: &Archive| distribute::distribute(&a.view(), &opts, &NoProgress).unwrap();
-    let (r, s) = (solve(&plain), solve(&spatial));
     let (vr, vs) = (plain.view(), spatial.view());
-    assert_eq!(vr.link_end_count(), vs.link_end_count());
-    let (mut worst, mut moved) = (0.0f64, 0);
-    for (p, &prim) in vr.patch_primitive.iter().enumerate() {
+    same_light_renumbered("spatial against primitive order", &plain, &spatial, |p| {
+        let prim = vr.patch_primitive[p];
         let (a, b) = (&vr.primitives[prim as usize], &vs.primitives[prim as usize]);
         let q = (b.first_patch + (p as u32 - a.first_patch)) as usize;
-        moved += usize::from(q != p);
         assert_eq!(vs.patch_primitive[q], prim);
-        assert_eq!((vr.patch_hits[p], vr.patch_area[p]), (vs.patch_hits[q], vs.patch_area[q]));
-        for c in 0..3 {
-            let (x, y) = (r.radiance[p][c] as f64, s.radiance[q][c] as f64);
-            worst = worst.max((x - y).abs() / x.abs().max(1e-3));
-        }
-    }
-    assert!(moved > vr.patch_count() / 2, "the curve renumbers most patches ({moved})");
-    eprintln!("spatial against primitive order: worst patch {worst:.2e} apart, {moved} patches renumbered");
-    assert!(worst < 1e-6, "worst patch {worst:.2e} apart");
+        assert_eq!(vr.patch_area[p], vs.patch_area[q]);
+        q
+    });
 }
 
 #[test]

@@ -1343,11 +1343,10 @@ fn validate_contents(v: &InetView<'_>, meta: &ArchiveMeta, version_read: u32) ->
     }
     // Grouped triangles' corners come after the grids' vertices.
     check(
-        tiling.covered() == p as u64
-            && next_vertex <= nv as u64
+        next_vertex <= nv as u64
             && (next_grouped > 0 || next_vertex == nv as u64)
             && next_grouped == v.grouped_triangles.len() as u64,
-        || "PRIM: grids and grouped triangles do not cover all patches, vertices and TVTX rows".into(),
+        || "PRIM: grids and grouped triangles do not cover all vertices and TVTX rows".into(),
     )?;
     for (i, t) in v.grouped_triangles.iter().enumerate() {
         check(t.iter().all(|&c| c as u64 >= next_vertex && (c as usize) < nv), || {
