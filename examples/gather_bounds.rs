@@ -25,8 +25,13 @@
 //! Numbers for `docs/PERFORMANCE.md`:
 //!
 //! ```text
-//! cargo run --release --example gather_bounds -- ARCHIVE.inet
+//! cargo run --release --example gather_bounds -- ARCHIVE.inet [--blockings B] [--blocked-only]
 //! ```
+//!
+//! `--blockings 16x1024,13x1024,…` sets the (sender-chunk bits × receivers
+//! a chunk) layouts tried (default `15x1024,16x1024,16x4096`);
+//! `--blocked-only` times, on two threads, only the row gather and those
+//! layouts.
 
 use std::time::Instant;
 
@@ -41,10 +46,33 @@ const PASSES: usize = 3;
 const MASK: u32 = (1 << 14) - 1;
 
 fn main() {
-    let Some(path) = std::env::args().nth(1) else {
-        eprintln!("usage: gather_bounds ARCHIVE.inet");
+    let usage = || -> ! {
+        eprintln!("usage: gather_bounds ARCHIVE.inet [--blockings BITSxRECEIVERS,...] [--blocked-only]");
         std::process::exit(2);
     };
+    let mut args = std::env::args().skip(1);
+    let (mut path, mut blockings, mut only) = (None, BLOCKINGS.to_vec(), false);
+    while let Some(a) = args.next() {
+        match a.as_str() {
+            "--blocked-only" => only = true,
+            "--blockings" => {
+                let list = args.next().unwrap_or_else(|| usage());
+                blockings = list
+                    .split(',')
+                    .map(|x| {
+                        let (b, r) = x.split_once('x').unwrap_or_else(|| usage());
+                        match (b.parse::<u32>(), r.parse::<usize>()) {
+                            (Ok(b @ 1..=16), Ok(r @ 1..=65_536)) => (b, r),
+                            _ => usage(),
+                        }
+                    })
+                    .collect();
+            }
+            _ if path.is_none() && !a.starts_with('-') => path = Some(a),
+            _ => usage(),
+        }
+    }
+    let Some(path) = path else { usage() };
     let archive = match Archive::open(std::path::Path::new(&path)) {
         Ok(a) => a,
         Err(e) => {
@@ -68,7 +96,7 @@ fn main() {
     let (mut recv3, mut recv2n) = (vec![[0f32; 3]; patches], vec![[0f32; 2]; patches]);
     // Every row's ends sorted by the other patch (ids and counts).
     let (mut sorted_other, mut sorted_count) = (other.to_vec(), count.to_vec());
-    for q in 0..patches {
+    for q in (0..patches).filter(|_| !only) {
         let row = offsets[q] as usize..offsets[q + 1] as usize;
         let mut pairs: Vec<(u32, u8)> =
             other[row.clone()].iter().copied().zip(count[row.clone()].iter().copied()).collect();
@@ -79,14 +107,17 @@ fn main() {
         }
     }
     let t = Instant::now();
-    let blocked: std::collections::HashMap<(u32, usize), Blocked> = BLOCKINGS
+    let blocked: std::collections::HashMap<(u32, usize), Blocked> = blockings
         .iter()
         .map(|&(bits, chunk)| ((bits, chunk), Blocked::new(offsets, other, count, bits, chunk, false)))
         .collect();
-    let scatter: Vec<Blocked> =
-        SCATTERS.iter().map(|&(bits, chunk)| Blocked::new(offsets, other, count, bits, chunk, true)).collect();
+    let scatter: Vec<Blocked> = SCATTERS
+        .iter()
+        .filter(|_| !only)
+        .map(|&(bits, chunk)| Blocked::new(offsets, other, count, bits, chunk, true))
+        .collect();
     eprintln!("blocked layouts made in {:.1} s", t.elapsed().as_secs_f64());
-    for &(bits, chunk) in &BLOCKINGS {
+    for &(bits, chunk) in &blockings {
         let b = &blocked[&(bits, chunk)];
         let runs = b.counts.iter().filter(|&&n| n > 0).count();
         println!(
@@ -105,7 +136,7 @@ fn main() {
     // The first rows holding ~14 M ends, and how often to repeat them.
     let sub = offsets.partition_point(|&o| o < 14_000_000).min(patches);
     let reps = (other.len() / (offsets[sub] as usize).max(1)).max(1);
-    for threads in [1, 2] {
+    for threads in if only { vec![2] } else { vec![1, 2] } {
         let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("a thread pool");
         pool.install(|| {
             let t = Instant::now();
@@ -143,52 +174,54 @@ fn main() {
                 })
                 .collect();
             let variants = variants.into_iter().map(|(w, m, p)| (w.to_string(), m, p)).chain(masks);
-            for (what, mask, prefetch) in variants {
+            for (what, mask, prefetch) in variants.filter(|v| !only || v.0 == "gather") {
                 let t = Instant::now();
                 for _ in 0..PASSES {
                     gather(offsets, other, count, &shoot, mask, prefetch, &mut recv);
                 }
                 line(&what, ends / t.elapsed().as_secs_f64());
             }
-            let t = Instant::now();
-            for _ in 0..PASSES * reps {
-                gather(&offsets[..sub + 1], other, count, &shoot, MASK, Prefetch::No, &mut recv[..sub]);
-            }
-            let n = offsets[sub] as f64 * (PASSES * reps) as f64;
-            line(&format!("gather, masked, first {sub} patches x{reps}"), n / t.elapsed().as_secs_f64());
-            let t = Instant::now();
-            for _ in 0..PASSES {
-                rows(offsets, other, count, &shoot, &mut recv2);
-            }
-            line("gather, rows, the blocked kernel", ends / t.elapsed().as_secs_f64());
-            // The same loop with each row's ends sorted by the other
-            // patch: the order the state is read in within a row.
-            let t = Instant::now();
-            for _ in 0..PASSES {
-                rows(offsets, &sorted_other, &sorted_count, &shoot, &mut recv2);
-            }
-            line("gather, rows sorted by other patch", ends / t.elapsed().as_secs_f64());
-            // Smaller per-patch state, the same loop: RGB in 12 bytes (what
-            // the distribution could store), and 8 bytes (the size of RGB
-            // in f16 with padding; two f32 read here, a bound on locality).
-            let t = Instant::now();
-            for _ in 0..PASSES {
-                rows(offsets, other, count, &shoot3, &mut recv3);
-            }
-            line("gather, rows, 12-byte state", ends / t.elapsed().as_secs_f64());
-            let t = Instant::now();
-            for _ in 0..PASSES {
-                rows(offsets, other, count, &shoot2, &mut recv2n);
-            }
-            line("gather, rows, 8-byte state (locality bound)", ends / t.elapsed().as_secs_f64());
-            for ahead in [0, 16, 32, 64] {
+            if !only {
+                let t = Instant::now();
+                for _ in 0..PASSES * reps {
+                    gather(&offsets[..sub + 1], other, count, &shoot, MASK, Prefetch::No, &mut recv[..sub]);
+                }
+                let n = offsets[sub] as f64 * (PASSES * reps) as f64;
+                line(&format!("gather, masked, first {sub} patches x{reps}"), n / t.elapsed().as_secs_f64());
                 let t = Instant::now();
                 for _ in 0..PASSES {
-                    rows_prefetched(offsets, other, count, &shoot, ahead, &mut recv2);
+                    rows(offsets, other, count, &shoot, &mut recv2);
                 }
-                line(&format!("gather, state prefetched {ahead} ends ahead"), ends / t.elapsed().as_secs_f64());
+                line("gather, rows, the blocked kernel", ends / t.elapsed().as_secs_f64());
+                // The same loop with each row's ends sorted by the other
+                // patch: the order the state is read in within a row.
+                let t = Instant::now();
+                for _ in 0..PASSES {
+                    rows(offsets, &sorted_other, &sorted_count, &shoot, &mut recv2);
+                }
+                line("gather, rows sorted by other patch", ends / t.elapsed().as_secs_f64());
+                // Smaller per-patch state, the same loop: RGB in 12 bytes (what
+                // the distribution could store), and 8 bytes (the size of RGB
+                // in f16 with padding; two f32 read here, a bound on locality).
+                let t = Instant::now();
+                for _ in 0..PASSES {
+                    rows(offsets, other, count, &shoot3, &mut recv3);
+                }
+                line("gather, rows, 12-byte state", ends / t.elapsed().as_secs_f64());
+                let t = Instant::now();
+                for _ in 0..PASSES {
+                    rows(offsets, other, count, &shoot2, &mut recv2n);
+                }
+                line("gather, rows, 8-byte state (locality bound)", ends / t.elapsed().as_secs_f64());
+                for ahead in [0, 16, 32, 64] {
+                    let t = Instant::now();
+                    for _ in 0..PASSES {
+                        rows_prefetched(offsets, other, count, &shoot, ahead, &mut recv2);
+                    }
+                    line(&format!("gather, state prefetched {ahead} ends ahead"), ends / t.elapsed().as_secs_f64());
+                }
             }
-            for &(bits, chunk) in &BLOCKINGS {
+            for &(bits, chunk) in &blockings {
                 let b = &blocked[&(bits, chunk)];
                 let t = Instant::now();
                 for _ in 0..PASSES {
