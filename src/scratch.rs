@@ -96,6 +96,72 @@ fn unlocked(path: &Path, is_dir: bool) -> bool {
     matches!(f.try_lock(), Ok(()))
 }
 
+/// The folder an output goes in, made with any missing parents when it
+/// did not exist, so that a write to a new folder works as one to an old
+/// one; dropped without [`OutputDir::keep`] (the write failed), it removes
+/// the folders it made that are still empty: a failed write leaves no
+/// empty folder behind, and never removes one it did not make or one
+/// another process has put something in.
+#[must_use = "dropped, the folders made are removed again"]
+#[derive(Debug)]
+pub struct OutputDir {
+    /// The folders made, deepest first.
+    made: Vec<PathBuf>,
+}
+
+impl OutputDir {
+    /// Makes `output`'s folder ([`dir_of`]) and its missing parents.
+    pub fn make(output: &Path) -> io::Result<Self> {
+        let dir = dir_of(output);
+        let mut missing = Vec::new();
+        let mut at = Some(dir);
+        while let Some(d) = at.filter(|d| !d.as_os_str().is_empty()) {
+            match std::fs::metadata(d) {
+                Ok(m) if m.is_dir() => break,
+                Ok(_) => {
+                    return Err(io::Error::new(
+                        io::ErrorKind::NotADirectory,
+                        format!("{} is a file, not a folder", d.display()),
+                    ));
+                }
+                // Missing, or under a file (which the walk up then finds).
+                Err(e) if matches!(e.kind(), io::ErrorKind::NotFound | io::ErrorKind::NotADirectory) => {
+                    missing.push(d.to_path_buf())
+                }
+                Err(e) => return Err(e),
+            }
+            at = d.parent();
+        }
+        let mut made = OutputDir { made: Vec::with_capacity(missing.len()) };
+        for d in missing.into_iter().rev() {
+            match std::fs::create_dir(&d) {
+                Ok(()) => made.made.insert(0, d),
+                // Made meanwhile by another process: not ours to remove.
+                Err(e) if e.kind() == io::ErrorKind::AlreadyExists && d.is_dir() => {}
+                // `made` removes what it made so far as it drops.
+                Err(e) => return Err(e),
+            }
+        }
+        Ok(made)
+    }
+
+    /// The write succeeded: the folders stay.
+    pub fn keep(mut self) {
+        self.made.clear();
+    }
+}
+
+impl Drop for OutputDir {
+    fn drop(&mut self) {
+        for d in &self.made {
+            // Fails, leaving it, unless empty.
+            if std::fs::remove_dir(d).is_err() {
+                break;
+            }
+        }
+    }
+}
+
 /// What [`remove_stale`] removed.
 #[derive(Debug, Default, Clone, PartialEq, Eq)]
 pub struct Removed {
@@ -176,6 +242,37 @@ mod tests {
         assert_eq!(owner("box.inet", out), None);
         // Another output's, whose name starts like this one's.
         assert_eq!(owner(".illumnet-box.inet.5-x.123-abc.tmp", out), None);
+    }
+
+    #[test]
+    fn output_folders_made_for_a_failed_write_are_removed_and_others_kept() {
+        let root = tempfile::tempdir().unwrap();
+        let out = root.path().join("a/b/c.inet");
+        // Dropped: the write failed, both folders made go.
+        let made = OutputDir::make(&out).unwrap();
+        assert!(root.path().join("a/b").is_dir());
+        drop(made);
+        assert!(!root.path().join("a").exists());
+        // Kept: the write succeeded.
+        OutputDir::make(&out).unwrap().keep();
+        assert!(root.path().join("a/b").is_dir());
+        // Folders that existed are never removed; nor is one made but
+        // no longer empty (another process wrote there), nor its parents.
+        let deeper = root.path().join("a/b/d/e/f.inet");
+        let made = OutputDir::make(&deeper).unwrap();
+        std::fs::write(root.path().join("a/b/d/other.txt"), b"x").unwrap();
+        drop(made);
+        assert!(!root.path().join("a/b/d/e").exists());
+        assert!(root.path().join("a/b/d/other.txt").exists());
+        drop(OutputDir::make(&out).unwrap());
+        assert!(root.path().join("a/b").is_dir());
+        // A bare file name's folder is `.`, which exists.
+        OutputDir::make(Path::new("x.inet")).unwrap().keep();
+        // A file where a folder should be: an error naming it.
+        std::fs::write(root.path().join("file"), b"x").unwrap();
+        let e = OutputDir::make(&root.path().join("file/g/h.inet")).unwrap_err();
+        assert!(e.to_string().contains("is a file, not a folder"), "{e}");
+        assert!(!root.path().join("file/g").exists());
     }
 
     #[test]

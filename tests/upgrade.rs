@@ -227,8 +227,9 @@ fn upgrades_replace_in_place_refuse_the_wrong_files_and_leave_damage_alone() {
     let before = std::fs::read(&path).unwrap();
     assert!(upgrade::upgrade(&path, &path).unwrap().already_current);
     assert_eq!(std::fs::read(&path).unwrap(), before);
-    // To another file, a current archive is copied (and checked).
-    let copy = dir.path().join("copy.inet");
+    // To another file, a current archive is copied (and checked), its
+    // folder made.
+    let copy = dir.path().join("copies/copy.inet");
     assert!(upgrade::upgrade(&path, &copy).unwrap().already_current);
     assert_eq!(std::fs::read(&copy).unwrap(), before);
     // A damaged current archive is not copied.
@@ -237,7 +238,8 @@ fn upgrades_replace_in_place_refuse_the_wrong_files_and_leave_damage_alone() {
     bad[e.offset as usize + 4] ^= 0x40;
     let damaged_current = dir.path().join("damaged_current.inet");
     std::fs::write(&damaged_current, &bad).unwrap();
-    let copy2 = dir.path().join("copy2.inet");
+    // Folders made for a write that fails are removed again.
+    let copy2 = dir.path().join("fresh/copy2.inet");
     let err = upgrade::upgrade(&damaged_current, &copy2).unwrap_err().to_string();
     assert!(
         err.contains("damaged_current.inet") && err.contains("nothing was written") && err.contains("PCEN"),
@@ -255,14 +257,14 @@ fn upgrades_replace_in_place_refuse_the_wrong_files_and_leave_damage_alone() {
     bytes[e.offset as usize + 8] ^= 0x10;
     let damaged = dir.path().join("damaged.inet");
     std::fs::write(&damaged, &bytes).unwrap();
-    let out = dir.path().join("out.inet");
+    let out = dir.path().join("made/for/out.inet");
     let err = upgrade::upgrade(&damaged, &out).unwrap_err().to_string();
     assert!(err.contains("LWGT") && err.contains("checksum"), "{err}");
     assert!(!out.exists());
     let mut left: Vec<_> =
         std::fs::read_dir(dir.path()).unwrap().map(|e| e.unwrap().file_name().into_string().unwrap()).collect();
     left.sort();
-    assert_eq!(left, ["a.inet", "copy.inet", "damaged.inet", "damaged_current.inet"], "no temporaries left");
+    assert_eq!(left, ["a.inet", "copies", "damaged.inet", "damaged_current.inet"], "no temporaries left");
 }
 
 #[test]

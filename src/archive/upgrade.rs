@@ -76,19 +76,22 @@ pub fn upgrade(input: &Path, output: &Path) -> Result<Upgraded, ArchiveError> {
     let version = header.version_write;
     let io_out = |e: std::io::Error| ArchiveError::Io { path: output.into(), source: e };
     // The temporary file `output` is written to (its folder made, a
-    // crashed writer's leftovers removed), renamed over it once checked.
+    // crashed writer's leftovers removed), renamed over it once checked;
+    // with the folder, kept only then.
     let temporary = || {
         let dir = scratch::dir_of(output);
-        std::fs::create_dir_all(dir).map_err(|e| ArchiveError::Io { path: dir.into(), source: e })?;
+        let folder = scratch::OutputDir::make(output).map_err(|e| ArchiveError::Io { path: dir.into(), source: e })?;
         let _ = scratch::remove_stale(output);
-        Ok::<_, ArchiveError>(scratch::temp_file(output).map_err(io_out)?.into_parts())
+        let (file, path) = scratch::temp_file(output).map_err(io_out)?.into_parts();
+        // The folder first, so that it drops last (after the file in it).
+        Ok::<_, ArchiveError>((folder, file, path))
     };
     if version >= layout::OLDEST_READABLE {
         // Nothing to rewrite: the result is the file itself, or a copy of
         // it, checked as a render would check it before it replaces
         // `output`.
         if !same_file(input, output) {
-            let (mut tmp_file, tmp_path) = temporary()?;
+            let (folder, mut tmp_file, tmp_path) = temporary()?;
             let (mut from, mut buf) = (&file, vec![0u8; 1 << 20]);
             // From the start, whatever reading the header did to the cursor.
             from.seek(std::io::SeekFrom::Start(0)).map_err(io_in)?;
@@ -109,6 +112,7 @@ pub fn upgrade(input: &Path, output: &Path) -> Result<Upgraded, ArchiveError> {
                 other => other,
             })?;
             tmp_path.persist(output).map_err(|e| io_out(e.error))?;
+            folder.keep();
         }
         let len = header.file_length;
         return Ok(Upgraded {
@@ -125,7 +129,7 @@ pub fn upgrade(input: &Path, output: &Path) -> Result<Upgraded, ArchiveError> {
     let (_, mut entries) = read_structure_of(&file, input, Some(&required_before(version)))?;
     entries.sort_by_key(|e| e.offset);
     let old = OldLinks::open(&file, input, &entries, version)?;
-    let (tmp_file, tmp_path) = temporary()?;
+    let (folder, tmp_file, tmp_path) = temporary()?;
     let mut w = SectionWriter::new(BufWriter::with_capacity(1 << 20, tmp_file)).map_err(io_out)?;
     // The new link columns go where the first old one was (by index: with
     // no link ends, several sections share an offset).
@@ -166,6 +170,7 @@ pub fn upgrade(input: &Path, output: &Path) -> Result<Upgraded, ArchiveError> {
         ArchiveError::corrupt(format!("the upgraded archive does not validate (nothing was replaced): {e}"))
     })?;
     tmp_path.persist(output).map_err(|e| io_out(e.error))?;
+    folder.keep();
     drop(tmp_file);
     Ok(Upgraded {
         bytes_before: header.file_length,

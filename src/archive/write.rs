@@ -502,7 +502,7 @@ pub fn write_with_links(
 ) -> Result<u64, ArchiveError> {
     let dir = scratch::dir_of(path);
     let io = |e: std::io::Error| ArchiveError::Io { path: path.into(), source: e };
-    std::fs::create_dir_all(dir).map_err(|e| ArchiveError::Io { path: dir.into(), source: e })?;
+    let folder = scratch::OutputDir::make(path).map_err(|e| ArchiveError::Io { path: dir.into(), source: e })?;
     // What a killed write of this archive left (never a live one's).
     let _ = scratch::remove_stale(path);
     let tmp = scratch::temp_file(path).map_err(io)?;
@@ -519,6 +519,7 @@ pub fn write_with_links(
     // Renamed while still open and locked, so that no other process's
     // stale-file sweep ever sees it unlocked (`scratch::remove_stale`).
     tmp_path.persist(path).map_err(|e| io(e.error))?;
+    folder.keep();
     drop(file);
     Ok(len)
 }

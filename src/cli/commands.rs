@@ -63,6 +63,11 @@ fn build_scene(scene: &Scene, output: &Path, args: &BuildArgs, progress: &dyn Pr
         Some(bytes) => MemoryBudget { bytes, source: BudgetSource::Given },
         None => MemoryBudget::default_for_machine(),
     };
+    // Made now, for a bounded build's scratch; removed again if the build
+    // fails before anything is written there.
+    let folder = illumnet::scratch::OutputDir::make(output).with_context(|| {
+        format!("-o {}: cannot create the folder {}", output.display(), illumnet::scratch::dir_of(output).display())
+    })?;
     // What an interrupted build of this archive left next to it.
     if let Ok(r) = illumnet::scratch::remove_stale(output)
         && !r.paths.is_empty()
@@ -105,6 +110,7 @@ fn build_scene(scene: &Scene, output: &Path, args: &BuildArgs, progress: &dyn Pr
     let t_w = Instant::now();
     let bytes =
         archive::write_with_links(output, &contents, spilled.as_mut().map(|s| s as &mut dyn archive::LinkEndSource))?;
+    folder.keep();
     drop(spilled);
     let t_write = t_w.elapsed().as_secs_f64();
     let sequence = contents.sequence.as_ref().map(|q| {

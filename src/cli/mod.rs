@@ -442,10 +442,11 @@ enum Command {
         below: f32,
     },
     /// Rewrite an archive written in an older format (versions 6 to 9) in
-    /// the current one (version 10): the same light, 7 bytes per link end
-    /// instead of 10 (or 13). Writes a temporary file, validates it, then
-    /// renames it over OUTPUT (default: the archive itself); an archive in
-    /// the current format is copied.
+    /// the current one (version 11, its patches in their order, so that
+    /// version 10 readers read it too): the same light, 7 bytes per link
+    /// end instead of 10 (or 13). Writes a temporary file, validates it,
+    /// then renames it over OUTPUT (default: the archive itself); an
+    /// archive that needs no rewriting (version 10 or 11) is copied.
     Upgrade {
         /// Archive to rewrite.
         archive: PathBuf,
