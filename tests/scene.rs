@@ -147,6 +147,9 @@ fn glossy_materials_parse_and_bad_keys_name_their_field() {
 
 #[test]
 fn parser_errors_name_the_field_in_plain_words() {
+    // HEAD's camera in dotted keys.
+    const DOTTED: &str = "camera.position = [0, 0, -3]\ncamera.look_at = [0, 0, 0]\ncamera.fov_y_deg = 40\n\
+        camera.width = 8\ncamera.height = 8\n[[material]]\nname = 'w'\ntype = 'diffuse'\nreflectance = [0.5, 0.5, 0.5]\n";
     let parse =
         |text: &str| Scene::from_toml(text, std::path::Path::new("s.toml"), std::path::Path::new(".")).unwrap_err();
     let surface = "[[surface]]\nname = 's'\nmaterial = 'w'\n";
@@ -255,6 +258,12 @@ fn parser_errors_name_the_field_in_plain_words() {
             "material[0].reflectance",
             "got 4 values",
         ),
+        // Dotted keys keep their prefix: at the top level, with spaces
+        // around the dot, misspelt, and inside a table.
+        (DOTTED.replace("camera.width = 8", "camera.width = -5"), 4, "camera.width", "not a negative one"),
+        (DOTTED.replace("camera.width = 8", "camera . width = 200.0"), 4, "camera.width", "got 200.0"),
+        (DOTTED.replace("camera.fov_y_deg", "camera.fovv"), 3, "camera.fovv", "unknown field `fovv`"),
+        (format!("{DOTTED}{surface}box.min = [0, 0]\nbox.max = [1, 1, 1]\n"), 13, "surface[0].box.min", "got 2 values"),
     ] {
         let e = parse(&text);
         assert_eq!((e.line, e.field.as_str()), (line, field), "{e}");

@@ -325,7 +325,7 @@ fn field_at(text: &str, offset: usize) -> String {
         if open == 0
             && let Some((k, _)) = line.split_once('=')
             && !k.trim().is_empty()
-            && k.trim().chars().all(|c| c.is_alphanumeric() || c == '_' || c == '-')
+            && k.trim().chars().all(|c| c.is_alphanumeric() || c == '_' || c == '-' || c == '.' || c == ' ')
         {
             outer_start = start..at;
         }
@@ -379,7 +379,8 @@ fn field_at(text: &str, offset: usize) -> String {
     }
     // A key that starts at the offset (an unknown field is reported at
     // its key) names the field itself.
-    let word: String = text[offset..].chars().take_while(|&c| c.is_alphanumeric() || c == '_' || c == '-').collect();
+    let word: String =
+        text[offset..].chars().take_while(|&c| c.is_alphanumeric() || c == '_' || c == '-' || c == '.').collect();
     let at_key = (!word.is_empty() && text[offset + word.len()..].trim_start().starts_with('=')).then_some(word);
     // An error about a whole inline table (a field it lacks) is reported
     // at its brace.
@@ -434,7 +435,9 @@ impl KeyPath {
     fn feed(&mut self, line: &str) {
         for c in code_chars(line) {
             match c {
-                c if c.is_alphanumeric() || c == '_' || c == '-' => self.word.push(c),
+                // A dotted key (`camera.width`) is one path; a number's
+                // dot never reaches a key (only a word before `=` does).
+                c if c.is_alphanumeric() || c == '_' || c == '-' || c == '.' => self.word.push(c),
                 '=' => {
                     if !self.word.is_empty() {
                         self.last = Some(std::mem::take(&mut self.word));
@@ -475,6 +478,9 @@ impl KeyPath {
                 _ => {}
             }
         }
+        // A key that starts at the position after a dotted prefix
+        // (`camera.` of `camera.fovv`) is named with it.
+        let key = key.map(|k| if self.word.ends_with('.') { format!("{}{k}", self.word) } else { k });
         out.extend(key.or_else(|| self.last.clone()));
         out
     }
