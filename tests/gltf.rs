@@ -378,6 +378,14 @@ quad = [[-1.0, 3.0, -1.0], [-1.0, 3.0, 1.0], [1.0, 3.0, 1.0], [1.0, 3.0, -1.0]]
     let cam = "[camera]\nposition = [0, 1, 5]\nlook_at = [0, 1, 0]\nfov_y_deg = 30\nwidth = 64\nheight = 48\n";
     let s = Scene::from_toml(&format!("[gltf]\nfile = 'features.gltf'\n{cam}"), &dir.join("c.toml"), &dir).unwrap();
     assert_eq!((s.camera.width, s.camera.height), (64, 48));
+    // A partial one takes the rest from the camera [gltf] names: `main`
+    // looks from (0, 1.5, 4) at 45°, 3:2; a width alone keeps its ratio.
+    let part = "[gltf]\nfile = 'features.gltf'\ncamera = 'main'\n[camera]\nwidth = 300\n";
+    let s = Scene::from_toml(part, &dir.join("p.toml"), &dir).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!((s.camera.width, s.camera.height), (300, 200));
+    assert!((s.camera.position - Vec3::new(0.0, 1.5, 4.0)).length() < 1e-5 && (s.camera.fov_y_deg - 45.0).abs() < 1e-4);
+    let e = Scene::from_toml(&part.replace("width = 300", "width = 0"), &dir.join("p.toml"), &dir).unwrap_err();
+    assert!(e.field == "camera.width" && e.line == 5, "{e}");
     let dup = "[gltf]\nfile = 'features.gltf'\n[[surface]]\nname = 'floor'\nmaterial = 'grey'\nquad = [[0,0,0],[1,0,0],[1,0,1],[0,0,1]]\n";
     let e = Scene::from_toml(dup, &dir.join("d.toml"), &dir).unwrap_err();
     assert!(e.to_string().contains("duplicate surface name `floor`"), "{e}");

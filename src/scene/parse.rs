@@ -132,17 +132,36 @@ struct RawKeyframe {
     scale: Option<V3>,
 }
 
+/// `[camera]`: every field but `up` (default +Y) and `keyframes` is
+/// required, except over a `[gltf]` scene, whose camera gives those left
+/// out ([`camera_of`]).
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct RawCamera {
-    position: V3,
-    look_at: V3,
-    #[serde(default = "default_up")]
-    up: V3,
-    fov_y_deg: Spanned<f32>,
-    width: Spanned<u32>,
-    height: Spanned<u32>,
+    position: Option<V3>,
+    look_at: Option<V3>,
+    up: Option<V3>,
+    fov_y_deg: Option<Spanned<f32>>,
+    width: Option<Spanned<u32>>,
+    height: Option<Spanned<u32>>,
     keyframes: Option<Spanned<Vec<RawCameraKey>>>,
+}
+
+impl RawCamera {
+    /// Whether the table gives a whole camera, needing none from a file.
+    fn is_whole(&self) -> bool {
+        self.position.is_some()
+            && self.look_at.is_some()
+            && self.fov_y_deg.is_some()
+            && self.width.is_some()
+            && self.height.is_some()
+    }
+
+    /// Whether the table says where the camera is or looks (so that a
+    /// file camera's path no longer applies).
+    fn places(&self) -> bool {
+        self.position.is_some() || self.look_at.is_some() || self.up.is_some()
+    }
 }
 
 #[derive(Deserialize)]
@@ -188,10 +207,6 @@ fn check_key_frames(
         prev = Some(f);
     }
     Ok(())
-}
-
-fn default_up() -> V3 {
-    Exact([0.0, 1.0, 0.0])
 }
 
 #[derive(Deserialize)]
@@ -609,7 +624,13 @@ pub(super) fn parse(text: &str, file: &Path, base_dir: &Path, name: String) -> R
                 }
             };
             let options = super::GltfOptions {
-                camera: if raw.camera.is_some() { None } else { gs.camera.clone() },
+                // A whole [camera] replaces the file's; a partial one
+                // takes the rest from the camera named.
+                camera: if raw.camera.as_ref().is_some_and(|c| c.get_ref().is_whole()) {
+                    None
+                } else {
+                    gs.camera.clone()
+                },
                 light_radius: positive(&gs.light_radius, "light_radius")?,
                 fps: positive(&gs.fps, "fps")?,
             };
@@ -629,7 +650,7 @@ pub(super) fn parse(text: &str, file: &Path, base_dir: &Path, name: String) -> R
         }
     };
     let (camera, camera_keys) = match (&raw.camera, &imported) {
-        (Some(c), _) => camera_of(&cx, c, &raw.animation)?,
+        (Some(c), g) => camera_of(&cx, c, &raw.animation, g.as_ref().map(|g| (&g.camera, &g.camera_keys[..])))?,
         (None, Some(g)) => (g.camera, g.camera_keys.clone()),
         (None, None) => return Err(cx.err(0..0, "camera", "the scene has no [camera] table")),
     };
@@ -950,19 +971,40 @@ pub(super) fn parse(text: &str, file: &Path, base_dir: &Path, name: String) -> R
 
 /// The `[camera]` table (and its keyframes, which need `[animation]`),
 /// checked: every frame's camera, between keys too, can make rays (the
-/// archive reader's rule).
+/// archive reader's rule). Over a glTF scene (`file`: its camera and
+/// keys) the fields the table leaves out are the file camera's: the width
+/// alone sets the height by the file camera's aspect ratio (and the height
+/// alone the width), and the file camera's path stays unless the table
+/// places the camera (`position`, `look_at` or `up`).
 fn camera_of(
     cx: &Ctx<'_>,
     raw: &Spanned<RawCamera>,
     animation: &Option<Spanned<RawAnimation>>,
+    file: Option<(&Camera, &[CameraKey])>,
 ) -> Result<(Camera, Vec<CameraKey>), SceneError> {
     // Camera.
     let c = raw.get_ref();
     let cspan = raw.span();
-    if !finite3(&c.position) || !finite3(&c.look_at) || !finite3(&c.up) {
+    // Only without a file camera, which gives every field.
+    let missing = |field: &str| {
+        let why = format!(
+            "missing field `{field}` (a [camera] needs position, look_at, fov_y_deg, width and height; \
+             over a [gltf] scene, the file's camera gives those left out)"
+        );
+        cx.err(cspan.clone(), format!("camera.{field}"), why)
+    };
+    let pick = |v: &Option<V3>, of_file: fn(&Camera) -> Vec3, field: &str| match (v, file) {
+        (Some(v), _) => Ok(Vec3::from(*v)),
+        (None, Some((f, _))) => Ok(of_file(f)),
+        (None, None) if field == "up" => Ok(Vec3::Y),
+        (None, None) => Err(missing(field)),
+    };
+    let position = pick(&c.position, |f| f.position, "position")?;
+    let look_at = pick(&c.look_at, |f| f.look_at, "look_at")?;
+    let up = pick(&c.up, |f| f.up, "up")?;
+    if !finite3(&position.to_array()) || !finite3(&look_at.to_array()) || !finite3(&up.to_array()) {
         return Err(cx.err(cspan, "camera", "position, look_at and up must be finite and within ±1e9 m"));
     }
-    let (position, look_at, up) = (Vec3::from(c.position), Vec3::from(c.look_at), Vec3::from(c.up));
     let forward = look_at - position;
     if forward.length() <= 0.0 || forward.normalize().cross(up).length() < 1e-6 {
         return Err(cx.err(
@@ -971,19 +1013,42 @@ fn camera_of(
             "look_at must differ from position, and up must not be parallel to the view direction",
         ));
     }
-    let fov = *c.fov_y_deg.get_ref();
-    if !(fov > 0.0 && fov < 180.0) {
-        return Err(cx.err(c.fov_y_deg.span(), "camera.fov_y_deg", format!("must be in (0, 180) degrees, got {fov}")));
-    }
+    let fov = match (&c.fov_y_deg, file) {
+        (Some(v), _) => {
+            let fov = *v.get_ref();
+            if !(fov > 0.0 && fov < 180.0) {
+                return Err(cx.err(v.span(), "camera.fov_y_deg", format!("must be in (0, 180) degrees, got {fov}")));
+            }
+            fov
+        }
+        (None, Some((f, _))) => f.fov_y_deg,
+        (None, None) => return Err(missing("fov_y_deg")),
+    };
     for (v, f) in [(&c.width, "camera.width"), (&c.height, "camera.height")] {
-        if !(1..=16384).contains(v.get_ref()) {
+        if let Some(v) = v
+            && !(1..=16384).contains(v.get_ref())
+        {
             return Err(cx.err(v.span(), f, format!("must be in 1..=16384 pixels, got {}", v.get_ref())));
         }
     }
-    let camera =
-        Camera { position, look_at, up, fov_y_deg: fov, width: *c.width.get_ref(), height: *c.height.get_ref() };
+    // One side given over a file camera: the other keeps its aspect ratio.
+    let scaled = |n: u32, ratio: f64| ((n as f64 * ratio).round() as u32).clamp(1, 16384);
+    let (width, height) = match (c.width.as_ref().map(|v| *v.get_ref()), c.height.as_ref().map(|v| *v.get_ref()), file)
+    {
+        (Some(w), Some(h), _) => (w, h),
+        (Some(w), None, Some((f, _))) => (w, scaled(w, f.height as f64 / f.width as f64)),
+        (None, Some(h), Some((f, _))) => (scaled(h, f.width as f64 / f.height as f64), h),
+        (None, None, Some((f, _))) => (f.width, f.height),
+        (None, _, None) => return Err(missing("width")),
+        (_, None, None) => return Err(missing("height")),
+    };
+    let camera = Camera { position, look_at, up, fov_y_deg: fov, width, height };
 
-    let mut camera_keys = Vec::new();
+    // A file camera's path, unless the table places the camera.
+    let mut camera_keys = match (file, &c.keyframes) {
+        (Some((_, keys)), None) if !c.places() => keys.to_vec(),
+        _ => Vec::new(),
+    };
     if let Some(keys) = &raw.get_ref().keyframes {
         check_key_frames(cx, keys.get_ref().iter().map(|k| k.frame), keys.span(), "camera.keyframes", animation)?;
         for k in keys.get_ref() {
@@ -1033,7 +1098,7 @@ struct RawCameraFile {
 pub(super) fn parse_camera(text: &str, file: &Path) -> Result<super::CameraPath, SceneError> {
     let cx = Ctx { text, file };
     let raw: RawCameraFile = cx.deserialize()?;
-    let (camera, keys) = camera_of(&cx, &raw.camera, &raw.animation)?;
+    let (camera, keys) = camera_of(&cx, &raw.camera, &raw.animation, None)?;
     let frames = raw.animation.as_ref().map_or(1, |a| *a.get_ref().frames.get_ref());
     Ok(super::CameraPath { camera, keys, frames })
 }
@@ -1228,6 +1293,60 @@ mod tests {
     }
 
     const CAM: &str = "[camera]\nposition=[0,0,-1]\nlook_at=[0,0,0]\nfov_y_deg=40\nwidth=8\nheight=8\n";
+
+    /// A `[camera]` table read over a file camera (640 × 480, keyed at
+    /// frames 0 and 9), or alone.
+    fn camera_over(table: &str, file: bool) -> Result<(Camera, Vec<CameraKey>), SceneError> {
+        let cx = Ctx { text: table, file: Path::new("c.toml") };
+        let raw: RawCameraFile = cx.deserialize()?;
+        let cam = Camera {
+            position: Vec3::new(0.0, 1.0, 5.0),
+            look_at: Vec3::new(0.0, 1.0, 0.0),
+            up: Vec3::Y,
+            fov_y_deg: 50.0,
+            width: 640,
+            height: 480,
+        };
+        let keys = [0, 9].map(|frame| CameraKey {
+            frame,
+            position: Vec3::new(frame as f32, 1.0, 5.0),
+            look_at: Vec3::new(0.0, 1.0, 0.0),
+            up: Vec3::Y,
+        });
+        camera_of(&cx, &raw.camera, &raw.animation, file.then_some((&cam, &keys[..])))
+    }
+
+    #[test]
+    fn a_partial_camera_table_takes_the_rest_from_the_file_camera() {
+        // The width alone: the height keeps the file's 4:3; the path stays.
+        let (c, keys) = camera_over("[camera]\nwidth = 1000\n", true).unwrap();
+        assert_eq!((c.width, c.height, c.fov_y_deg, c.position), (1000, 750, 50.0, Vec3::new(0.0, 1.0, 5.0)));
+        assert_eq!(keys.len(), 2);
+        // The height alone, and the field of view.
+        let (c, keys) = camera_over("[camera]\nheight = 240\nfov_y_deg = 30\n", true).unwrap();
+        assert_eq!((c.width, c.height, c.fov_y_deg, keys.len()), (320, 240, 30.0, 2));
+        // Both sides as given, whatever the file's ratio.
+        let (c, _) = camera_over("[camera]\nwidth = 64\nheight = 64\n", true).unwrap();
+        assert_eq!((c.width, c.height), (64, 64));
+        // Placing the camera drops the file's path; the rest is the file's.
+        let (c, keys) = camera_over("[camera]\nposition = [3, 1, 3]\n", true).unwrap();
+        assert_eq!((c.position, c.look_at, c.width, c.height), (Vec3::new(3.0, 1.0, 3.0), Vec3::Y, 640, 480));
+        assert!(keys.is_empty());
+        // Over a file camera the values given are still checked.
+        let e = camera_over("[camera]\nfov_y_deg = 190\n", true).unwrap_err();
+        assert_eq!((e.line, e.field.as_str()), (2, "camera.fov_y_deg"), "{e}");
+        let e = camera_over("[camera]\nlook_at = [0, 1, 5]\n", true).unwrap_err();
+        assert_eq!(e.field, "camera.up", "{e}");
+        // Without one, every field but `up` is needed, each named.
+        let (c, _) = camera_over(CAM, false).unwrap();
+        assert_eq!(c.up, Vec3::Y);
+        for field in ["position", "look_at", "fov_y_deg", "width", "height"] {
+            let table: String = CAM.lines().filter(|l| !l.starts_with(field)).map(|l| format!("{l}\n")).collect();
+            let e = camera_over(&table, false).unwrap_err();
+            assert_eq!((e.line, e.field.clone()), (1, format!("camera.{field}")), "{e}");
+            assert!(e.message.contains(&format!("missing field `{field}`")) && e.message.contains("[gltf]"), "{e}");
+        }
+    }
 
     #[test]
     fn errors_name_line_and_field() {
