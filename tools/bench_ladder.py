@@ -155,7 +155,10 @@ def main():
     log = os.path.join(a.dir, "ladder.log")
     subprocess.run(["cargo", "build", "--release", "--quiet"], cwd=ROOT, check=True)
     mem = memory_rate()
-    print(f"machine: {os.cpu_count()} cores; sequential memory read {mem or float('nan'):.1f} GB/s (numpy sum, 1 thread)")
+    if mem is None:
+        print(f"machine: {os.cpu_count()} cores; sequential memory read not measured (no numpy: pip install numpy)")
+    else:
+        print(f"machine: {os.cpu_count()} cores; sequential memory read {mem:.1f} GB/s (numpy sum, 1 thread)")
     base = baseline(a.dir, log)
     bm, bs = base["mapped"]["ends_per_s"], base["streamed"]["ends_per_s"]
     gm, gs = base["mapped"]["gather_ends_per_s"], base["streamed"]["gather_ends_per_s"]
