@@ -45,10 +45,11 @@ pub fn state_bytes(s: &StateShape) -> u64 {
     let distributor = p * (12 + 12 + 4 + 4 + 4 + 8 + 1 + 4) + p * ring_bytes(nb);
     // Frame setup: emit (12), emitted power (16), linked (8), presence (2).
     let setup = p * (12 + 16 + 8 + 2);
-    // Iteration: seven [f32; 4] vectors, received per bucket, Anderson's
-    // secant pairs, the warm guess, and a sequence's running totals.
+    // Iteration: seven [f32; 4] vectors, the gather's packed RGB (12),
+    // received per bucket, Anderson's secant pairs, the warm guess, and a
+    // sequence's running totals.
     let carry = if s.sequence { 24 + 24 * nb } else { 0 };
-    let iteration = p * (7 * 16 + 16 * nb + 32 * depth + 16 + carry);
+    let iteration = p * (7 * 16 + 12 + 16 * nb + 32 * depth + 16 + carry);
     // A solution: radiance, received, first bounce (12 each), residual (4), its copy of
     // the secant pairs, and the carried totals plus emitted power.
     let solution = p * (40 + 32 * depth + if s.sequence { carry + 16 } else { 0 });

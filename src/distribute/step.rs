@@ -14,7 +14,7 @@
 use rayon::prelude::*;
 
 use super::anderson::Anderson;
-use super::kernels::{BLOCK, add_ends, gather, silence_absent};
+use super::kernels::{BLOCK, PackedRgb, add_ends, gather, silence_absent};
 use super::setup::FrameSetup;
 use super::warm::{Carry, WarmStart};
 use super::{DirectionalRadiance, DistributeError, Distributor, EnergyBalance, Solution};
@@ -66,6 +66,8 @@ pub(super) struct Iteration<'d, 'f, 's> {
     send: Vec<[f32; 4]>,
     /// `send` per link end (`send · U_p/H_p`).
     shoot: Vec<[f32; 4]>,
+    /// `shoot`'s RGB packed for the gather of frame 0's links.
+    packed: PackedRgb,
     /// Received per patch and bucket.
     recv: Vec<[f32; 4]>,
     /// Spread onto each patch from its rings.
@@ -130,6 +132,7 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
             unshot: s.emitted_power.clone(),
             send: vec![[0.0; 4]; n],
             shoot: vec![[0.0; 4]; n],
+            packed: PackedRgb::new(n),
             recv: vec![[0.0; 4]; n * nb],
             spread: vec![[0.0; 4]; n],
             residual_change: vec![[0.0; 4]; n],
@@ -320,7 +323,8 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
     /// Gathers `shoot` over frame 0's links into `recv`, window by window.
     fn gather_base(&mut self, present: Option<&[bool]>) -> Result<(), DistributeError> {
         let (d, nb) = (self.d, self.d.nb);
-        let (shoot, recv) = (&self.shoot, &mut self.recv);
+        self.packed.fill(&self.shoot);
+        let (shoot, recv) = ((&self.shoot[..], self.packed.rows()), &mut self.recv);
         // Resident ends are one window, split over the workers; streamed
         // windows are each one worker's, unless fewer are held at once
         // than there are workers (few windows, or a budget with room for
