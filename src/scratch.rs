@@ -138,6 +138,12 @@ impl OutputDir {
                 Ok(()) => made.made.insert(0, d),
                 // Made meanwhile by another process: not ours to remove.
                 Err(e) if e.kind() == io::ErrorKind::AlreadyExists && d.is_dir() => {}
+                Err(e) if e.kind() == io::ErrorKind::AlreadyExists => {
+                    return Err(io::Error::new(
+                        e.kind(),
+                        format!("{} exists and is not a folder (a broken link?)", d.display()),
+                    ));
+                }
                 // `made` removes what it made so far as it drops.
                 Err(e) => return Err(e),
             }

@@ -382,7 +382,10 @@ impl Spill {
         let mut dir = self.dir.lock().expect("no panics while held");
         if dir.is_none() {
             let _ = crate::scratch::remove_stale(&self.output);
-            *dir = Some(crate::scratch::scratch_dir(&self.output).map_err(|e| {
+            // The folder, if a caller did not make it (or another process
+            // made it and removed it again); the archive goes there too.
+            let made = crate::scratch::OutputDir::make(&self.output).map(crate::scratch::OutputDir::keep);
+            *dir = Some(made.and_then(|()| crate::scratch::scratch_dir(&self.output)).map_err(|e| {
                 BuildError::Scratch(format!(
                     "cannot make a scratch directory in {}: {e}",
                     crate::scratch::dir_of(&self.output).display()

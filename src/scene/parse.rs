@@ -650,7 +650,7 @@ pub(super) fn parse(text: &str, file: &Path, base_dir: &Path, name: String) -> R
         }
     };
     let (camera, camera_keys) = match (&raw.camera, &imported) {
-        (Some(c), g) => camera_of(&cx, c, &raw.animation, g.as_ref().map(|g| (&g.camera, &g.camera_keys[..])))?,
+        (Some(c), g) => camera_of(&cx, c, &raw.animation, g.as_ref().map(|g| (&g.camera, &g.camera_keys[..])), true)?,
         (None, Some(g)) => (g.camera, g.camera_keys.clone()),
         (None, None) => return Err(cx.err(0..0, "camera", "the scene has no [camera] table")),
     };
@@ -974,13 +974,17 @@ pub(super) fn parse(text: &str, file: &Path, base_dir: &Path, name: String) -> R
 /// archive reader's rule). Over a glTF scene (`file`: its camera and
 /// keys) the fields the table leaves out are the file camera's: the width
 /// alone sets the height by the file camera's aspect ratio (and the height
-/// alone the width), and the file camera's path stays unless the table
-/// places the camera (`position`, `look_at` or `up`).
+/// alone the width), `up` is the file's only with its position and
+/// look_at, and the file camera's path stays unless the table places the
+/// camera (`position`, `look_at` or `up`). `scene`: read from a scene
+/// (else a camera file, read alone), for what a missing field's error
+/// says.
 fn camera_of(
     cx: &Ctx<'_>,
     raw: &Spanned<RawCamera>,
     animation: &Option<Spanned<RawAnimation>>,
     file: Option<(&Camera, &[CameraKey])>,
+    scene: bool,
 ) -> Result<(Camera, Vec<CameraKey>), SceneError> {
     // Camera.
     let c = raw.get_ref();
@@ -988,8 +992,12 @@ fn camera_of(
     // Only without a file camera, which gives every field.
     let missing = |field: &str| {
         let why = format!(
-            "missing field `{field}` (a [camera] needs position, look_at, fov_y_deg, width and height; \
-             over a [gltf] scene, the file's camera gives those left out)"
+            "missing field `{field}` (a [camera] needs position, look_at, fov_y_deg, width and height{})",
+            match file {
+                Some(_) => "",
+                None if scene => "; over a [gltf] scene, the file's camera gives those left out",
+                None => "; a camera file is read alone, so its [camera] gives them all",
+            }
         );
         cx.err(cspan.clone(), format!("camera.{field}"), why)
     };
@@ -1001,7 +1009,12 @@ fn camera_of(
     };
     let position = pick(&c.position, |f| f.position, "position")?;
     let look_at = pick(&c.look_at, |f| f.look_at, "look_at")?;
-    let up = pick(&c.up, |f| f.up, "up")?;
+    // The file's `up` goes with its view only: a table that says where
+    // the camera is or looks has `up`'s default.
+    let up = match (&c.up, c.position.is_some() || c.look_at.is_some()) {
+        (None, true) => Vec3::Y,
+        _ => pick(&c.up, |f| f.up, "up")?,
+    };
     if !finite3(&position.to_array()) || !finite3(&look_at.to_array()) || !finite3(&up.to_array()) {
         return Err(cx.err(cspan, "camera", "position, look_at and up must be finite and within ±1e9 m"));
     }
@@ -1098,7 +1111,7 @@ struct RawCameraFile {
 pub(super) fn parse_camera(text: &str, file: &Path) -> Result<super::CameraPath, SceneError> {
     let cx = Ctx { text, file };
     let raw: RawCameraFile = cx.deserialize()?;
-    let (camera, keys) = camera_of(&cx, &raw.camera, &raw.animation, None)?;
+    let (camera, keys) = camera_of(&cx, &raw.camera, &raw.animation, None, false)?;
     let frames = raw.animation.as_ref().map_or(1, |a| *a.get_ref().frames.get_ref());
     Ok(super::CameraPath { camera, keys, frames })
 }
@@ -1299,10 +1312,11 @@ mod tests {
     fn camera_over(table: &str, file: bool) -> Result<(Camera, Vec<CameraKey>), SceneError> {
         let cx = Ctx { text: table, file: Path::new("c.toml") };
         let raw: RawCameraFile = cx.deserialize()?;
+        // Rolled a little: its `up` is not the default.
         let cam = Camera {
             position: Vec3::new(0.0, 1.0, 5.0),
             look_at: Vec3::new(0.0, 1.0, 0.0),
-            up: Vec3::Y,
+            up: Vec3::new(0.1, 1.0, 0.0),
             fov_y_deg: 50.0,
             width: 640,
             height: 480,
@@ -1313,7 +1327,7 @@ mod tests {
             look_at: Vec3::new(0.0, 1.0, 0.0),
             up: Vec3::Y,
         });
-        camera_of(&cx, &raw.camera, &raw.animation, file.then_some((&cam, &keys[..])))
+        camera_of(&cx, &raw.camera, &raw.animation, file.then_some((&cam, &keys[..])), true)
     }
 
     #[test]
@@ -1321,6 +1335,7 @@ mod tests {
         // The width alone: the height keeps the file's 4:3; the path stays.
         let (c, keys) = camera_over("[camera]\nwidth = 1000\n", true).unwrap();
         assert_eq!((c.width, c.height, c.fov_y_deg, c.position), (1000, 750, 50.0, Vec3::new(0.0, 1.0, 5.0)));
+        assert_eq!(c.up, Vec3::new(0.1, 1.0, 0.0), "the file's up, with its view");
         assert_eq!(keys.len(), 2);
         // The height alone, and the field of view.
         let (c, keys) = camera_over("[camera]\nheight = 240\nfov_y_deg = 30\n", true).unwrap();
@@ -1332,6 +1347,10 @@ mod tests {
         let (c, keys) = camera_over("[camera]\nposition = [3, 1, 3]\n", true).unwrap();
         assert_eq!((c.position, c.look_at, c.width, c.height), (Vec3::new(3.0, 1.0, 3.0), Vec3::Y, 640, 480));
         assert!(keys.is_empty());
+        // A view of the table's own has the default up, not the file's.
+        assert_eq!(c.up, Vec3::Y);
+        let whole = camera_over(CAM, true).unwrap().0;
+        assert_eq!((whole.up, whole.width), (Vec3::Y, 8), "a whole table owes the file nothing");
         // Over a file camera the values given are still checked.
         let e = camera_over("[camera]\nfov_y_deg = 190\n", true).unwrap_err();
         assert_eq!((e.line, e.field.as_str()), (2, "camera.fov_y_deg"), "{e}");
@@ -1346,6 +1365,9 @@ mod tests {
             assert_eq!((e.line, e.field.clone()), (1, format!("camera.{field}")), "{e}");
             assert!(e.message.contains(&format!("missing field `{field}`")) && e.message.contains("[gltf]"), "{e}");
         }
+        // A camera file (`render --camera-from`) is read alone.
+        let e = parse_camera("[camera]\nwidth = 8\n", Path::new("c.toml")).unwrap_err();
+        assert!(e.field == "camera.position" && e.message.contains("read alone"), "{e}");
     }
 
     #[test]
