@@ -11,6 +11,9 @@ with the archive in the page cache, and again with its pages dropped
 before every pass (render --evict-each-pass), as fractions of the
 sequential memory and disk read rates measured here.
 
+Needs numpy (the memory rate) and matplotlib (the plot): pip install
+numpy matplotlib; without them the script runs and says what it skipped.
+
 Rungs need disk: the script checks free space (archive + spilled runs)
 and says what it skipped. Large rungs take many minutes: run them once
 and record them in docs/PERFORMANCE.md; they are not for CI.
