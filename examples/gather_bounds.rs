@@ -95,7 +95,10 @@ fn main() {
     let shoot2: Vec<[f32; 2]> = shoot.iter().map(|s| [s[0], s[1]]).collect();
     let (mut recv3, mut recv2n) = (vec![[0f32; 3]; patches], vec![[0f32; 2]; patches]);
     // Every row's ends sorted by the other patch (ids and counts).
-    let (mut sorted_other, mut sorted_count) = (other.to_vec(), count.to_vec());
+    // (Not with --blocked-only, which must fit archives of 2·10⁹ ends: 10
+    // bytes an end less.)
+    let (mut sorted_other, mut sorted_count) =
+        if only { (Vec::new(), Vec::new()) } else { (other.to_vec(), count.to_vec()) };
     for q in (0..patches).filter(|_| !only) {
         let row = offsets[q] as usize..offsets[q + 1] as usize;
         let mut pairs: Vec<(u32, u8)> =
@@ -416,6 +419,12 @@ impl Blocked {
             ids: Vec::new(),
             weights: Vec::new(),
         };
+        // Reserved whole, so that the copy holds one part beside the
+        // result, not a doubled vector (2·10⁹ ends: 6 GB).
+        b.ids.reserve_exact(parts.iter().map(|p| p.3.len()).sum());
+        b.weights.reserve_exact(parts.iter().map(|p| p.4.len()).sum());
+        b.counts.reserve_exact(parts.iter().map(|p| p.1.len()).sum());
+        b.recv.reserve_exact(parts.iter().map(|p| p.2.len()).sum());
         for (blocks, counts, recv, ids, weights) in parts {
             let (c0, e0) = (b.counts.len(), b.ids.len());
             b.blocks.extend(blocks.into_iter().map(|(s, c, e)| (s, c + c0, e + e0)));
