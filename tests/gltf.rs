@@ -386,6 +386,15 @@ quad = [[-1.0, 3.0, -1.0], [-1.0, 3.0, 1.0], [1.0, 3.0, 1.0], [1.0, 3.0, -1.0]]
     assert!((s.camera.position - Vec3::new(0.0, 1.5, 4.0)).length() < 1e-5 && (s.camera.fov_y_deg - 45.0).abs() < 1e-4);
     let e = Scene::from_toml(&part.replace("width = 300", "width = 0"), &dir.join("p.toml"), &dir).unwrap_err();
     assert!(e.field == "camera.width" && e.line == 5, "{e}");
+    // `render --camera-from` on such a file reads it as the scene it is,
+    // glTF and all: the same camera, path and frames.
+    let tmp = tempfile::tempdir().unwrap();
+    let file = tmp.path().join("p.toml");
+    std::fs::write(&file, part.replace("'features.gltf'", &format!("'{}'", dir.join("features.gltf").display())))
+        .unwrap();
+    let from = illumnet::scene::CameraPath::from_file(&file).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!((from.camera, from.frames), (s.camera.clone(), s.frame_count()));
+    assert_eq!(from.keys, s.camera_keys);
     let dup = "[gltf]\nfile = 'features.gltf'\n[[surface]]\nname = 'floor'\nmaterial = 'grey'\nquad = [[0,0,0],[1,0,0],[1,0,1],[0,0,1]]\n";
     let e = Scene::from_toml(dup, &dir.join("d.toml"), &dir).unwrap_err();
     assert!(e.to_string().contains("duplicate surface name `floor`"), "{e}");
