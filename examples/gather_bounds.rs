@@ -25,13 +25,16 @@
 //! Numbers for `docs/PERFORMANCE.md`:
 //!
 //! ```text
-//! cargo run --release --example gather_bounds -- ARCHIVE.inet [--blockings B] [--blocked-only]
+//! cargo run --release --example gather_bounds -- ARCHIVE.inet [--blockings B] [--blocked-only] [--row-runs]
 //! ```
 //!
 //! `--blockings 16x1024,13x1024,…` sets the (sender-chunk bits × receivers
 //! a chunk) layouts tried (default `15x1024,16x1024,16x4096`);
 //! `--blocked-only` times, on two threads, only the row gather and those
-//! layouts.
+//! layouts; `--row-runs` times them with the ends left in row order (each
+//! receiver's ends together, in runs by sender chunk, as the archive
+//! stores them) and gathered in the same 2-D order, so that only the
+//! stream's order differs from the blocked layout's.
 
 use std::time::Instant;
 
@@ -47,14 +50,15 @@ const MASK: u32 = (1 << 14) - 1;
 
 fn main() {
     let usage = || -> ! {
-        eprintln!("usage: gather_bounds ARCHIVE.inet [--blockings BITSxRECEIVERS,...] [--blocked-only]");
+        eprintln!("usage: gather_bounds ARCHIVE.inet [--blockings BITSxRECEIVERS,...] [--blocked-only] [--row-runs]");
         std::process::exit(2);
     };
     let mut args = std::env::args().skip(1);
-    let (mut path, mut blockings, mut only) = (None, BLOCKINGS.to_vec(), false);
+    let (mut path, mut blockings, mut only, mut row_runs) = (None, BLOCKINGS.to_vec(), false, false);
     while let Some(a) = args.next() {
         match a.as_str() {
             "--blocked-only" => only = true,
+            "--row-runs" => row_runs = true,
             "--blockings" => {
                 let list = args.next().unwrap_or_else(|| usage());
                 blockings = list
@@ -110,8 +114,14 @@ fn main() {
         }
     }
     let t = Instant::now();
+    let row_layouts: Vec<RowRuns> = blockings
+        .iter()
+        .filter(|_| row_runs)
+        .map(|&(bits, chunk)| RowRuns::new(offsets, other, count, bits, chunk))
+        .collect();
     let blocked: std::collections::HashMap<(u32, usize), Blocked> = blockings
         .iter()
+        .filter(|_| !row_runs)
         .map(|&(bits, chunk)| ((bits, chunk), Blocked::new(offsets, other, count, bits, chunk, false)))
         .collect();
     let scatter: Vec<Blocked> = SCATTERS
@@ -120,7 +130,7 @@ fn main() {
         .map(|&(bits, chunk)| Blocked::new(offsets, other, count, bits, chunk, true))
         .collect();
     eprintln!("blocked layouts made in {:.1} s", t.elapsed().as_secs_f64());
-    for &(bits, chunk) in &blockings {
+    for &(bits, chunk) in blockings.iter().filter(|_| !row_runs) {
         let b = &blocked[&(bits, chunk)];
         let runs = b.counts.iter().filter(|&&n| n > 0).count();
         println!(
@@ -224,7 +234,28 @@ fn main() {
                     line(&format!("gather, state prefetched {ahead} ends ahead"), ends / t.elapsed().as_secs_f64());
                 }
             }
-            for &(bits, chunk) in &blockings {
+            for b in &row_layouts {
+                let t = Instant::now();
+                for _ in 0..PASSES {
+                    b.gather(&shoot, &mut recv2);
+                }
+                let rate = ends / t.elapsed().as_secs_f64();
+                let mut err = 0f64;
+                gather(offsets, other, count, &shoot, u32::MAX, Prefetch::No, &mut recv);
+                for (a, b) in recv.iter().zip(&recv2) {
+                    for c in 0..3 {
+                        err = err.max(((a[c] - b[c]) as f64).abs() / (a[c] as f64).abs().max(1e-30));
+                    }
+                }
+                let what = format!(
+                    "row runs 2^{} x {} ({:.1} runs a receiver, rel {err:.1e})",
+                    b.bits,
+                    b.chunk,
+                    b.runs.len() as f64 / patches as f64
+                );
+                line(&what, rate);
+            }
+            for &(bits, chunk) in blockings.iter().filter(|_| !row_runs) {
                 let b = &blocked[&(bits, chunk)];
                 let t = Instant::now();
                 for _ in 0..PASSES {
@@ -475,6 +506,117 @@ impl Blocked {
                     }
                     let (o, w) = (&self.ids[e..e + n], &self.weights[e..e + n]);
                     e += n;
+                    let mut acc = [[0f32; 4]; 4];
+                    for (o4, w4) in o.chunks(4).zip(w.chunks(4)) {
+                        for (j, (&o, &w)) in o4.iter().zip(w4).enumerate() {
+                            let s = slice[o as usize];
+                            for c in 0..4 {
+                                acc[j][c] += w as f32 * s[c];
+                            }
+                        }
+                    }
+                    for c in 0..4 {
+                        r[c] += (acc[0][c] + acc[1][c]) + (acc[2][c] + acc[3][c]);
+                    }
+                }
+            }
+        });
+    }
+}
+
+/// The link ends in row order (each receiver's ends together), each row
+/// in runs by sender chunk of 2^bits patches with 16-bit ids local to it
+/// (the archive's layout, with smaller chunks), gathered in blocks:
+/// per receiver chunk, sender chunk by sender chunk, each receiver's run
+/// of that chunk (so the stream is read out of order within a receiver
+/// chunk, and the state from one slice at a time).
+struct RowRuns {
+    bits: u32,
+    chunk: usize,
+    patches: usize,
+    ids: Vec<u16>,
+    weights: Vec<u8>,
+    /// Per run: sender chunk, ends.
+    runs: Vec<(u32, u32)>,
+    /// Per receiver, its first run (and one past the last).
+    run_off: Vec<u32>,
+    /// Per receiver, its first end.
+    offsets: Vec<u64>,
+}
+
+impl RowRuns {
+    fn new(offsets: &[u64], other: &[u32], count: &[u8], bits: u32, chunk: usize) -> Self {
+        let patches = offsets.len() - 1;
+        let parts: Vec<_> = (0..patches.div_ceil(chunk))
+            .into_par_iter()
+            .map(|c| {
+                let (lo, hi) = (c * chunk, ((c + 1) * chunk).min(patches));
+                let n = (offsets[hi] - offsets[lo]) as usize;
+                let (mut ids, mut weights, mut runs, mut per) =
+                    (Vec::with_capacity(n), Vec::with_capacity(n), Vec::new(), Vec::new());
+                let mut e: Vec<(u32, u32)> = Vec::new();
+                for q in lo..hi {
+                    let row = offsets[q] as usize..offsets[q + 1] as usize;
+                    e.clear();
+                    e.extend(row.clone().map(|k| (other[k] >> bits, k as u32)));
+                    e.sort_by_key(|x| x.0);
+                    let first = runs.len();
+                    for run in e.chunk_by(|a, b| a.0 == b.0) {
+                        runs.push((run[0].0, run.len() as u32));
+                        for &(_, k) in run {
+                            ids.push((other[k as usize] & ((1 << bits) - 1)) as u16);
+                            weights.push(count[k as usize]);
+                        }
+                    }
+                    per.push((runs.len() - first) as u32);
+                }
+                (ids, weights, runs, per)
+            })
+            .collect();
+        let mut b = RowRuns {
+            bits,
+            chunk,
+            patches,
+            ids: Vec::new(),
+            weights: Vec::new(),
+            runs: Vec::new(),
+            run_off: vec![0],
+            offsets: offsets.to_vec(),
+        };
+        b.ids.reserve_exact(parts.iter().map(|p| p.0.len()).sum());
+        b.weights.reserve_exact(parts.iter().map(|p| p.1.len()).sum());
+        for (ids, weights, runs, per) in parts {
+            b.ids.extend(ids);
+            b.weights.extend(weights);
+            b.runs.extend(runs);
+            for n in per {
+                let last = *b.run_off.last().expect("one entry");
+                b.run_off.push(last + n);
+            }
+        }
+        b
+    }
+
+    fn gather(&self, shoot: &[[f32; 4]], recv: &mut [[f32; 4]]) {
+        let slices = self.patches.div_ceil(1 << self.bits);
+        recv[..self.patches].par_chunks_mut(self.chunk).enumerate().for_each(|(c, out)| {
+            let lo = c * self.chunk;
+            let mut cursor: Vec<(u32, usize)> =
+                (lo..lo + out.len()).map(|q| (self.run_off[q], self.offsets[q] as usize)).collect();
+            for r in out.iter_mut() {
+                *r = [0.0; 4];
+            }
+            for s in 0..slices as u32 {
+                let base = (s as usize) << self.bits;
+                let slice = &shoot[base..(base + (1 << self.bits)).min(shoot.len())];
+                for (i, (r, cur)) in out.iter_mut().zip(cursor.iter_mut()).enumerate() {
+                    let q = lo + i;
+                    if cur.0 == self.run_off[q + 1] || self.runs[cur.0 as usize].0 != s {
+                        continue;
+                    }
+                    let n = self.runs[cur.0 as usize].1 as usize;
+                    let (o, w) = (&self.ids[cur.1..cur.1 + n], &self.weights[cur.1..cur.1 + n]);
+                    *cur = (cur.0 + 1, cur.1 + n);
                     let mut acc = [[0f32; 4]; 4];
                     for (o4, w4) in o.chunks(4).zip(w.chunks(4)) {
                         for (j, (&o, &w)) in o4.iter().zip(w4).enumerate() {
