@@ -393,7 +393,7 @@ quad = [[-1.0, 3.0, -1.0], [-1.0, 3.0, 1.0], [1.0, 3.0, 1.0], [1.0, 3.0, -1.0]]
     std::fs::write(&file, part.replace("'features.gltf'", &format!("'{}'", dir.join("features.gltf").display())))
         .unwrap();
     let from = illumnet::scene::CameraPath::from_file(&file).unwrap_or_else(|e| panic!("{e}"));
-    assert_eq!((from.camera, from.frames), (s.camera.clone(), s.frame_count()));
+    assert_eq!((from.camera, from.frames), (s.camera, s.frame_count()));
     assert_eq!(from.keys, s.camera_keys);
     let dup = "[gltf]\nfile = 'features.gltf'\n[[surface]]\nname = 'floor'\nmaterial = 'grey'\nquad = [[0,0,0],[1,0,0],[1,0,1],[0,0,1]]\n";
     let e = Scene::from_toml(dup, &dir.join("d.toml"), &dir).unwrap_err();
