@@ -240,13 +240,8 @@ fn main() {
                     b.gather(&shoot, &mut recv2);
                 }
                 let rate = ends / t.elapsed().as_secs_f64();
-                let mut err = 0f64;
                 gather(offsets, other, count, &shoot, u32::MAX, Prefetch::No, &mut recv);
-                for (a, b) in recv.iter().zip(&recv2) {
-                    for c in 0..3 {
-                        err = err.max(((a[c] - b[c]) as f64).abs() / (a[c] as f64).abs().max(1e-30));
-                    }
-                }
+                let err = max_relative_error(&recv, &recv2);
                 let what = format!(
                     "row runs 2^{} x {} ({:.1} runs a receiver, rel {err:.1e})",
                     b.bits,
@@ -262,13 +257,8 @@ fn main() {
                     b.gather(&shoot, &mut recv2);
                 }
                 let rate = ends / t.elapsed().as_secs_f64();
-                let mut err = 0f64;
                 gather(offsets, other, count, &shoot, u32::MAX, Prefetch::No, &mut recv);
-                for (a, b) in recv.iter().zip(&recv2) {
-                    for c in 0..3 {
-                        err = err.max(((a[c] - b[c]) as f64).abs() / (a[c] as f64).abs().max(1e-30));
-                    }
-                }
+                let err = max_relative_error(&recv, &recv2);
                 line(&format!("blocked 2^{bits} x {chunk} ({:.2} B/end, rel {err:.1e})", b.bytes_per_end()), rate);
             }
             for b in &scatter {
@@ -277,12 +267,7 @@ fn main() {
                     b.gather(&shoot, &mut recv2);
                 }
                 let rate = ends / t.elapsed().as_secs_f64();
-                let mut err = 0f64;
-                for (a, b) in recv.iter().zip(&recv2) {
-                    for c in 0..3 {
-                        err = err.max(((a[c] - b[c]) as f64).abs() / (a[c] as f64).abs().max(1e-30));
-                    }
-                }
+                let err = max_relative_error(&recv, &recv2);
                 let what =
                     format!("by sender 2^{} x {} ({:.2} B/end, rel {err:.1e})", b.bits, b.chunk, b.bytes_per_end());
                 line(&what, rate);
@@ -522,6 +507,12 @@ impl Blocked {
             }
         });
     }
+}
+
+/// The largest relative difference of `b`'s RGB from `a`'s.
+fn max_relative_error(a: &[[f32; 4]], b: &[[f32; 4]]) -> f64 {
+    let rel = |x: f32, y: f32| ((x - y) as f64).abs() / (x as f64).abs().max(1e-30);
+    a.iter().zip(b).flat_map(|(a, b)| (0..3).map(move |c| rel(a[c], b[c]))).fold(0.0, f64::max)
 }
 
 /// The link ends in row order (each receiver's ends together), each row
