@@ -386,15 +386,30 @@ quad = [[-1.0, 3.0, -1.0], [-1.0, 3.0, 1.0], [1.0, 3.0, 1.0], [1.0, 3.0, -1.0]]
     assert!((s.camera.position - Vec3::new(0.0, 1.5, 4.0)).length() < 1e-5 && (s.camera.fov_y_deg - 45.0).abs() < 1e-4);
     let e = Scene::from_toml(&part.replace("width = 300", "width = 0"), &dir.join("p.toml"), &dir).unwrap_err();
     assert!(e.field == "camera.width" && e.line == 5, "{e}");
-    // `render --camera-from` on such a file reads it as the scene it is,
-    // glTF and all: the same camera, path and frames.
+    // `render --camera-from` on such a file completes the table from the
+    // file's camera (and its frames: the file's animation), reading only
+    // the camera: a surface the scene could not load does not matter.
     let tmp = tempfile::tempdir().unwrap();
     let file = tmp.path().join("p.toml");
-    std::fs::write(&file, part.replace("'features.gltf'", &format!("'{}'", dir.join("features.gltf").display())))
-        .unwrap();
+    let gltf = format!("'{}'", dir.join("features.gltf").display());
+    let broken = "[[surface]]\nname = 'x'\nmaterial = 'none'\nobj = 'missing.obj'\n";
+    std::fs::write(&file, format!("{}{broken}", part.replace("'features.gltf'", &gltf))).unwrap();
     let from = illumnet::scene::CameraPath::from_file(&file).unwrap_or_else(|e| panic!("{e}"));
-    assert_eq!((from.camera, from.frames), (s.camera, s.frame_count()));
-    assert_eq!(from.keys, s.camera_keys);
+    assert_eq!((from.camera.width, from.camera.height, from.frames), (300, 200, 25));
+    assert!((from.camera.position - Vec3::new(0.0, 1.5, 4.0)).length() < 1e-5);
+    assert!((from.camera.fov_y_deg - 45.0).abs() < 1e-4);
+    // No [camera] at all: the camera [gltf] names, whole.
+    std::fs::write(&file, format!("[gltf]\nfile = {gltf}\ncamera = 'side'\n")).unwrap();
+    let side = illumnet::scene::CameraPath::from_file(&file).unwrap_or_else(|e| panic!("{e}"));
+    assert!((side.camera.position - Vec3::new(4.0, 1.0, 0.0)).length() < 1e-5, "{:?}", side.camera);
+    // A whole [camera] is read alone, as before: one frame, the file unread.
+    std::fs::write(&file, format!("[gltf]\nfile = 'missing.glb'\n{cam}")).unwrap();
+    let whole = illumnet::scene::CameraPath::from_file(&file).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!((whole.camera.width, whole.frames), (64, 1));
+    // A partial one over a file that cannot be read names the field.
+    std::fs::write(&file, "[gltf]\nfile = 'missing.glb'\n[camera]\nwidth = 300\n").unwrap();
+    let e = illumnet::scene::CameraPath::from_file(&file).unwrap_err();
+    assert!(e.field == "gltf.file" && e.line == 2 && e.message.contains("missing.glb"), "{e}");
     let dup = "[gltf]\nfile = 'features.gltf'\n[[surface]]\nname = 'floor'\nmaterial = 'grey'\nquad = [[0,0,0],[1,0,0],[1,0,1],[0,0,1]]\n";
     let e = Scene::from_toml(dup, &dir.join("d.toml"), &dir).unwrap_err();
     assert!(e.to_string().contains("duplicate surface name `floor`"), "{e}");

@@ -18,7 +18,8 @@ use super::exit::BadInput;
 pub struct CameraArgs {
     /// Look through the camera of FILE instead of the archive's: a scene
     /// file's `[camera]` (its keyframes, if any, followed over the frames
-    /// rendered), or a file of a `[camera]` table alone.
+    /// rendered; over `[gltf]`, completed from the glTF file's camera), a
+    /// file of a `[camera]` table alone, or a glTF file's first camera.
     #[arg(long, value_name = "FILE", conflicts_with = "camera_path")]
     camera_from: Option<PathBuf>,
     /// A walkthrough: render the frames of the camera path in FILE (a

@@ -180,8 +180,9 @@ fn framing_camera((lo, hi): (Vec3, Vec3), width: u32) -> Camera {
 /// A camera read from a file on its own (`render --camera-from`,
 /// `--camera-path`): a scene file's `[camera]`, or a file holding just
 /// `[camera]` and, for a path, `[animation] frames` and the camera's
-/// `keyframes` (`format-spec/scene.md`); the camera of a scene over a
-/// glTF file (`[gltf]`), as the scene gives it.
+/// `keyframes` (`format-spec/scene.md`); over a glTF file (`[gltf]`), a
+/// partial or missing `[camera]` completed from the file's camera, as a
+/// scene would be.
 #[derive(Debug, Clone, PartialEq)]
 pub struct CameraPath {
     /// The camera (position and look_at as keyed at each frame).
@@ -197,20 +198,17 @@ impl CameraPath {
     /// line and field, as for scenes.
     ///
     /// A glTF file (`.gltf`, `.glb`) gives its first camera and the
-    /// frames of its animation. A TOML file with a `[gltf]` table is read
-    /// whole, as a scene, since its camera may come from the glTF file.
+    /// frames of its animation. In a TOML file with a `[gltf]` table, a
+    /// `[camera]` that leaves fields out (or none) takes them from the
+    /// glTF file's camera, its path and its animation's frames; only the
+    /// camera is read from the glTF file, unless it has none (then the
+    /// scene is read whole, for the camera that frames its geometry).
     pub fn from_file(path: &Path) -> Result<Self, SceneError> {
         if gltf::is_gltf_path(path) {
             return gltf::import_camera(path, &GltfOptions::default());
         }
         let text = std::fs::read_to_string(path).map_err(|e| SceneError::io(path, e))?;
-        // A scene over a glTF file may take its camera, or the fields its
-        // `[camera]` leaves out, from that file: read it as the scene it is.
-        if text.parse::<toml::Table>().is_ok_and(|t| t.contains_key("gltf")) {
-            let s = Scene::from_file(path)?;
-            return Ok(Self { frames: s.frame_count(), camera: s.camera, keys: s.camera_keys });
-        }
-        parse::parse_camera(&text, path)
+        parse::parse_camera(&text, path, path.parent().unwrap_or(Path::new(".")))
     }
 
     /// The camera at `frame`.

@@ -606,47 +606,8 @@ pub(super) fn parse(text: &str, file: &Path, base_dir: &Path, name: String) -> R
     let imported = match &raw.gltf {
         None => None,
         Some(g) => {
-            let gs = g.get_ref();
-            if let Some(a) = &raw.animation {
-                return Err(cx.err(
-                    a.span(),
-                    "animation",
-                    "a scene with [gltf] takes its frames from the glTF file's animation (set its rate with [gltf] fps)",
-                ));
-            }
-            let positive = |v: &Option<Spanned<f32>>, key: &str| -> Result<Option<f32>, SceneError> {
-                match v {
-                    Some(x) if !(x.get_ref().is_finite() && *x.get_ref() > 0.0) => {
-                        Err(cx.err(x.span(), format!("gltf.{key}"), "must be a positive number"))
-                    }
-                    Some(x) => Ok(Some(*x.get_ref())),
-                    None => Ok(None),
-                }
-            };
-            let options = super::GltfOptions {
-                // A whole [camera] replaces the file's; a partial one
-                // takes the rest from the camera named.
-                camera: if raw.camera.as_ref().is_some_and(|c| c.get_ref().is_whole()) {
-                    None
-                } else {
-                    gs.camera.clone()
-                },
-                light_radius: positive(&gs.light_radius, "light_radius")?,
-                fps: positive(&gs.fps, "fps")?,
-            };
-            let path = base_dir.join(gs.file.get_ref());
-            if !super::gltf::is_gltf_path(&path) {
-                return Err(cx.err(gs.file.span(), "gltf.file", "must name a .gltf or .glb file"));
-            }
-            // A file that cannot be read is named at the field naming it.
-            let imported = super::gltf::import_unchecked(&path, &options).map_err(|e| match e.unreadable {
-                true => SceneError {
-                    unreadable: true,
-                    ..cx.err(gs.file.span(), "gltf.file", format!("`{}` {}", path.display(), e.message))
-                },
-                false => e,
-            })?;
-            Some(imported)
+            let (path, options) = gltf_source(&cx, g, &raw.animation, &raw.camera, base_dir)?;
+            Some(super::gltf::import_unchecked(&path, &options).map_err(|e| at_gltf_file(&cx, g, &path, e))?)
         }
     };
     let (camera, camera_keys) = match (&raw.camera, &imported) {
@@ -1099,19 +1060,94 @@ fn camera_of(
     Ok((camera, camera_keys))
 }
 
-/// A file's `[camera]` (with its keyframes and `[animation]` frame count),
-/// the rest of the file ignored: a scene file, or a camera file of those
-/// two tables alone.
-#[derive(Deserialize)]
-struct RawCameraFile {
-    camera: Spanned<RawCamera>,
-    animation: Option<Spanned<RawAnimation>>,
+/// The glTF file a `[gltf]` table names (resolved against `base_dir`) and
+/// the import options it gives, checked: a scene over a glTF file takes
+/// its frames from the file, so has no `[animation]`; a whole `[camera]`
+/// replaces the file's (no camera is looked up by name), a partial one
+/// takes the rest from the camera named.
+fn gltf_source(
+    cx: &Ctx<'_>,
+    g: &Spanned<RawGltf>,
+    animation: &Option<Spanned<RawAnimation>>,
+    camera: &Option<Spanned<RawCamera>>,
+    base_dir: &Path,
+) -> Result<(std::path::PathBuf, super::GltfOptions), SceneError> {
+    let gs = g.get_ref();
+    if let Some(a) = animation {
+        return Err(cx.err(
+            a.span(),
+            "animation",
+            "a scene with [gltf] takes its frames from the glTF file's animation (set its rate with [gltf] fps)",
+        ));
+    }
+    let positive = |v: &Option<Spanned<f32>>, key: &str| -> Result<Option<f32>, SceneError> {
+        match v {
+            Some(x) if !(x.get_ref().is_finite() && *x.get_ref() > 0.0) => {
+                Err(cx.err(x.span(), format!("gltf.{key}"), "must be a positive number"))
+            }
+            Some(x) => Ok(Some(*x.get_ref())),
+            None => Ok(None),
+        }
+    };
+    let options = super::GltfOptions {
+        camera: if camera.as_ref().is_some_and(|c| c.get_ref().is_whole()) { None } else { gs.camera.clone() },
+        light_radius: positive(&gs.light_radius, "light_radius")?,
+        fps: positive(&gs.fps, "fps")?,
+    };
+    let path = base_dir.join(gs.file.get_ref());
+    if !super::gltf::is_gltf_path(&path) {
+        return Err(cx.err(gs.file.span(), "gltf.file", "must name a .gltf or .glb file"));
+    }
+    Ok((path, options))
 }
 
-pub(super) fn parse_camera(text: &str, file: &Path) -> Result<super::CameraPath, SceneError> {
+/// An error importing the glTF file at `path` that `[gltf]` names: one
+/// that cannot be read is named at the field naming it.
+fn at_gltf_file(cx: &Ctx<'_>, g: &Spanned<RawGltf>, path: &Path, e: SceneError) -> SceneError {
+    let file = &g.get_ref().file;
+    match e.unreadable {
+        true => SceneError {
+            unreadable: true,
+            ..cx.err(file.span(), "gltf.file", format!("`{}` {}", path.display(), e.message))
+        },
+        false => e,
+    }
+}
+
+/// A file's `[camera]` (with its keyframes and `[animation]` frame count),
+/// the rest of the file ignored: a scene file, or a camera file of those
+/// two tables alone. With `[gltf]`, a partial or missing `[camera]` is
+/// completed from the glTF file's camera, as in a scene.
+#[derive(Deserialize)]
+struct RawCameraFile {
+    camera: Option<Spanned<RawCamera>>,
+    animation: Option<Spanned<RawAnimation>>,
+    gltf: Option<Spanned<RawGltf>>,
+}
+
+pub(super) fn parse_camera(text: &str, file: &Path, base_dir: &Path) -> Result<super::CameraPath, SceneError> {
     let cx = Ctx { text, file };
     let raw: RawCameraFile = cx.deserialize()?;
-    let (camera, keys) = camera_of(&cx, &raw.camera, &raw.animation, None, false)?;
+    let whole = raw.camera.as_ref().is_some_and(|c| c.get_ref().is_whole());
+    if let (Some(g), false) = (&raw.gltf, whole) {
+        // Only the camera is read from the glTF file, not its meshes.
+        let (path, options) = gltf_source(&cx, g, &raw.animation, &raw.camera, base_dir)?;
+        let Some(f) = super::gltf::import_camera_if_any(&path, &options).map_err(|e| at_gltf_file(&cx, g, &path, e))?
+        else {
+            // No camera in the file: the scene's, which frames its geometry.
+            let s = super::Scene::from_toml(text, file, base_dir)?;
+            return Ok(super::CameraPath { frames: s.frame_count(), camera: s.camera, keys: s.camera_keys });
+        };
+        let (camera, keys) = match &raw.camera {
+            Some(c) => camera_of(&cx, c, &None, Some((&f.camera, &f.keys[..])), true)?,
+            None => (f.camera, f.keys),
+        };
+        return Ok(super::CameraPath { camera, keys, frames: f.frames });
+    }
+    let Some(c) = &raw.camera else {
+        return Err(cx.err(0..0, "camera", "the file has no [camera] table (nor a [gltf] file to take one from)"));
+    };
+    let (camera, keys) = camera_of(&cx, c, &raw.animation, None, false)?;
     let frames = raw.animation.as_ref().map_or(1, |a| *a.get_ref().frames.get_ref());
     Ok(super::CameraPath { camera, keys, frames })
 }
@@ -1327,7 +1363,13 @@ mod tests {
             look_at: Vec3::new(0.0, 1.0, 0.0),
             up: Vec3::Y,
         });
-        camera_of(&cx, &raw.camera, &raw.animation, file.then_some((&cam, &keys[..])), true)
+        camera_of(
+            &cx,
+            raw.camera.as_ref().expect("a [camera] table"),
+            &raw.animation,
+            file.then_some((&cam, &keys[..])),
+            true,
+        )
     }
 
     #[test]
@@ -1366,7 +1408,7 @@ mod tests {
             assert!(e.message.contains(&format!("missing field `{field}`")) && e.message.contains("[gltf]"), "{e}");
         }
         // A camera file (`render --camera-from`) is read alone.
-        let e = parse_camera("[camera]\nwidth = 8\n", Path::new("c.toml")).unwrap_err();
+        let e = parse_camera("[camera]\nwidth = 8\n", Path::new("c.toml"), Path::new(".")).unwrap_err();
         assert!(e.field == "camera.position" && e.message.contains("read alone"), "{e}");
     }
 

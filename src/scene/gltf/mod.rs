@@ -153,16 +153,20 @@ fn guarded<T>(path: &Path, work: impl FnOnce() -> Result<T, SceneError>) -> Resu
 /// The camera of a glTF file alone (`render --camera-from model.glb`),
 /// with its keyframes and frame count.
 pub fn import_camera(path: &Path, options: &GltfOptions) -> Result<super::CameraPath, SceneError> {
+    import_camera_if_any(path, options)?.ok_or_else(|| error(path, "/cameras", "the file has no camera"))
+}
+
+/// [`import_camera`], or `None` when the file has no camera (without
+/// reading its meshes: a scene over it frames its geometry instead).
+pub fn import_camera_if_any(path: &Path, options: &GltfOptions) -> Result<Option<super::CameraPath>, SceneError> {
     let load::Loaded { doc, buffers, .. } = open(path)?;
     guarded(path, || {
         let placed = walk(path, &doc)?;
         let nodes = placed_nodes(&placed);
         let anim = animation::Sampled::new(path, &doc, &buffers, options, &mut Notes::default())?;
         let worlds = anim.world_matrices(path, &placed_parents(&placed), &nodes)?;
-        let Some((camera, keys)) = camera_of(path, &doc, &placed, &worlds, options)? else {
-            return Err(error(path, "/cameras", "the file has no camera"));
-        };
-        Ok(super::CameraPath { camera, keys, frames: anim.frames })
+        let found = camera_of(path, &doc, &placed, &worlds, options)?;
+        Ok(found.map(|(camera, keys)| super::CameraPath { camera, keys, frames: anim.frames }))
     })
 }
 
