@@ -274,6 +274,23 @@ fn sequence_archives_render_frame_ranges() {
         let got: Vec<u32> = (0..4).filter(|f| sub.join(format!("f_{f}.png")).exists()).collect();
         assert_eq!(got, want, "--frames {range}");
     }
+    // A frame farm: frames rendered in a range of their own are, with
+    // --cold, the whole sequence's frames byte for byte; warm (each range's
+    // first frame then starts from zero) within one 8-bit level, the
+    // tolerance's order. Default shading: per-pixel direct light, sampled.
+    let render = |range: &str, name: &str, cold: bool| {
+        let sub = dir.path().join(name);
+        std::fs::create_dir(&sub).unwrap();
+        let pattern = sub.join("f_%d.png");
+        let mut args = vec!["render", "-q", a, "--frames", range, "-o", pattern.to_str().unwrap(), "--samples", "2"];
+        args.extend(cold.then_some("--cold"));
+        illumnet(&args);
+        (2..4).map(|f| image::open(sub.join(format!("f_{f}.png"))).unwrap().to_rgb8().into_raw()).collect::<Vec<_>>()
+    };
+    assert_eq!(render("0..4", "cold_whole", true), render("2..4", "cold_part", true), "--cold: the same bytes");
+    let (whole, part) = (render("0..4", "warm_whole", false), render("2..4", "warm_part", false));
+    let worst = whole.iter().flatten().zip(part.iter().flatten()).map(|(x, y)| x.abs_diff(*y)).max();
+    assert!(worst.is_some_and(|w| w <= 1), "warm: frames 2 and 3 differ by {worst:?} levels");
     fail(&["render", a, "--frames", "3..=2", "-o", pattern.to_str().unwrap()], "is empty");
     fail(&["render", a, "--frames", "two", "-o", pattern.to_str().unwrap()], "expected a range like 0..60");
     fail(&["render", a, "--frames", "4294967295", "-o", pattern.to_str().unwrap()], "out of range");
