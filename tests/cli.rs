@@ -504,6 +504,28 @@ fn a_new_users_mistakes_get_plain_answers() {
     // A lit scene gives no such warning.
     let out = illumnet(&["render", "-q", &path("box.inet"), "-o", &path("b.png"), "--samples", "1"]);
     assert!(!String::from_utf8_lossy(&out.stderr).contains("warning"));
+    // A camera behind the box sees the back of its far wall (a third of
+    // the image) and the background: a black image, said so.
+    let (a, png) = (path("box.inet"), path("behind.png"));
+    for shading in ["direct", "inet"] {
+        let out = illumnet(&[
+            "render",
+            "-q",
+            &a,
+            "-o",
+            &png,
+            "--samples",
+            "1",
+            "--camera-position",
+            "0.278,0.2744,1.879",
+            "--look-at",
+            "0.278,0.2744,0.2796",
+            "--shading",
+            shading,
+        ]);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(err.contains("sees almost no surface's front") && err.contains("% nothing"), "{shading}: {err}");
+    }
 }
 
 /// Any view from one archive: the same camera given at build time and at

@@ -770,12 +770,23 @@ pub fn render(
         };
         t_render += t2.elapsed().as_secs_f64();
         let samples = image.pixels.len() as f64 * (args.samples * args.samples) as f64;
-        if f == range.start && renderer.back_faces as f64 > 0.5 * samples {
+        let (back, nothing) = (renderer.back_faces as f64 / samples, renderer.nothing_seen as f64 / samples);
+        if f == range.start && back > 0.5 {
             eprintln!(
                 "illumnet: warning: {:.0}% of the image shows back faces, which render black (surfaces are \
                  one-sided: their front is where the right-hand rule's normal points); is the camera inside \
                  a closed box or are some quads wound the wrong way?",
-                100.0 * renderer.back_faces as f64 / samples
+                100.0 * back
+            );
+        } else if f == range.start && back + nothing > 0.99 {
+            eprintln!(
+                "illumnet: warning: the camera sees almost no surface's front ({:.0}% of the image shows back \
+                 faces, {:.0}% nothing), so the image is black: is it outside the scene or looking away from \
+                 it (position {:?}, look_at {:?})? Give one with --camera-position and --look-at",
+                100.0 * back,
+                100.0 * nothing,
+                camera.position,
+                camera.look_at
             );
         }
         for (what, im) in [("image", Some(&image)), ("direct light", direct.as_ref())] {

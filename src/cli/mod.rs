@@ -323,8 +323,9 @@ impl GltfArgs {
 
 #[derive(Args, Clone, Default)]
 struct RelightArgs {
-    /// Change a surface's emitted radiance or a surface's or material's
-    /// reflectance, e.g. `--set light.emission=20,15,5`.
+    /// Change a surface's emitted radiance, or a surface's or material's
+    /// reflectance (`.reflectance`) or a glossy one's `k_s` (`.specular`,
+    /// each in [0, 1]), e.g. `--set light.emission=20,15,5`.
     #[arg(long = "set", value_name = "NAME.FIELD=R,G,B")]
     set: Vec<String>,
 }

@@ -348,10 +348,11 @@ fn shade_image(
     vrad: &[[f32; 3]],
     detail: &SurfaceDetail<'_>,
     direct: Option<&PixelLight<'_>>,
-) -> (Image, Option<Image>, f64) {
+) -> (Image, Option<Image>, Unlit) {
     // In 2⁻¹⁶ of a pixel.
     const ONE: u64 = 1 << 16;
     let back_faces = std::sync::atomic::AtomicU64::new(0);
+    let nothing = std::sync::atomic::AtomicU64::new(0);
     let mut pixels = vec![[0.0f32; 3]; (w * h) as usize];
     let mut direct_pixels = vec![[0.0f32; 3]; (w * h) as usize];
     // Glossy highlights: taken once, in the first pass.
@@ -367,7 +368,7 @@ fn shade_image(
         for (x, px) in row.iter_mut().enumerate() {
             hits_of(x as u32, y as u32, &mut hits);
             let mut acc = Vec3::ZERO;
-            let mut back = 0;
+            let (mut back, mut missed) = (0, 0);
             if let Some(pl) = direct {
                 pixel_reach(&hits, pl, (x as u32, y as u32), &mut scratch);
             }
@@ -392,10 +393,12 @@ fn shade_image(
                     hit.add_radiance(vrad, &mut acc);
                 }
                 back += usize::from(hit.primitive != u32::MAX && hit.vertices == [NO_VERTEX; 4]);
+                missed += usize::from(hit.primitive == u32::MAX);
             }
-            if back > 0 {
-                let share = back as u64 * ONE / hits.len() as u64;
-                back_faces.fetch_add(share, std::sync::atomic::Ordering::Relaxed);
+            for (count, total) in [(back, &back_faces), (missed, &nothing)] {
+                if count > 0 {
+                    total.fetch_add(count as u64 * ONE / hits.len() as u64, std::sync::atomic::Ordering::Relaxed);
+                }
             }
             let inv = 1.0 / hits.len().max(1) as f32;
             *px = (acc * inv).to_array();
@@ -408,9 +411,10 @@ fn shade_image(
             }
         }
     });
-    let back_faces = back_faces.into_inner() as f64 / ONE as f64;
+    let pixels_of = |n: std::sync::atomic::AtomicU64| n.into_inner() as f64 / ONE as f64;
+    let unlit = Unlit { back_faces: pixels_of(back_faces), nothing: pixels_of(nothing) };
     let Some(pl) = direct else {
-        return (Image { width: w, height: h, pixels }, None, back_faces);
+        return (Image { width: w, height: h, pixels }, None, unlit);
     };
     // The second pass, into the direct light: each pixel reads the first
     // pass's marks of its neighbours only.
@@ -438,7 +442,7 @@ fn shade_image(
     for (p, d) in pixels.iter_mut().zip(&direct_pixels) {
         *p = [0, 1, 2].map(|c| p[c] + d[c]);
     }
-    (Image { width: w, height: h, pixels }, Some(Image { width: w, height: h, pixels: direct_pixels }), back_faces)
+    (Image { width: w, height: h, pixels }, Some(Image { width: w, height: h, pixels: direct_pixels }), unlit)
 }
 
 /// How much of each sample's indirect light of pixel `(x, y)` comes from
@@ -605,6 +609,18 @@ pub struct Renderer<'a> {
     /// surfaces are one-sided), in units of the `n × n` grid: an edge
     /// pixel's finer samples count by their share of the pixel.
     pub back_faces: usize,
+    /// Samples of the last frame that saw no surface (the background,
+    /// black), in the same units.
+    pub nothing_seen: usize,
+}
+
+/// Pixels (and shares of pixels) of an image whose samples saw a back
+/// face, or nothing: what a black image is made of when the camera is
+/// misplaced.
+#[derive(Clone, Copy, Debug, Default)]
+struct Unlit {
+    back_faces: f64,
+    nothing: f64,
 }
 
 impl<'a> Renderer<'a> {
@@ -627,6 +643,7 @@ impl<'a> Renderer<'a> {
             camera: None,
             retraced: 0,
             back_faces: 0,
+            nothing_seen: 0,
         }
     }
 
@@ -697,6 +714,12 @@ impl<'a> Renderer<'a> {
             }
         });
         SamplePatches { width: w, height: h, per_pixel: per_pixel as u32, patches }
+    }
+
+    /// Records what of the last frame was unlit, in samples.
+    fn count_unlit(&mut self, unlit: Unlit, per_pixel: usize) {
+        self.back_faces = (unlit.back_faces * per_pixel as f64).round() as usize;
+        self.nothing_seen = (unlit.nothing * per_pixel as f64).round() as usize;
     }
 
     /// Renders `frame` from per-patch radiance.
@@ -830,8 +853,8 @@ impl<'a> Renderer<'a> {
                 buf.extend((0..per_pixel as u32).map(|k| trace(x, y, k % n, k / n)));
                 refine_edges(x, y, buf);
             };
-            let (image, direct, back) = shade_image((w, h), &hits_of, &vrad, &self.detail, pixel_light.as_ref());
-            self.back_faces = (back * per_pixel as f64).round() as usize;
+            let (image, direct, unlit) = shade_image((w, h), &hits_of, &vrad, &self.detail, pixel_light.as_ref());
+            self.count_unlit(unlit, per_pixel);
             return (image, direct);
         }
         // Reuse what the samples saw last frame when the camera is the same.
@@ -930,8 +953,8 @@ impl<'a> Renderer<'a> {
             buf.extend_from_slice(&samples[at..at + per_pixel]);
             refine_edges(x, y, buf);
         };
-        let (image, direct_image, back) = shade_image((w, h), &hits_of, &vrad, &self.detail, pixel_light.as_ref());
-        self.back_faces = (back * per_pixel as f64).round() as usize;
+        let (image, direct_image, unlit) = shade_image((w, h), &hits_of, &vrad, &self.detail, pixel_light.as_ref());
+        self.count_unlit(unlit, per_pixel);
         let images = (image, direct_image);
         self.cache = Some((record, samples, flags));
         images
