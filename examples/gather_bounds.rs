@@ -188,11 +188,7 @@ fn main() {
                 .collect();
             let variants = variants.into_iter().map(|(w, m, p)| (w.to_string(), m, p)).chain(masks);
             for (what, mask, prefetch) in variants.filter(|v| !only || v.0 == "gather") {
-                let t = Instant::now();
-                for _ in 0..PASSES {
-                    gather(offsets, other, count, &shoot, mask, prefetch, &mut recv);
-                }
-                line(&what, ends / t.elapsed().as_secs_f64());
+                line(&what, timed(ends, || gather(offsets, other, count, &shoot, mask, prefetch, &mut recv)));
             }
             if !only {
                 let t = Instant::now();
@@ -201,37 +197,29 @@ fn main() {
                 }
                 let n = offsets[sub] as f64 * (PASSES * reps) as f64;
                 line(&format!("gather, masked, first {sub} patches x{reps}"), n / t.elapsed().as_secs_f64());
-                let t = Instant::now();
-                for _ in 0..PASSES {
-                    rows(offsets, other, count, &shoot, &mut recv2);
-                }
-                line("gather, rows, the blocked kernel", ends / t.elapsed().as_secs_f64());
+                line(
+                    "gather, rows, the blocked kernel",
+                    timed(ends, || rows(offsets, other, count, &shoot, &mut recv2)),
+                );
                 // The same loop with each row's ends sorted by the other
                 // patch: the order the state is read in within a row.
-                let t = Instant::now();
-                for _ in 0..PASSES {
-                    rows(offsets, &sorted_other, &sorted_count, &shoot, &mut recv2);
-                }
-                line("gather, rows sorted by other patch", ends / t.elapsed().as_secs_f64());
+                line(
+                    "gather, rows sorted by other patch",
+                    timed(ends, || rows(offsets, &sorted_other, &sorted_count, &shoot, &mut recv2)),
+                );
                 // Smaller per-patch state, the same loop: RGB in 12 bytes (what
                 // the distribution could store), and 8 bytes (the size of RGB
                 // in f16 with padding; two f32 read here, a bound on locality).
-                let t = Instant::now();
-                for _ in 0..PASSES {
-                    rows(offsets, other, count, &shoot3, &mut recv3);
-                }
-                line("gather, rows, 12-byte state", ends / t.elapsed().as_secs_f64());
-                let t = Instant::now();
-                for _ in 0..PASSES {
-                    rows(offsets, other, count, &shoot2, &mut recv2n);
-                }
-                line("gather, rows, 8-byte state (locality bound)", ends / t.elapsed().as_secs_f64());
+                line("gather, rows, 12-byte state", timed(ends, || rows(offsets, other, count, &shoot3, &mut recv3)));
+                line(
+                    "gather, rows, 8-byte state (locality bound)",
+                    timed(ends, || rows(offsets, other, count, &shoot2, &mut recv2n)),
+                );
                 for ahead in [0, 16, 32, 64] {
-                    let t = Instant::now();
-                    for _ in 0..PASSES {
-                        rows_prefetched(offsets, other, count, &shoot, ahead, &mut recv2);
-                    }
-                    line(&format!("gather, state prefetched {ahead} ends ahead"), ends / t.elapsed().as_secs_f64());
+                    line(
+                        &format!("gather, state prefetched {ahead} ends ahead"),
+                        timed(ends, || rows_prefetched(offsets, other, count, &shoot, ahead, &mut recv2)),
+                    );
                 }
             }
             for b in &row_layouts {
@@ -507,6 +495,16 @@ impl Blocked {
             }
         });
     }
+}
+
+/// `ends / s` for `PASSES` calls of `pass`, each over `ends / PASSES`
+/// link ends.
+fn timed(ends: f64, mut pass: impl FnMut()) -> f64 {
+    let t = Instant::now();
+    for _ in 0..PASSES {
+        pass();
+    }
+    ends / t.elapsed().as_secs_f64()
 }
 
 /// The largest relative difference of `b`'s RGB from `a`'s.
