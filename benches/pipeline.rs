@@ -9,7 +9,7 @@ use std::time::Duration;
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use illumnet::archive::{self, Archive};
-use illumnet::build::{self, BuildSettings};
+use illumnet::bake::{self, BuildSettings};
 use illumnet::distribute::{self, DistributeOptions};
 use illumnet::progress::NoProgress;
 use illumnet::render::{self, RenderOptions};
@@ -18,7 +18,7 @@ use illumnet::scene::{BuildHints, Scene};
 fn stages(c: &mut Criterion) {
     let scene = Scene::cornell_box();
     let defaults = BuildSettings::resolve(&scene, BuildHints::default());
-    let (contents, stats) = build::build(&scene, &defaults, &NoProgress).unwrap();
+    let (contents, stats) = bake::build(&scene, &defaults, &NoProgress).unwrap();
     let bytes = archive::write_to_vec(&contents).unwrap();
     let archive = Archive::from_bytes(&bytes).unwrap();
     let view = archive.view();
@@ -28,9 +28,9 @@ fn stages(c: &mut Criterion) {
 
     // Tracing at a quarter of the default directions keeps one sample near 1 s.
     let coarse = BuildSettings { frequency: 8, ..defaults };
-    let (_, coarse_stats) = build::build(&scene, &coarse, &NoProgress).unwrap();
+    let (_, coarse_stats) = bake::build(&scene, &coarse, &NoProgress).unwrap();
     g.throughput(Throughput::Elements(coarse_stats.rays));
-    g.bench_function("build_f8 (rays)", |b| b.iter(|| build::build(black_box(&scene), &coarse, &NoProgress).unwrap()));
+    g.bench_function("build_f8 (rays)", |b| b.iter(|| bake::build(black_box(&scene), &coarse, &NoProgress).unwrap()));
 
     // One sweep over all link ends (max_iterations = 1).
     let one = DistributeOptions { max_iterations: 1, tolerance: 0.0, ..Default::default() };

@@ -5,7 +5,7 @@
 //! cargo run --release --example flicker -- [FREQUENCY] [PATCH_SIZE] [RAY_SPACING] [FRAMES]
 
 use glam::Vec3;
-use illumnet::build::BuildSettings;
+use illumnet::bake::BuildSettings;
 use illumnet::distribute::DistributeOptions;
 use illumnet::flicker;
 use illumnet::geodesic::DirectionSetKind;

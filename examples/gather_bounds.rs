@@ -22,7 +22,8 @@
 //! - the loop over rows with smaller per-patch state: 12 bytes (RGB in
 //!   f32) and 8 bytes (a bound on what a smaller state's locality gives).
 //!
-//! Numbers for `docs/PERFORMANCE.md`:
+//! Numbers for the notebook (`docs/notebook/2026-12-04-what-bounds-the-gather.md`
+//! and the gather entries after it):
 //!
 //! ```text
 //! cargo run --release --example gather_bounds -- ARCHIVE.inet [--blockings B] [--blocked-only] [--row-runs]

@@ -6,7 +6,7 @@
 //! ordered by sender chunk), and times a row gather like the
 //! distribution's over each order and the archive's, alternating, three
 //! times each; it also prints how many sender chunks (2¹⁶ patches) a row
-//! touches in each. Numbers for `docs/PERFORMANCE.md`:
+//! touches in each. Numbers for `docs/notebook/2026-12-05-block-layout-and-patch-order.md`:
 //!
 //! ```text
 //! cargo run --release --example patch_order -- ARCHIVE.inet

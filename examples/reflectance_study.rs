@@ -8,7 +8,7 @@
 //! ```
 
 use illumnet::archive::Archive;
-use illumnet::build::{self, BuildSettings};
+use illumnet::bake::{self, BuildSettings};
 use illumnet::distribute::{self, DistributeOptions};
 use illumnet::geodesic::DirectionSet;
 use illumnet::progress::NoProgress;
@@ -64,7 +64,7 @@ buckets = 0
     let mut s = BuildSettings::resolve(&scene, BuildHints::default());
     s.prototype_library = None;
     s.map_method = method;
-    let (c, _) = build::build(&scene, &s, &NoProgress).unwrap();
+    let (c, _) = bake::build(&scene, &s, &NoProgress).unwrap();
     let a = Archive::from_bytes(&illumnet::archive::write_to_vec(&c).unwrap()).unwrap();
     let v = a.view();
     let sol = distribute::distribute(&v, &DistributeOptions::default(), &NoProgress).unwrap();

@@ -11,7 +11,7 @@
 use glam::Vec3;
 
 use crate::archive::{self, Archive};
-use crate::build::{self, BuildSettings};
+use crate::bake::{self, BuildSettings};
 use crate::distribute::{self, DistributeOptions};
 use crate::progress::NoProgress;
 use crate::scene::Scene;
@@ -41,7 +41,7 @@ pub fn measure(
 ) -> Result<Flicker, String> {
     // Patches in primitive order: every frame's keep their ids (a
     // spatial order would follow the moving surface).
-    let settings = &BuildSettings { patch_order: build::PatchOrder::Primitives, ..settings.clone() };
+    let settings = &BuildSettings { patch_order: bake::PatchOrder::Primitives, ..settings.clone() };
     let mut previous: Option<Vec<f32>> = None;
     let mut changes = Vec::new();
     let mut ends = 0.0;
@@ -52,7 +52,7 @@ pub fn measure(
                 *v += step * f as f32;
             }
         }
-        let (contents, stats) = build::build(&s, settings, &NoProgress)?;
+        let (contents, stats) = bake::build(&s, settings, &NoProgress)?;
         ends += stats.link_ends as f64 / frames as f64;
         let archive = Archive::from_bytes(&archive::write_to_vec(&contents).map_err(|e| e.to_string())?)
             .map_err(|e| e.to_string())?;

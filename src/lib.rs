@@ -4,7 +4,7 @@
 //! *An Energy-Balance Method for Animation* (1990). The pipeline runs one way:
 //!
 //! ```text
-//! scene (TOML, OBJ) ──► patch + geodesic ──► build (trace bundles, links)
+//! scene (TOML, OBJ) ──► patch + geodesic ──► bake (trace bundles, links)
 //!        ──► archive::write ──► file ──► archive::Archive::open (mmap, validate)
 //!        ──► distribute (energy balance over links) ──► render (image)
 //! ```
@@ -14,7 +14,7 @@
 //!   ray intersection and their patch grids; both build and render use it.
 //! * [`geodesic`] builds the global direction set (§3.3 of the paper).
 //! * [`patch`] cuts primitives into patches with shared vertices.
-//! * [`build`] traces one bundle of parallel rays per direction pair and turns
+//! * [`bake`] (the build stage) traces one bundle of parallel rays per direction pair and turns
 //!   consecutive facing hits into links (§2, §3.3).
 //! * [`archive`] is the versioned, checksummed, memory-mapped file format
 //!   (specified byte by byte in `format-spec/archive.md`). It is the only
@@ -36,8 +36,8 @@
 //! // A coarse Cornell box: build, store, open, distribute.
 //! let scene = scene::Scene::cornell_box();
 //! let hints = scene::BuildHints { frequency: Some(4), patch_size: Some(0.1), ..Default::default() };
-//! let settings = build::BuildSettings::resolve(&scene, hints);
-//! let (contents, _) = build::build(&scene, &settings, &NoProgress).unwrap();
+//! let settings = bake::BuildSettings::resolve(&scene, hints);
+//! let (contents, _) = bake::build(&scene, &settings, &NoProgress).unwrap();
 //! let archive = archive::Archive::from_bytes(&archive::write_to_vec(&contents).unwrap()).unwrap();
 //! let light = distribute::distribute(&archive.view(), &Default::default(), &NoProgress).unwrap();
 //! assert!(light.balance.converged && light.balance.imbalance().abs() < 1e-6);
@@ -88,8 +88,8 @@
 //!     notes: Vec::new(),
 //!     textures: Vec::new(),
 //! };
-//! let settings = build::BuildSettings::resolve(&scene, scene.build);
-//! let (contents, _) = build::build(&scene, &settings, &NoProgress)?;
+//! let settings = bake::BuildSettings::resolve(&scene, scene.build);
+//! let (contents, _) = bake::build(&scene, &settings, &NoProgress)?;
 //! let archive = archive::Archive::from_bytes(&archive::write_to_vec(&contents)?)?;
 //! let view = archive.view();
 //!
@@ -127,7 +127,7 @@
 compile_error!("illumnet archives are little-endian and read zero-copy: big-endian targets are not supported");
 
 pub mod archive;
-pub mod build;
+pub mod bake;
 pub mod distribute;
 pub mod flicker;
 pub mod geodesic;

@@ -6,7 +6,7 @@ use std::path::Path;
 
 use glam::Vec3;
 
-use illumnet::build::{self, BuildSettings};
+use illumnet::bake::{self, BuildSettings};
 use illumnet::distribute::{self, DistributeOptions};
 use illumnet::progress::NoProgress;
 use illumnet::render::{self, RenderOptions, image_io};
@@ -34,7 +34,7 @@ fn assert_back_wall_middle_same(camera: &render::PinholeCamera, a: &render::Imag
 /// An archive built from `scene` at default settings, in memory.
 fn default_archive(scene: &Scene) -> illumnet::archive::Archive {
     let settings = BuildSettings::resolve(scene, BuildHints::default());
-    let (contents, _) = build::build(scene, &settings, &NoProgress).unwrap();
+    let (contents, _) = bake::build(scene, &settings, &NoProgress).unwrap();
     illumnet::archive::Archive::from_bytes(&illumnet::archive::write_to_vec(&contents).unwrap()).unwrap()
 }
 

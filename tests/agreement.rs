@@ -5,7 +5,7 @@
 //! and quads, stills and short sequences.
 
 use illumnet::archive::{self, Archive};
-use illumnet::build::{self, BuildSettings};
+use illumnet::bake::{self, BuildSettings};
 use illumnet::distribute::{DistributeOptions, Distributor, Lighting};
 use illumnet::progress::NoProgress;
 use illumnet::scene::{BuildHints, Scene};
@@ -105,7 +105,7 @@ proptest! {
         let hints = BuildHints { patch_size: Some(0.25), frequency: Some(3), ray_spacing: Some(0.05), buckets: None };
         let mut settings = BuildSettings::resolve(&scene, hints);
         settings.prototype_library = None;
-        let c = build::build_sequence(&scene, &settings, &NoProgress).map_err(TestCaseError::fail)?.contents;
+        let c = bake::build_sequence(&scene, &settings, &NoProgress).map_err(TestCaseError::fail)?.contents;
         let bytes = archive::write_to_vec(&c).unwrap();
         let a = Archive::from_bytes(&bytes).map_err(|e| TestCaseError::fail(format!("{e}\n{text}")))?;
         let v = a.view();
@@ -151,7 +151,7 @@ fn motion_beyond_the_archives_coordinates_is_refused_by_the_build() {
     );
     let scene = parse(&text).unwrap();
     let settings = BuildSettings::resolve(&scene, BuildHints { frequency: Some(2), ..Default::default() });
-    let Err(e) = build::build_sequence(&scene, &settings, &NoProgress) else { panic!("built") };
+    let Err(e) = bake::build_sequence(&scene, &settings, &NoProgress) else { panic!("built") };
     assert!(e.contains("surface `far` at frames 1..=1") && e.contains("beyond ±1e9 m"), "{e}");
 }
 
@@ -174,7 +174,7 @@ fn a_coplanar_poster_that_leaves_a_wall_gives_frames_that_solve() {
     let hints = BuildHints { patch_size: Some(0.25), frequency: Some(3), ray_spacing: Some(0.04), buckets: None };
     let mut settings = BuildSettings::resolve(&scene, hints);
     settings.prototype_library = None;
-    let c = build::build_sequence(&scene, &settings, &NoProgress).unwrap().contents;
+    let c = bake::build_sequence(&scene, &settings, &NoProgress).unwrap().contents;
     let a = Archive::from_bytes(&archive::write_to_vec(&c).unwrap()).unwrap();
     let v = a.view();
     let d = Distributor::new(&v, &DistributeOptions::default(), &Lighting::from_view(&v)).unwrap();

@@ -5,7 +5,7 @@
 
 mod common;
 
-use illumnet::build::{self, BuildSettings};
+use illumnet::bake::{self, BuildSettings};
 use illumnet::progress::NoProgress;
 use illumnet::scene::{BuildHints, Scene};
 
@@ -84,15 +84,15 @@ fn glossy_adversarial() -> Scene {
 }
 
 /// The sequence build of `scene` at `hints`, keeping its links, and its settings.
-fn sequence(scene: &Scene, hints: BuildHints) -> (build::Sequence, BuildSettings) {
+fn sequence(scene: &Scene, hints: BuildHints) -> (bake::Sequence, BuildSettings) {
     let settings = BuildSettings::resolve(scene, hints);
-    (build::build_sequence_with_links(scene, &settings, &NoProgress).unwrap(), settings)
+    (bake::build_sequence_with_links(scene, &settings, &NoProgress).unwrap(), settings)
 }
 
 /// A from-scratch build of frame `k` alone, with the sequence's ray grids.
-fn from_scratch(scene: &Scene, seq: &build::Sequence, settings: &BuildSettings, k: u32) -> build::Sequence {
+fn from_scratch(scene: &Scene, seq: &bake::Sequence, settings: &BuildSettings, k: u32) -> bake::Sequence {
     let still_settings = BuildSettings { grid_bounds: Some(seq.bounds), ..settings.clone() };
-    build::build_sequence_with_links(&scene.at_frame(k), &still_settings, &NoProgress).unwrap()
+    bake::build_sequence_with_links(&scene.at_frame(k), &still_settings, &NoProgress).unwrap()
 }
 
 #[test]
@@ -160,7 +160,7 @@ fn bad_animation_input_is_a_clear_error() {
     assert!(e.message.contains("outside the sequence 0..7"), "{e}");
     // A still build of an animated scene says what to do instead.
     let scene = adversarial();
-    let err = build::build(&scene, &BuildSettings::resolve(&scene, BuildHints::default()), &NoProgress).unwrap_err();
+    let err = bake::build(&scene, &BuildSettings::resolve(&scene, BuildHints::default()), &NoProgress).unwrap_err();
     assert!(err.contains("animated"), "{err}");
 }
 
@@ -220,7 +220,7 @@ fn corrupt_sequence_sections_are_errors() {
     use illumnet::archive::{self, Archive, tag_name};
     let scene = adversarial();
     let hints = BuildHints { patch_size: Some(0.4), frequency: Some(3), ray_spacing: Some(0.08), buckets: Some(1) };
-    let seq = build::build_sequence(&scene, &BuildSettings::resolve(&scene, hints), &NoProgress).unwrap();
+    let seq = bake::build_sequence(&scene, &BuildSettings::resolve(&scene, hints), &NoProgress).unwrap();
     let bytes = archive::write_to_vec(&seq.contents).unwrap();
     let good = Archive::from_bytes(&bytes).unwrap();
     let mut checked = 0;
@@ -245,7 +245,7 @@ fn sequence_archive_bytes_do_not_depend_on_thread_count() {
     let settings = BuildSettings::resolve(&scene, hints);
     let build_with = |threads: usize| {
         let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
-        pool.install(|| archive::write_to_vec(&build::build_sequence(&scene, &settings, &NoProgress).unwrap().contents))
+        pool.install(|| archive::write_to_vec(&bake::build_sequence(&scene, &settings, &NoProgress).unwrap().contents))
             .unwrap()
     };
     let one = build_with(1);
@@ -261,7 +261,7 @@ fn archives_of_older_formats_are_refused_with_what_to_do() {
     use xxhash_rust::xxh3::xxh3_64;
     let scene = adversarial();
     let hints = BuildHints { patch_size: Some(0.4), frequency: Some(3), ray_spacing: Some(0.08), buckets: Some(1) };
-    let seq = build::build_sequence(&scene, &BuildSettings::resolve(&scene, hints), &NoProgress).unwrap();
+    let seq = bake::build_sequence(&scene, &BuildSettings::resolve(&scene, hints), &NoProgress).unwrap();
     let bytes = archive::write_to_vec(&seq.contents).unwrap();
     for (written, read, says) in [(6u32, 6u32, "illumnet upgrade"), (5, 5, "build it again"), (4, 3, "build it again")]
     {
@@ -282,7 +282,7 @@ fn warm_start_converges_to_the_same_light_in_fewer_iterations() {
     use illumnet::distribute::{self, DistributeOptions};
     let scene = adversarial();
     let hints = BuildHints { patch_size: Some(0.25), frequency: Some(4), ray_spacing: Some(0.04), buckets: Some(1) };
-    let seq = build::build_sequence(&scene, &BuildSettings::resolve(&scene, hints), &NoProgress).unwrap();
+    let seq = bake::build_sequence(&scene, &BuildSettings::resolve(&scene, hints), &NoProgress).unwrap();
     let arch = Archive::from_bytes(&archive::write_to_vec(&seq.contents).unwrap()).unwrap();
     let v = arch.view();
     // Plain iteration (depth 0) and Anderson acceleration (the default).
@@ -345,7 +345,7 @@ fn glossy_movers_radiance_from_the_sequence_equals_from_scratch() {
     let hints = BuildHints { patch_size: Some(0.25), frequency: Some(4), ray_spacing: Some(0.04), buckets: Some(1) };
     let mut settings = BuildSettings::resolve(&scene, hints);
     settings.prototype_library = None;
-    let seq = build::build_sequence_with_links(&scene, &settings, &NoProgress).unwrap();
+    let seq = bake::build_sequence_with_links(&scene, &settings, &NoProgress).unwrap();
     let arch = Archive::from_bytes(&archive::write_to_vec(&seq.contents).unwrap()).unwrap();
     let v = arch.view();
     assert_eq!(arch.header().version_read, 10, "every archive needs a reader of version 10");
@@ -422,7 +422,7 @@ fn cached_visibility_renders_the_same_images_and_retraces_only_near_movers() {
     let text = ADVERSARIAL.replace("keyframes = [{ frame = 0, position = [1, 1, -2], look_at = [1, 1, 1] }, { frame = 6, position = [0.5, 1.2, -2], look_at = [1.2, 0.8, 1] }]\n", "");
     let scene = Scene::from_toml(&text, std::path::Path::new("still_camera.toml"), std::path::Path::new(".")).unwrap();
     let hints = BuildHints { patch_size: Some(0.25), frequency: Some(4), ray_spacing: Some(0.04), buckets: Some(1) };
-    let seq = build::build_sequence(&scene, &BuildSettings::resolve(&scene, hints), &NoProgress).unwrap();
+    let seq = bake::build_sequence(&scene, &BuildSettings::resolve(&scene, hints), &NoProgress).unwrap();
     let arch = Archive::from_bytes(&archive::write_to_vec(&seq.contents).unwrap()).unwrap();
     let v = arch.view();
     let opts = RenderOptions { samples_per_axis: 3, ..Default::default() };
@@ -459,7 +459,7 @@ fn explicit_removals_of_links_to_absent_patches_give_the_same_light() {
         let hints = BuildHints { patch_size: Some(0.3), frequency: Some(4), ray_spacing: Some(0.05), buckets: Some(1) };
         let mut settings = BuildSettings::resolve(&scene, hints);
         settings.prototype_library = None;
-        let seq = build::build_sequence_with_links(&scene, &settings, &NoProgress).unwrap();
+        let seq = bake::build_sequence_with_links(&scene, &settings, &NoProgress).unwrap();
         let deltas = &seq.contents.sequence.as_ref().unwrap().deltas;
         let present_at = |k: u32| {
             let mut present = Vec::new();
@@ -531,7 +531,7 @@ fn warm_frames_of_one_distributor_start_with_a_sparse_gather_and_reach_the_cold_
     use illumnet::distribute::{DistributeOptions, Distributor, Lighting};
     let scene = adversarial();
     let hints = BuildHints { patch_size: Some(0.25), frequency: Some(4), ray_spacing: Some(0.04), buckets: Some(1) };
-    let seq = build::build_sequence(&scene, &BuildSettings::resolve(&scene, hints), &NoProgress).unwrap();
+    let seq = bake::build_sequence(&scene, &BuildSettings::resolve(&scene, hints), &NoProgress).unwrap();
     let arch = Archive::from_bytes(&archive::write_to_vec(&seq.contents).unwrap()).unwrap();
     let v = arch.view();
     let opts = DistributeOptions { tolerance: 1e-5, ..Default::default() };
@@ -569,7 +569,7 @@ fn a_long_chain_of_sparse_warm_starts_keeps_the_cold_light() {
     let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/fan_room.toml");
     let scene = Scene::from_file(&path).unwrap();
     let hints = BuildHints { patch_size: Some(0.4), frequency: Some(4), ray_spacing: Some(0.12), buckets: Some(1) };
-    let seq = build::build_sequence(&scene, &BuildSettings::resolve(&scene, hints), &NoProgress).unwrap();
+    let seq = bake::build_sequence(&scene, &BuildSettings::resolve(&scene, hints), &NoProgress).unwrap();
     let arch = Archive::from_bytes(&archive::write_to_vec(&seq.contents).unwrap()).unwrap();
     let v = arch.view();
     let opts = DistributeOptions { tolerance: 1e-7, ..Default::default() };

@@ -5,7 +5,7 @@ mod common;
 
 use common::*;
 use illumnet::archive::{self, Archive, ArchiveError, layout};
-use illumnet::build::{self, BuildSettings};
+use illumnet::bake::{self, BuildSettings};
 use illumnet::progress::NoProgress;
 use illumnet::scene::{BuildHints, Scene};
 
@@ -13,7 +13,7 @@ use illumnet::scene::{BuildHints, Scene};
 fn small_contents() -> archive::ArchiveContents {
     let scene = Scene::cornell_box();
     let hints = BuildHints { patch_size: Some(0.08), frequency: Some(4), ray_spacing: Some(0.02), buckets: None };
-    build::build(&scene, &BuildSettings::resolve(&scene, hints), &NoProgress).unwrap().0
+    bake::build(&scene, &BuildSettings::resolve(&scene, hints), &NoProgress).unwrap().0
 }
 
 #[test]
@@ -126,7 +126,7 @@ fn versions_follow_the_compatibility_rule() {
         let hints = BuildHints { patch_size: Some(0.08), frequency: Some(4), ray_spacing: Some(0.02), buckets: None };
         let mut settings = BuildSettings::resolve(&scene, hints);
         settings.patch_order = illumnet::patch::order::PatchOrder::Primitives;
-        let contents = build::build(&scene, &settings, &NoProgress).unwrap().0;
+        let contents = bake::build(&scene, &settings, &NoProgress).unwrap().0;
         let a = Archive::from_bytes(&archive::write_to_vec(&contents).unwrap()).unwrap();
         assert_eq!((a.header().version_write, a.header().version_read), (11, 10), "primitive order");
     }
@@ -135,7 +135,7 @@ fn versions_follow_the_compatibility_rule() {
     let hints = BuildHints { patch_size: Some(0.08), frequency: Some(4), ray_spacing: Some(0.02), buckets: None };
     let mut settings = BuildSettings::resolve(&scene, hints);
     settings.direction_set = illumnet::geodesic::DirectionSetKind::RaySpace;
-    let contents = build::build(&scene, &settings, &NoProgress).unwrap().0;
+    let contents = bake::build(&scene, &settings, &NoProgress).unwrap().0;
     let a = Archive::from_bytes(&archive::write_to_vec(&contents).unwrap()).unwrap();
     assert_eq!((a.header().version_write, a.header().version_read), (11, 11));
     // f = 4 gives 162 geodesic directions; m = round(√(162/6)) = 5 gives 150.
@@ -146,7 +146,7 @@ fn versions_follow_the_compatibility_rule() {
 fn absurd_resolutions_are_errors_not_overflows() {
     // See: review of issue #2 (bad input never panics).
     let scene = Scene::cornell_box();
-    let build_with = |hints: BuildHints| build::build(&scene, &BuildSettings::resolve(&scene, hints), &NoProgress);
+    let build_with = |hints: BuildHints| bake::build(&scene, &BuildSettings::resolve(&scene, hints), &NoProgress);
     let err = build_with(BuildHints { patch_size: Some(1e-6), ..Default::default() }).unwrap_err();
     assert!(err.contains("cells"), "{err}");
     let err = build_with(BuildHints { ray_spacing: Some(1e-9), ..Default::default() }).unwrap_err();
@@ -245,7 +245,7 @@ fn patch_blocks_out_of_primitive_order_need_version_11_and_a_still() {
     let mut settings = BuildSettings::resolve(&scene, hints);
     settings.prototype_library = None;
     let seq_bytes =
-        archive::write_to_vec(&build::build_sequence(&scene, &settings, &NoProgress).unwrap().contents).unwrap();
+        archive::write_to_vec(&bake::build_sequence(&scene, &settings, &NoProgress).unwrap().contents).unwrap();
     let seq = Archive::from_bytes(&seq_bytes).unwrap();
     assert_eq!(seq.header().version_read, 10, "sequences keep primitive order");
     let v = seq.view();

@@ -12,7 +12,7 @@ use std::panic::{AssertUnwindSafe, catch_unwind};
 use bytemuck::pod_read_unaligned;
 use illumnet::archive::layout::{self, HeaderRecord, SectionEntry};
 use illumnet::archive::{self, Archive, ArchiveContents, ArchiveError, tag_name};
-use illumnet::build::{self, BuildSettings};
+use illumnet::bake::{self, BuildSettings};
 use illumnet::distribute::{DistributeError, DistributeOptions, Distributor, Lighting};
 use illumnet::progress::NoProgress;
 use illumnet::render::{self, RenderOptions, Renderer};
@@ -77,7 +77,7 @@ fn contents(text: &str) -> ArchiveContents {
     let scene = Scene::from_toml(text, std::path::Path::new("damage.toml"), std::path::Path::new(".")).unwrap();
     let mut settings = BuildSettings::resolve(&scene, hints());
     settings.prototype_library = None;
-    build::build_sequence(&scene, &settings, &NoProgress).unwrap().contents
+    bake::build_sequence(&scene, &settings, &NoProgress).unwrap().contents
 }
 
 fn archives() -> Vec<(&'static str, ArchiveContents)> {
@@ -130,7 +130,7 @@ fn mesh_contents() -> ArchiveContents {
     with_detail(&mut scene);
     let mut settings = BuildSettings::resolve(&scene, hints());
     settings.prototype_library = None;
-    let c = build::build_sequence(&scene, &settings, &NoProgress).unwrap().contents;
+    let c = bake::build_sequence(&scene, &settings, &NoProgress).unwrap().contents;
     let mut groups: Vec<u32> = c.primitives.iter().filter(|r| r.kind == 2).map(|r| r.first_patch).collect();
     groups.dedup();
     assert!(c.grouped_triangles.len() == 128 && groups.len() < 64, "{} groups", groups.len());
@@ -527,7 +527,7 @@ fn write_fuzz_seed_corpus() {
         let hints = BuildHints { patch_size: Some(0.4), frequency: Some(2), ray_spacing: Some(0.08), buckets: None };
         let mut settings = BuildSettings::resolve(&scene, hints);
         settings.prototype_library = None;
-        archive::write_to_vec(&build::build_sequence(&scene, &settings, &NoProgress).unwrap().contents).unwrap()
+        archive::write_to_vec(&bake::build_sequence(&scene, &settings, &NoProgress).unwrap().contents).unwrap()
     };
     for (name, text) in
         [("still", ROOM.to_string()), ("glossy", format!("{ROOM}{GLOSSY}")), ("sequence", format!("{ROOM}{MOVING}"))]
@@ -556,7 +556,7 @@ fn write_fuzz_seed_corpus() {
     let hints = BuildHints { patch_size: Some(0.4), frequency: Some(2), ray_spacing: Some(0.08), buckets: None };
     let mut settings = BuildSettings::resolve(&scene, hints);
     settings.prototype_library = None;
-    let (mesh, _) = build::build(&scene, &settings, &NoProgress).unwrap();
+    let (mesh, _) = bake::build(&scene, &settings, &NoProgress).unwrap();
     assert!(!mesh.grouped_triangles.is_empty());
     let bytes = archive::write_to_vec(&mesh).unwrap();
     assert!(bytes.len() <= 262_144, "mesh: {} bytes, above the fuzzers' -max_len", bytes.len());

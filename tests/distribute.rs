@@ -86,9 +86,9 @@ fn weights_kept_apart_give_the_reference_light_resident_and_streamed() {
     let scene = Scene::cornell_box();
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("coarse.inet");
-    let mut settings = illumnet::build::BuildSettings::resolve(&scene, hints);
+    let mut settings = illumnet::bake::BuildSettings::resolve(&scene, hints);
     settings.prototype_library = None;
-    let (contents, _) = illumnet::build::build(&scene, &settings, &NoProgress).unwrap();
+    let (contents, _) = illumnet::bake::build(&scene, &settings, &NoProgress).unwrap();
     illumnet::archive::write(&path, &contents).unwrap();
     let big = contents.link_weight.iter().filter(|&&w| w > 255.0).count();
     assert!(big > 100 && big < contents.link_weight.len(), "{big} of {} ends escaped", contents.link_weight.len());
@@ -111,11 +111,11 @@ fn weights_kept_apart_give_the_reference_light_resident_and_streamed() {
 }
 
 /// The default Cornell box built with `tweak` applied to its settings.
-fn cornell_with(tweak: impl FnOnce(&mut illumnet::build::BuildSettings)) -> Archive {
+fn cornell_with(tweak: impl FnOnce(&mut illumnet::bake::BuildSettings)) -> Archive {
     let scene = Scene::cornell_box();
-    let mut settings = illumnet::build::BuildSettings::resolve(&scene, BuildHints::default());
+    let mut settings = illumnet::bake::BuildSettings::resolve(&scene, BuildHints::default());
     tweak(&mut settings);
-    let (contents, _) = illumnet::build::build(&scene, &settings, &NoProgress).unwrap();
+    let (contents, _) = illumnet::bake::build(&scene, &settings, &NoProgress).unwrap();
     Archive::from_bytes(&illumnet::archive::write_to_vec(&contents).unwrap()).unwrap()
 }
 
@@ -168,7 +168,7 @@ fn patches_in_tiles_give_the_light_of_patches_in_rows() {
 fn a_spatial_patch_order_gives_the_light_of_primitive_order() {
     // Version 11 may number primitives' patch blocks along a Morton curve
     // (§5.5); only the reordered file needs a version 11 reader.
-    use illumnet::build::PatchOrder;
+    use illumnet::bake::PatchOrder;
     let plain = cornell_with(|s| s.patch_order = PatchOrder::Primitives);
     let spatial = cornell_with(|s| s.patch_order = PatchOrder::Spatial);
     assert_eq!((plain.header().version_read, spatial.header().version_read), (10, 11));

@@ -2,7 +2,7 @@
 //! flicker measurably less than the ray-space baseline (issue #3).
 
 use glam::Vec3;
-use illumnet::build::BuildSettings;
+use illumnet::bake::BuildSettings;
 use illumnet::distribute::DistributeOptions;
 use illumnet::flicker;
 use illumnet::geodesic::DirectionSetKind;

@@ -242,11 +242,11 @@ fn mesh_archive_bytes(group_triangles: bool) -> (Vec<u8>, Vec<PrimitiveRecord>) 
          [[surface]]\nname = 'floor'\nmaterial = 'grey'\nmesh = 'floor.obj'\n"
     );
     let scene = scene_in(dir.path(), &toml);
-    let mut settings = illumnet::build::BuildSettings::resolve(&scene, BuildHints::default());
+    let mut settings = illumnet::bake::BuildSettings::resolve(&scene, BuildHints::default());
     settings.patch_size = 0.2;
     settings.frequency = 4;
     settings.group_triangles = group_triangles;
-    let (contents, _) = illumnet::build::build(&scene, &settings, &NoProgress).unwrap();
+    let (contents, _) = illumnet::bake::build(&scene, &settings, &NoProgress).unwrap();
     (archive::write_to_vec(&contents).unwrap(), contents.primitives)
 }
 

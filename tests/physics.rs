@@ -83,7 +83,7 @@ fn closed_room_with_default_buckets() {
     // Buckets conserve energy exactly, but blurring the bucketed share of the
     // light, which is not uniform across a wall, shifts light near surface
     // borders: measured 1.08% at the worst patch (docs/ACCURACY.md).
-    let (worst, absorbed) = closed_room(illumnet::build::DEFAULT_MAX_BUCKET);
+    let (worst, absorbed) = closed_room(illumnet::bake::DEFAULT_MAX_BUCKET);
     eprintln!(
         "closed room, default buckets: worst patch {:.3}% off, absorbed/emitted - 1 = {absorbed:.2e}",
         worst * 100.0

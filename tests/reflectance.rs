@@ -8,7 +8,7 @@ mod common;
 use std::path::Path;
 
 use illumnet::archive::{self, Archive, ArchiveContents};
-use illumnet::build::{self, BuildSettings};
+use illumnet::bake::{self, BuildSettings};
 use illumnet::distribute::{self, DistributeOptions};
 use illumnet::progress::NoProgress;
 use illumnet::render::{self, Image, RenderOptions, image_io};
@@ -21,7 +21,7 @@ fn scene_file(name: &str) -> Scene {
 fn contents(scene: &Scene, hints: BuildHints) -> ArchiveContents {
     let mut settings = BuildSettings::resolve(scene, hints);
     settings.prototype_library = None;
-    build::build(scene, &settings, &NoProgress).unwrap().0
+    bake::build(scene, &settings, &NoProgress).unwrap().0
 }
 
 fn render_still(bytes: &[u8], samples: u32) -> Image {
@@ -423,7 +423,7 @@ fn glossy_builds_are_deterministic_and_reuse_the_prototype_library() {
     let run = |threads: usize| {
         let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
         pool.install(|| {
-            let seq = build::build_sequence(&scene, &settings, &NoProgress).unwrap();
+            let seq = bake::build_sequence(&scene, &settings, &NoProgress).unwrap();
             (archive::write_to_vec(&seq.contents).unwrap(), seq.stats)
         })
     };

@@ -5,7 +5,7 @@
 use std::path::{Path, PathBuf};
 
 use illumnet::archive::{self, Archive, layout::tag};
-use illumnet::build::{self, BuildSettings};
+use illumnet::bake::{self, BuildSettings};
 use illumnet::distribute::{DistributeOptions, Distributor, Lighting, Solution};
 use illumnet::progress::NoProgress;
 use illumnet::scene::{BuildHints, Scene};
@@ -20,8 +20,8 @@ fn write(scene: &Scene, hints: BuildHints, dir: &Path) -> PathBuf {
     let mut settings = BuildSettings::resolve(scene, hints);
     settings.prototype_library = None;
     let contents = match scene.frame_count() > 1 {
-        true => build::build_sequence(scene, &settings, &NoProgress).unwrap().contents,
-        false => build::build(scene, &settings, &NoProgress).unwrap().0,
+        true => bake::build_sequence(scene, &settings, &NoProgress).unwrap().contents,
+        false => bake::build(scene, &settings, &NoProgress).unwrap().0,
     };
     let path = dir.join("scene.inet");
     archive::write(&path, &contents).unwrap();

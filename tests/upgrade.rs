@@ -161,7 +161,7 @@ fn version_9_archives_upgrade_to_the_bytes_of_a_fresh_build() {
     // still of 120 253 patches (two sender chunks: rows re-ordered) and a
     // 4-frame sequence with buckets.
     use illumnet::archive::{self, layout::CHUNK_PATCHES};
-    use illumnet::build::{self, BuildSettings};
+    use illumnet::bake::{self, BuildSettings};
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let v9 = |name: &str| root.join("tests/data/v9").join(name);
     let dir = tempfile::tempdir().unwrap();
@@ -196,8 +196,8 @@ fn version_9_archives_upgrade_to_the_bytes_of_a_fresh_build() {
         settings.prototype_library = None;
         settings.patch_order = illumnet::patch::order::PatchOrder::Primitives;
         let fresh = match scene.animation.is_some() {
-            true => build::build_sequence(&scene, &settings, &NoProgress).unwrap().contents,
-            false => build::build(&scene, &settings, &NoProgress).unwrap().0,
+            true => bake::build_sequence(&scene, &settings, &NoProgress).unwrap().contents,
+            false => bake::build(&scene, &settings, &NoProgress).unwrap().0,
         };
         assert!(archive::write_to_vec(&fresh).unwrap() == new, "{name}: not the bytes of a fresh build");
         if name == "chunks" {

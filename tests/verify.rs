@@ -9,7 +9,7 @@ use std::path::Path;
 use common::CAMERA;
 use illumnet::archive::layout::{self, DeltaIndexRecord, SectionEntry, tag};
 use illumnet::archive::{self, Archive, ArchiveContents, verify::verify};
-use illumnet::build::{self, BuildSettings};
+use illumnet::bake::{self, BuildSettings};
 use illumnet::progress::NoProgress;
 use illumnet::scene::{BuildHints, Scene};
 
@@ -31,7 +31,7 @@ fn contents(text: &str, dir: &Path) -> ArchiveContents {
     let hints = BuildHints { patch_size: Some(0.25), frequency: Some(4), ray_spacing: Some(0.04), buckets: None };
     let mut settings = BuildSettings::resolve(&scene, hints);
     settings.prototype_library = None;
-    build::build_sequence(&scene, &settings, &NoProgress).unwrap().contents
+    bake::build_sequence(&scene, &settings, &NoProgress).unwrap().contents
 }
 
 /// A floor mesh of 128 small triangles, for grouped patches.

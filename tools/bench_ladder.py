@@ -16,7 +16,8 @@ numpy matplotlib; without them the script runs and says what it skipped.
 
 Rungs need disk: the script checks free space (archive + spilled runs)
 and says what it skipped. Large rungs take many minutes: run them once
-and record them in docs/PERFORMANCE.md; they are not for CI.
+and record them as a docs/notebook/YYYY-MM-DD-ladder-*.md entry (and
+the "Scale ladder" table of docs/PERFORMANCE.md); they are not for CI.
 
 Usage: tools/bench_ladder.py [--rungs 1,2,3,4] [--dir DIR] [--keep]
                              [--plot docs/images/ladder.png] [--threads1]

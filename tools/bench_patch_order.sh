@@ -9,7 +9,7 @@
 #
 # Scenes: the default Cornell box (8 539 patches), and buildings from
 # tools/gen_building.py cut into ~10^6 patches: 4 x 4 rooms at patch 0.036 m
-# (rung 3' of docs/PERFORMANCE.md: ~65 000 patches, 1 MiB of state, a room)
+# (rung 3' of docs/notebook/2026-12-02-ladder-format-7.md: ~65 000 patches, 1 MiB of state, a room)
 # and 8 x 8 rooms at 0.072 m (~16 500 patches a room). Needs ~15 GB of disk
 # and ~10 GB of memory for the building builds; takes ~15 minutes.
 # Usage: tools/bench_patch_order.sh [ROUNDS]   (default 4)

@@ -8,7 +8,7 @@ a build prints `memory: ...` when tracing ends and `built ...` after writing.
 At the end it prints the peak and when it was first reached.
 
 Usage: tools/rss_trace.py [--interval S] LOG -- COMMAND [ARGS...]
-Example (docs/PERFORMANCE.md, the ladder):
+Example (docs/notebook/2026-12-05-bounded-build-peaks.md):
   tools/rss_trace.py b4.log -- target/release/illumnet build b.toml \\
       --frequency 16 --patch-size 0.036 --ray-spacing 0.018 --memory-budget 1800M -o b4.inet
 """

@@ -14,7 +14,7 @@ use std::sync::OnceLock;
 
 use illumnet::archive::layout::{self, HeaderRecord, SectionEntry};
 use illumnet::archive::{self, Archive};
-use illumnet::build::{self, BuildSettings};
+use illumnet::bake::{self, BuildSettings};
 use illumnet::distribute::{DistributeOptions, Distributor, Lighting};
 use illumnet::progress::NoProgress;
 use illumnet::render::{self, RenderOptions, Renderer};
@@ -38,7 +38,7 @@ fn seed(text: &str) -> Vec<u8> {
     let hints = BuildHints { patch_size: Some(0.4), frequency: Some(2), ray_spacing: Some(0.08), buckets: None };
     let mut settings = BuildSettings::resolve(&scene, hints);
     settings.prototype_library = None;
-    archive::write_to_vec(&build::build_sequence(&scene, &settings, &NoProgress).unwrap().contents).unwrap()
+    archive::write_to_vec(&bake::build_sequence(&scene, &settings, &NoProgress).unwrap().contents).unwrap()
 }
 
 static SEEDS: OnceLock<[Vec<u8>; 3]> = OnceLock::new();

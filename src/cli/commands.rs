@@ -5,7 +5,7 @@ use std::time::Instant;
 
 use anyhow::{Context, Result};
 use illumnet::archive::{self, Archive, tag_name};
-use illumnet::build::{self, BuildSettings};
+use illumnet::bake::{self, BuildSettings};
 use illumnet::distribute::{self, DistributeOptions};
 use illumnet::geodesic::DirectionSetKind;
 use illumnet::geometry;
@@ -35,9 +35,9 @@ fn build_scene(scene: &Scene, output: &Path, args: &BuildArgs, progress: &dyn Pr
         );
     }
     let quality = match args.quality {
-        super::Quality::Draft => build::Quality::Draft,
-        super::Quality::Default => build::Quality::Default,
-        super::Quality::High => build::Quality::High,
+        super::Quality::Draft => bake::Quality::Draft,
+        super::Quality::Default => bake::Quality::Default,
+        super::Quality::High => bake::Quality::High,
     };
     let mut settings = BuildSettings::resolve_with(scene, hints(args), quality);
     if args.ray_space {
@@ -80,11 +80,11 @@ fn build_scene(scene: &Scene, output: &Path, args: &BuildArgs, progress: &dyn Pr
             output.display()
         );
     }
-    let bound = build::MemoryBound { budget: budget.bytes, output: output.to_path_buf() };
+    let bound = bake::MemoryBound { budget: budget.bytes, output: output.to_path_buf() };
     let t = Instant::now();
-    let (seq, mut spilled) = match build::build_sequence_bounded(scene, &settings, &bound, progress) {
+    let (seq, mut spilled) = match bake::build_sequence_bounded(scene, &settings, &bound, progress) {
         Ok(x) => x,
-        Err(build::BuildError::Failed(m)) => return Err(BadInput(m).into()),
+        Err(bake::BuildError::Failed(m)) => return Err(BadInput(m).into()),
         Err(e) => return Err(e.into()),
     };
     for w in &seq.warnings {

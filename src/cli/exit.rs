@@ -148,11 +148,11 @@ pub fn code(err: &anyhow::Error) -> u8 {
         if cause.is::<BudgetError>() {
             return BUDGET;
         }
-        if let Some(e) = cause.downcast_ref::<illumnet::build::BuildError>() {
+        if let Some(e) = cause.downcast_ref::<illumnet::bake::BuildError>() {
             return match e {
-                illumnet::build::BuildError::OverBudget { .. } => BUDGET,
-                illumnet::build::BuildError::Scratch(_) => IO,
-                illumnet::build::BuildError::Failed(_) => BAD_INPUT,
+                illumnet::bake::BuildError::OverBudget { .. } => BUDGET,
+                illumnet::bake::BuildError::Scratch(_) => IO,
+                illumnet::bake::BuildError::Failed(_) => BAD_INPUT,
             };
         }
         if let Some(e) = cause.downcast_ref::<ArchiveError>() {

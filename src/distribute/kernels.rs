@@ -84,8 +84,8 @@ impl StateRows for &[[f32; 4]] {
 /// gather runs the same instructions over three quarters of the memory:
 /// 1.14× faster on a 10⁶-patch building in primitive order (which
 /// sequences keep), 1.0–1.05× in spatial order, as fast on the default
-/// Cornell box, whose state fits in L2 anyway (docs/PERFORMANCE.md,
-/// "Packed state"). RGB sums are bit for bit those of the unpacked state.
+/// Cornell box, whose state fits in L2 anyway (docs/notebook/
+/// 2026-12-05-packed-state.md). RGB sums are bit for bit those of the unpacked state.
 #[derive(Debug, Default)]
 pub(super) struct PackedRgb {
     rgb: Vec<f32>,

@@ -5,7 +5,7 @@
 //! `m × m` grid over `[-1, 1]²`, giving `N = 6m²` directions that bunch up
 //! towards the cube's corners by up to 3√3 ≈ 5.2 in solid angle. Its rays
 //! pass through common points of an intercept plane perpendicular to `e_a`
-//! (see `build::trace`), so oblique rays are denser by `1/cos`. Both defects
+//! (see `bake::trace`), so oblique rays are denser by `1/cos`. Both defects
 //! are what geodesic I-nets remove; this set exists to measure that.
 
 use glam::DVec3;

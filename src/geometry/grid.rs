@@ -10,7 +10,7 @@
 //! edges. Tiles keep cells that are near in space near in number in both
 //! directions, so the distribution's gathers, whose neighbouring receivers
 //! read neighbouring senders along a direction, stay in the cache (issue 11;
-//! docs/PERFORMANCE.md).
+//! docs/notebook/2026-12-02-format-7.md).
 //!
 //! A triangle is cut into `k²` similar sub-triangles (`k = n_u = n_v`). Grid
 //! vertex `(i, j)` (`i + j ≤ k`, at barycentrics `(i/k, j/k)`) has local index

@@ -26,7 +26,7 @@ pub const MAX_PATCHES: u64 = 1 << 30;
 pub const MAX_GRID: u32 = 1 << 16;
 
 /// How builds number a quad's patches unless told otherwise: in tiles,
-/// whose locality the distribution's gathers use (docs/PERFORMANCE.md).
+/// whose locality the distribution's gathers use (docs/notebook/2026-12-02-format-7.md).
 pub const DEFAULT_CELL_ORDER: CellOrder = CellOrder::Tiles;
 
 /// Where one primitive's patches and vertices start.

@@ -2,7 +2,7 @@
 //! state of every link end's other patch; a patch's links mostly stay in
 //! its room, so numbering the patches of primitives near each other
 //! together keeps a receiver's senders within a few cache-sized stretches
-//! of state (`docs/PERFORMANCE.md`, "Format version 11"). Primitives
+//! of state (`docs/notebook/2026-12-05-format-11-spatial-order.md`). Primitives
 //! come in scene order, a surface's primitives together (every wall of a
 //! building, then every floor): a spatial order takes their patch blocks
 //! along a Morton curve over the primitives' centres instead.

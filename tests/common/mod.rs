@@ -4,7 +4,7 @@
 use std::path::Path;
 
 use illumnet::archive::{self, Archive, InetView};
-use illumnet::build::{self, BuildSettings};
+use illumnet::bake::{self, BuildSettings};
 use illumnet::distribute::{self, DistributeOptions, Solution};
 use illumnet::progress::NoProgress;
 use illumnet::scene::{BuildHints, Scene};
@@ -22,7 +22,7 @@ pub fn scene(toml: &str) -> Scene {
 pub fn build_archive(scene: &Scene, hints: BuildHints) -> Archive {
     let mut settings = BuildSettings::resolve(scene, hints);
     settings.prototype_library = None; // tests leave no files behind
-    let (contents, _) = build::build(scene, &settings, &NoProgress).unwrap();
+    let (contents, _) = bake::build(scene, &settings, &NoProgress).unwrap();
     Archive::from_bytes(&archive::write_to_vec(&contents).unwrap()).unwrap()
 }
 
@@ -31,7 +31,7 @@ pub fn build_archive(scene: &Scene, hints: BuildHints) -> Archive {
 pub fn build_sequence_archive(scene: &Scene, hints: BuildHints) -> Archive {
     let mut settings = BuildSettings::resolve(scene, hints);
     settings.prototype_library = None;
-    let seq = build::build_sequence(scene, &settings, &NoProgress).unwrap();
+    let seq = bake::build_sequence(scene, &settings, &NoProgress).unwrap();
     Archive::from_bytes(&archive::write_to_vec(&seq.contents).unwrap()).unwrap()
 }
 
@@ -84,6 +84,6 @@ pub fn coarse_box_archive(out: &Path) {
     let hints = BuildHints { frequency: Some(6), patch_size: Some(0.05), ..Default::default() };
     let mut settings = BuildSettings::resolve(&scene, hints);
     settings.prototype_library = None;
-    let (contents, _) = build::build(&scene, &settings, &NoProgress).unwrap();
+    let (contents, _) = bake::build(&scene, &settings, &NoProgress).unwrap();
     std::fs::write(out, archive::write_to_vec(&contents).unwrap()).unwrap();
 }

@@ -438,7 +438,7 @@ pub fn build_sequence_with_links(
 /// per-primitive records, a grouped mesh's shared vertices and welding
 /// map, and their peaks while being made. Measured with a building of 18
 /// rooms holding 4.2·10⁶ triangles of meshes (tools/gen_building.py
-/// --mesh, docs/PERFORMANCE.md): 418 bytes at its peak before tracing.
+/// --mesh, docs/notebook/2026-12-02-meshes.md): 418 bytes at its peak before tracing.
 const SETUP_BYTES_PER_PRIMITIVE: u64 = 420;
 
 /// Resident bytes per primitive of the BVH while it is built (the same

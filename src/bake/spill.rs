@@ -697,7 +697,7 @@ fn merge_group(group: &[Run], path: &Path) -> std::io::Result<Run> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::build::links::assemble;
+    use crate::bake::links::assemble;
 
     #[test]
     fn a_plan_fills_its_room_and_no_more() {
