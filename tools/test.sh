@@ -7,7 +7,11 @@
 #      every suite: CI used to build the crate and its dependencies twice
 #      (release, then this profile for the damage matrix alone);
 #   2. the library's documentation, with warnings denied;
-#   3. a short smoke run of each fuzz target, when cargo-fuzz is installed
+#   3. the guide (docs/guide/, an mdBook) built with `mdbook build`, when
+#      mdbook is installed (`cargo install mdbook --locked`; .ci/run does;
+#      skipped with a note otherwise). Its links, the README's tour and the
+#      command-line reference are checked by tests/docs.rs in step 1;
+#   4. a short smoke run of each fuzz target, when cargo-fuzz is installed
 #      (tools/fuzz; skipped with a note otherwise).
 # Each step prints how long it took (CI must stay under 30 minutes).
 set -euo pipefail
@@ -22,6 +26,13 @@ step "tests (profile test)" cargo test
 # In the test profile too, which reuses its build scripts and proc macros
 # (66 s; 346 s in the dev profile, measured on a fresh clone 2026-12-04).
 step "docs" env RUSTDOCFLAGS="-D warnings" cargo doc --no-deps --quiet --profile test
+if command -v mdbook >/dev/null 2>&1; then
+    guide_out=$(mktemp -d)
+    step "guide (mdbook build)" mdbook build docs/guide -d "$guide_out"
+    rm -rf "$guide_out"
+else
+    echo "tools/test.sh: mdbook not installed: guide build skipped (cargo install mdbook --locked)"
+fi
 if [[ -x tools/fuzz ]] && command -v cargo-fuzz >/dev/null 2>&1; then
     step "fuzz smoke" tools/fuzz smoke
 else
