@@ -1,0 +1,220 @@
+#!/usr/bin/env bash
+# A frame farm on a real single-node Slurm (tools/slurm/local-cluster.sh):
+# the fan room is built once, frames 0..12 are rendered by a throttled job
+# array (4 tasks of 3 frames, at most 2 at once), a job that depends on the
+# array (afterok) checks that every frame is there, and each frame must equal,
+# byte for byte, the same frame of one local `--frames 0..12 --cold` render
+# (docs/CLUSTER.md: a --cold frame does not depend on the range it is in).
+# Then no daemon of the cluster may be left, nor anything on its ports.
+#
+#   ILLUMNET=/path/to/illumnet tools/slurm/test-frame-farm.sh
+#
+# Environment: ILLUMNET (default target/release/illumnet), FARM_DIR (work
+# directory, default a fresh mktemp -d; removed after a success unless
+# FARM_KEEP=1), FARM_TIMEOUT (seconds for the farm, default 300), and
+# local-cluster.sh's LOCAL_SLURM_* (ports, timeouts). Exit 0 only if all holds.
+set -euo pipefail
+
+here=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd -P)
+root=$(cd "$here/../.." && pwd -P)
+cd "$root"
+prog=test-frame-farm.sh
+
+frames=12 # frames 0..12 of the fan room's sequence
+tasks=4   # array tasks 0-3
+throttle=2
+size=64x64
+
+say() { echo "$prog: $*" >&2; }
+die() {
+    say "FAILED: $*"
+    exit 1
+}
+now() { echo "$EPOCHREALTIME"; }
+since() { awk -v a="$1" -v b="$EPOCHREALTIME" 'BEGIN { printf "%.1f", b - a }'; }
+
+# --------------------------------------------------------------- in the cluster
+
+# A job's field from `scontrol show job -o` (one line per job or array task).
+job_field() { # job field
+    scontrol show job -o "$1" 2>/dev/null | grep -o "\b$2=[^ ]*" | sed "s/^$2=//"
+}
+
+in_cluster() { # work
+    local work=$1 t arr check state reason deadline f i per
+    [[ -n ${SLURM_CONF:-} ]] || die "SLURM_CONF is not set: run through local-cluster.sh run"
+    cat "$LOCAL_SLURM_RUN_DIR"/{munged,slurmctld,slurmd}.pid >"$work/daemon-pids"
+    sed -n 's/^Slurm\(ctld\|d\)Port=//p' "$SLURM_CONF" >"$work/daemon-ports"
+    sinfo
+
+    t=$(now)
+    "$ILLUMNET" build scenes/fan_room.toml --quality draft -o "$work/fan.inet" >"$work/build.log" 2>&1 ||
+        die "the build failed: $work/build.log"
+    say "built the fan room in $(since "$t") s"
+
+    mkdir -p "$work/out" "$work/logs" "$work/timeline"
+    per=$(((frames + tasks - 1) / tasks))
+    # One array task: its share of the frames, with its start and end times
+    # for the check job (the dependency) and the overlap (the throttle).
+    cat >"$work/farm-task.sh" <<EOF
+#!/bin/bash
+set -euo pipefail
+a=\$((SLURM_ARRAY_TASK_ID * $per))
+b=\$((a + $per))
+((b <= $frames)) || b=$frames
+echo "start \$EPOCHREALTIME" >"$work/timeline/task_\$SLURM_ARRAY_TASK_ID"
+echo "task \$SLURM_ARRAY_TASK_ID of job \$SLURM_ARRAY_JOB_ID on \$SLURMD_NODENAME: frames \$a..\$b"
+"$ILLUMNET" render "$work/fan.inet" --frames "\$a..\$b" --cold --size $size --threads 1 -q \\
+    -o "$work/out/frame_%04d.png"
+echo "end \$EPOCHREALTIME" >>"$work/timeline/task_\$SLURM_ARRAY_TASK_ID"
+EOF
+    # The dependent job: every frame exists, and every task ended before it
+    # started.
+    cat >"$work/farm-check.sh" <<EOF
+#!/bin/bash
+set -euo pipefail
+started=\$EPOCHREALTIME
+missing=0
+for ((i = 0; i < $frames; i++)); do
+    f=\$(printf "$work/out/frame_%04d.png" "\$i")
+    [[ -s \$f ]] || { echo "missing \$f"; missing=\$((missing + 1)); }
+done
+echo "frames present: \$(($frames - missing))/$frames"
+for ((i = 0; i < $tasks; i++)); do
+    end=\$(sed -n 's/^end //p' "$work/timeline/task_\$i")
+    [[ -n \$end ]] || { echo "task \$i has no end time"; exit 1; }
+    awk -v e="\$end" -v s="\$started" 'BEGIN { exit !(e <= s) }' ||
+        { echo "task \$i ended at \$end, after this job started at \$started"; exit 1; }
+done
+echo "all $tasks tasks ended before this job started"
+((missing == 0))
+EOF
+    chmod +x "$work/farm-task.sh" "$work/farm-check.sh"
+
+    t=$(now)
+    arr=$(sbatch --parsable --job-name=fan-farm --array=0-$((tasks - 1))%$throttle --cpus-per-task=1 \
+        --chdir="$work" --output="$work/logs/farm_%A_%a.out" "$work/farm-task.sh")
+    arr=${arr%%;*}
+    check=$(sbatch --parsable --job-name=fan-check --dependency=afterok:"$arr" --kill-on-invalid-dep=yes \
+        --chdir="$work" --output="$work/logs/check_%j.out" "$work/farm-check.sh")
+    check=${check%%;*}
+    say "submitted array job $arr (tasks 0-$((tasks - 1)), at most $throttle at once) and check job $check (afterok:$arr)"
+    [[ $(job_field "$arr" ArrayTaskThrottle | head -n 1) == "$throttle" ]] ||
+        die "scontrol does not show ArrayTaskThrottle=$throttle for job $arr"
+    squeue
+
+    deadline=$((SECONDS + ${FARM_TIMEOUT:-300}))
+    while true; do
+        state=$(job_field "$check" JobState)
+        case $state in
+        COMPLETED) break ;;
+        PENDING | CONFIGURING | RUNNING | COMPLETING) ;;
+        *)
+            reason=$(job_field "$check" Reason)
+            scontrol show job -o "$arr" | grep -o 'ArrayTaskId=[^ ]*\|JobState=[^ ]*\|ExitCode=[^ ]*' |
+                paste -d ' ' - - - >&2 || true
+            tail -n +1 "$work"/logs/*.out >&2 || true
+            die "check job $check ended $state (reason ${reason:-none}): logs in $work/logs"
+            ;;
+        esac
+        if ((SECONDS >= deadline)); then
+            squeue >&2 || true
+            die "the farm did not finish within ${FARM_TIMEOUT:-300} s (check job $check is $state)"
+        fi
+        sleep 0.5
+    done
+    farm_s=$(since "$t")
+    cat "$work"/logs/check_*.out
+    # Every array task completed with exit code 0.
+    scontrol show job -o "$arr" | grep -o 'ArrayTaskId=[^ ]*\|JobState=[^ ]*\|ExitCode=[^ ]*' |
+        paste -d ' ' - - - >"$work/array-states"
+    cat "$work/array-states"
+    [[ $(grep -c 'JobState=COMPLETED ExitCode=0:0' "$work/array-states") == "$tasks" ]] ||
+        die "not every array task completed with exit code 0 (see $work/array-states)"
+    # The throttle: never more than $throttle tasks at once.
+    local overlap
+    overlap=$(for f in "$work"/timeline/task_*; do
+        awk '{ print $2, ($1 == "start" ? 1 : -1) }' "$f"
+    done | sort -n -k1,1 -k2,2n | awk '{ n += $2; if (n > m) m = n } END { print m }')
+    say "farm: $tasks tasks and the check job done in $farm_s s after submission; at most $overlap tasks ran at once"
+    ((overlap <= throttle)) || die "$overlap tasks ran at once, above the throttle of $throttle"
+    echo "$farm_s" >"$work/farm-seconds"
+}
+
+# --------------------------------------------------------------- outside
+
+outside() {
+    local work t0 t rc=0 pid port i f mismatched=0 left=0
+    ILLUMNET=${ILLUMNET:-target/release/illumnet}
+    [[ -x $ILLUMNET ]] || die "no illumnet binary at $ILLUMNET (set ILLUMNET, or cargo build --release)"
+    ILLUMNET=$(cd "$(dirname "$ILLUMNET")" && pwd -P)/$(basename "$ILLUMNET")
+    export ILLUMNET
+    if [[ -n ${FARM_DIR:-} ]]; then
+        mkdir -p "$FARM_DIR"
+        work=$(cd "$FARM_DIR" && pwd -P)
+    else
+        work=$(mktemp -d)
+    fi
+    chmod 0755 "$work" # the cluster's munged runs as the munge user
+    say "work directory $work, illumnet $ILLUMNET"
+
+    t0=$(now)
+    "$here/local-cluster.sh" run "$work/cluster" -- "$here/$prog" --in-cluster "$work" || rc=$?
+    say "local-cluster.sh run: status $rc, $(since "$t0") s (start, build, farm, stop)"
+
+    # No daemon of the cluster is left, and nothing listens on its ports.
+    local pids=() ports=()
+    [[ ! -f $work/daemon-pids ]] || mapfile -t pids <"$work/daemon-pids"
+    [[ ! -f $work/daemon-ports ]] || mapfile -t ports <"$work/daemon-ports"
+    for pid in "${pids[@]}"; do
+        if [[ -e /proc/$pid ]] && ! grep -q '^State:[[:space:]]*Z' "/proc/$pid/status" 2>/dev/null; then
+            say "daemon pid $pid still runs: $(ps -o args= -p "$pid" || true)"
+            left=1
+        fi
+    done
+    for port in "${ports[@]}"; do
+        if [[ -n $(ss -Hltn "sport = :$port") ]]; then
+            say "something still listens on port $port: $(ss -Hltnp "sport = :$port")"
+            left=1
+        fi
+    done
+    ((rc == 0)) || die "the farm failed (status $rc): work directory $work kept"
+    [[ -s $work/daemon-pids ]] || die "no daemon PIDs were recorded"
+    ((left == 0)) || die "the cluster left processes or ports behind"
+    say "no daemon left (pids ${pids[*]}), nothing listens on ports ${ports[*]}"
+
+    t=$(now)
+    mkdir -p "$work/ref"
+    "$ILLUMNET" render "$work/fan.inet" --frames 0..$frames --cold --size $size -q \
+        -o "$work/ref/frame_%04d.png" >"$work/ref.log" 2>&1 || die "the local render failed: $work/ref.log"
+    say "rendered frames 0..$frames locally, in one run, in $(since "$t") s"
+    for ((i = 0; i < frames; i++)); do
+        f=$(printf 'frame_%04d.png' "$i")
+        if [[ ! -s $work/out/$f ]]; then
+            say "$f: missing from the farm"
+            mismatched=$((mismatched + 1))
+        elif ! cmp -s "$work/out/$f" "$work/ref/$f"; then
+            say "$f: the farm's differs from the local render"
+            mismatched=$((mismatched + 1))
+        fi
+    done
+    # The frames show the fan turning: not one image twelve times.
+    local distinct
+    distinct=$(md5sum "$work"/ref/frame_*.png | awk '{ print $1 }' | sort -u | wc -l)
+    ((distinct > 1)) || die "all $frames reference frames are the same image"
+    echo "frame farm on Slurm: $((frames - mismatched))/$frames frames identical to the local render ($distinct distinct images);" \
+        "farm $(cat "$work/farm-seconds") s, whole run $(since "$t0") s"
+    ((mismatched == 0)) || die "$mismatched of $frames frames differ: work directory $work kept"
+    if [[ -n ${FARM_KEEP:-} || -n ${FARM_DIR:-} ]]; then
+        say "kept $work"
+    else
+        rm -rf "$work"
+    fi
+    echo "$prog: PASSED"
+}
+
+if [[ ${1:-} == --in-cluster ]]; then
+    in_cluster "$2"
+else
+    outside
+fi
