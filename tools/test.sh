@@ -11,7 +11,11 @@
 #      mdbook is installed (`cargo install mdbook --locked`; .ci/run does;
 #      skipped with a note otherwise). Its links, the README's tour and the
 #      command-line reference are checked by tests/docs.rs in step 1;
-#   4. a short smoke run of each fuzz target, when cargo-fuzz is installed
+#   4. a frame farm on a real single-node Slurm (tools/slurm/: Debian's
+#      slurm-wlm and munge, installed by the script, daemons on loopback,
+#      stopped by their PIDs), when run as root (apt and the munge user need
+#      it; skipped with a note otherwise; ILLUMNET_SKIP_SLURM=1 skips it);
+#   5. a short smoke run of each fuzz target, when cargo-fuzz is installed
 #      (tools/fuzz; skipped with a note otherwise).
 # Each step prints how long it took (CI must stay under 30 minutes).
 set -euo pipefail
@@ -32,6 +36,13 @@ if command -v mdbook >/dev/null 2>&1; then
     rm -rf "$guide_out"
 else
     echo "tools/test.sh: mdbook not installed: guide build skipped (cargo install mdbook --locked)"
+fi
+if [[ ${ILLUMNET_SKIP_SLURM:-} == 1 ]]; then
+    echo "tools/test.sh: ILLUMNET_SKIP_SLURM=1: Slurm frame farm skipped"
+elif [[ $EUID -eq 0 ]]; then
+    step "slurm frame farm" env ILLUMNET="${CARGO_TARGET_DIR:-target}/debug/illumnet" bash tools/slurm/test-frame-farm.sh
+else
+    echo "tools/test.sh: not root: Slurm frame farm skipped (tools/slurm/README.md)"
 fi
 if [[ -x tools/fuzz ]] && command -v cargo-fuzz >/dev/null 2>&1; then
     step "fuzz smoke" tools/fuzz smoke
