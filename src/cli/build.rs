@@ -157,6 +157,7 @@ pub fn run(command: BuildCommand, progress: &dyn Progress) -> Result<()> {
     build(&scene, &gltf.options(), &output, frame, settings, progress)
 }
 
+/// The sizes given on the command line, over the scene's own.
 fn hints(a: &BuildArgs) -> BuildHints {
     BuildHints { patch_size: a.patch_size, frequency: a.frequency, ray_spacing: a.ray_spacing, buckets: a.buckets }
 }

@@ -97,6 +97,8 @@ pub fn facing_nearby(v: &archive::InetView<'_>, names: &[String], patch_size: f3
     Ok(out)
 }
 
+/// Prints what `inspect --surface NAME` says of the surface `name` of the
+/// archive at `path` (text or JSON).
 pub fn inspect_surface(path: &Path, name: &str, json: bool) -> Result<()> {
     let archive = opened(path, Archive::open_streamed(path, archive::CHUNK_ENDS))?;
     let v = archive.view();
