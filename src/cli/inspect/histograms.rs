@@ -7,7 +7,7 @@ use std::path::Path;
 use anyhow::Result;
 use illumnet::archive::{self, Archive, ArchiveError, Columns};
 
-use super::commands::opened;
+use crate::cli::common::opened;
 
 /// A histogram: a name, the unit of what it counts, and bins.
 struct Histogram {
@@ -74,9 +74,21 @@ fn length_bins(counts: &[u64], lo: i32) -> Vec<Bin> {
 /// Shortest length bin's upper end: 2^-10 m, about a millimetre.
 const LENGTH_LO: i32 = -10;
 
+/// Prints `inspect --histograms` of the archive at `path` (text or
+/// JSON), and draws them as charts in `charts` if given.
 pub fn inspect_histograms(path: &Path, json: bool, charts: Option<&Path>) -> Result<()> {
     let archive = opened(path, Archive::open_streamed(path, archive::CHUNK_ENDS))?;
-    let v = archive.view();
+    let hists = histograms_of(&archive.view())?;
+    if let Some(dir) = charts {
+        draw_charts(dir, &hists)?;
+    }
+    print_histograms(&hists, json)
+}
+
+/// Every histogram of an archive: per patch (link ends, hits), over its
+/// link ends in one pass (lengths, directions, buckets), and of its
+/// glossy patches and sequence if it has them.
+fn histograms_of(v: &archive::InetView<'_>) -> Result<Vec<Histogram>> {
     let n = v.patch_count();
     let mut hists = vec![
         Histogram {
@@ -162,22 +174,30 @@ pub fn inspect_histograms(path: &Path, json: bool, charts: Option<&Path>) -> Res
             bins: log2_bins(s.index.iter().map(|d| d.count)),
         });
     }
-    if let Some(dir) = charts {
-        let charts: Vec<super::charts::Chart<'_>> = hists
-            .iter()
-            .map(|h| super::charts::Chart {
-                key: h.key,
-                title: &h.title,
-                counts_what: counted(h.key),
-                bins_what: binned(h.key),
-                labels: h.bins.iter().map(|b| number_label(b.from)).collect(),
-                counts: h.bins.iter().map(|b| b.count).collect(),
-            })
-            .collect();
-        for p in super::charts::write_charts(dir, &charts)? {
-            eprintln!("wrote chart {}", p.display());
-        }
+    Ok(hists)
+}
+
+/// Draws every histogram as a PNG bar chart in `dir`.
+fn draw_charts(dir: &Path, hists: &[Histogram]) -> Result<()> {
+    let charts: Vec<super::charts::Chart<'_>> = hists
+        .iter()
+        .map(|h| super::charts::Chart {
+            key: h.key,
+            title: &h.title,
+            counts_what: counted(h.key),
+            bins_what: binned(h.key),
+            labels: h.bins.iter().map(|b| number_label(b.from)).collect(),
+            counts: h.bins.iter().map(|b| b.count).collect(),
+        })
+        .collect();
+    for p in super::charts::write_charts(dir, &charts)? {
+        eprintln!("wrote chart {}", p.display());
     }
+    Ok(())
+}
+
+/// Prints the histograms, as JSON or as text with bars.
+fn print_histograms(hists: &[Histogram], json: bool) -> Result<()> {
     if json {
         let out: serde_json::Map<String, serde_json::Value> = hists
             .iter()
@@ -193,7 +213,7 @@ pub fn inspect_histograms(path: &Path, json: bool, charts: Option<&Path>) -> Res
         println!("{}", serde_json::to_string_pretty(&serde_json::json!({ "histograms": out }))?);
         return Ok(());
     }
-    for h in &hists {
+    for h in hists {
         println!("{}", h.title);
         let most = h.bins.iter().map(|b| b.count).max().unwrap_or(0).max(1);
         for b in &h.bins {
@@ -205,7 +225,6 @@ pub fn inspect_histograms(path: &Path, json: bool, charts: Option<&Path>) -> Res
     Ok(())
 }
 
-/// What a histogram's bins count.
 /// What a histogram's bins measure (the chart's x axis).
 fn binned(key: &str) -> &'static str {
     match key {
@@ -220,6 +239,7 @@ fn binned(key: &str) -> &'static str {
     }
 }
 
+/// What a histogram's bins count.
 fn counted(key: &str) -> &'static str {
     match key {
         "link_ends_per_patch" | "hits_over_expected" => "patches",

@@ -8,7 +8,8 @@ use std::path::Path;
 use anyhow::Result;
 use illumnet::archive::{self, Archive};
 
-use super::exit::BadInput;
+use crate::cli::common::opened;
+use crate::cli::exit::BadInput;
 
 /// Patches whose link rows are read at once.
 const BLOCK: usize = 4096;
@@ -96,8 +97,10 @@ pub fn facing_nearby(v: &archive::InetView<'_>, names: &[String], patch_size: f3
     Ok(out)
 }
 
+/// Prints what `inspect --surface NAME` says of the surface `name` of the
+/// archive at `path` (text or JSON).
 pub fn inspect_surface(path: &Path, name: &str, json: bool) -> Result<()> {
-    let archive = super::commands::opened(path, Archive::open_streamed(path, archive::CHUNK_ENDS))?;
+    let archive = opened(path, Archive::open_streamed(path, archive::CHUNK_ENDS))?;
     let v = archive.view();
     let meta = archive.meta();
     let names = &meta.surface_names;

@@ -7,10 +7,10 @@ use std::path::Path;
 use anyhow::Result;
 use plotters::prelude::*;
 
-use super::exit::IoFailure;
+use crate::cli::exit::IoFailure;
 
 /// DejaVu Sans Mono (its licence: `assets/fonts/DejaVu-LICENSE.txt`).
-static FONT: &[u8] = include_bytes!("../../assets/fonts/DejaVuSansMono.ttf");
+static FONT: &[u8] = include_bytes!("../../../assets/fonts/DejaVuSansMono.ttf");
 
 /// Chart size in pixels.
 const SIZE: (u32, u32) = (800, 480);

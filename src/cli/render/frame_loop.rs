@@ -1,0 +1,156 @@
+//! `render`'s frames, one after another: each frame's light solved (from
+//! the previous frame's, unless `--cold`; once for a walkthrough of a
+//! still archive), its camera set, its balance reported and checked, its
+//! image shaded, checked and written.
+
+use std::time::Instant;
+
+use anyhow::Result;
+use illumnet::archive::layout::CameraRecord;
+use illumnet::distribute;
+use illumnet::progress::Progress;
+use illumnet::render;
+
+use crate::cli::exit::ResultRefused;
+
+use super::RenderSetup;
+use super::balance::{print_balance, refuse_unconverged, warn_if_dark};
+use super::options::Shading;
+use super::outputs::{RenderedFrame, write_frame};
+use super::summary::Totals;
+
+/// Renders every frame of `setup.frames` with `renderer`, adding to
+/// `totals`; returns the images when a preview (`--gif`,
+/// `--contact-sheet`) needs them, else none.
+pub fn render_frames(
+    setup: &RenderSetup<'_>,
+    renderer: &mut render::Renderer<'_>,
+    totals: &mut Totals,
+    progress: &dyn Progress,
+) -> Result<Vec<render::Image>> {
+    let args = setup.args;
+    let mut previous: Option<distribute::Solution> = None;
+    let keep_images = setup.extras.gif.is_some() || setup.extras.contact_sheet.is_some();
+    let mut images = Vec::new();
+    let mut warned_dark = false;
+    for f in setup.frames.range.clone() {
+        let t1 = Instant::now();
+        let af = setup.frames.archive_frame(f);
+        // A walkthrough of a still archive solves the light once.
+        let reuse = setup.frames.still_walk && previous.is_some();
+        let solution = match previous.take() {
+            Some(p) if reuse => p,
+            p => {
+                let start = if args.cold { None } else { p.as_ref() };
+                setup.distributor.frame(af, start, progress)?
+            }
+        };
+        if setup.cameras.given() {
+            renderer.set_camera(None);
+            let base = renderer.camera(af);
+            renderer.set_camera(Some(setup.cameras.at(base, f)?));
+        }
+        let camera = renderer.camera(af);
+        totals.size = (camera.width, camera.height);
+        if reuse {
+            println!("frame {f}: the camera moved, the light is frame 0's: 0 iterations");
+        }
+        let b = &solution.balance;
+        if !reuse {
+            totals.iterations += b.iterations;
+            totals.delta_s += solution.delta_s;
+            totals.distribution_s += t1.elapsed().as_secs_f64();
+            totals.ends_gathered += b.ends_gathered as f64;
+            print_balance(f, b, setup.frames.sequence_output(), setup.view);
+        }
+        refuse_unconverged(f, b, args)?;
+        warn_if_dark(f, b, &mut warned_dark);
+        let t2 = Instant::now();
+        let (image, direct) = shade(setup, renderer, af, &solution, &camera);
+        totals.render_s += t2.elapsed().as_secs_f64();
+        if f == setup.frames.range.start {
+            warn_of_the_view(renderer, &image, args.samples, &camera);
+        }
+        refuse_non_finite(f, &image, direct.as_ref())?;
+        let frame = RenderedFrame {
+            number: f,
+            archive_frame: af,
+            camera: &camera,
+            solution: &solution,
+            image: &image,
+            direct: direct.as_ref(),
+        };
+        write_frame(setup, renderer, &frame)?;
+        previous = Some(solution);
+        if keep_images {
+            images.push(image);
+        }
+    }
+    Ok(images)
+}
+
+/// Archive frame `af` shaded as `camera` sees it: with `--shading direct`
+/// the image and its direct light apart, else the I-net's image alone.
+fn shade(
+    setup: &RenderSetup<'_>,
+    renderer: &mut render::Renderer<'_>,
+    af: u32,
+    solution: &distribute::Solution,
+    camera: &CameraRecord,
+) -> (render::Image, Option<render::Image>) {
+    let (args, view) = (setup.args, setup.view);
+    let eye = glam::Vec3::from(camera.position);
+    if args.shading == Shading::Direct {
+        let mut light = render::DirectLight::new(view, solution, args.light_samples);
+        if setup.gather_rays > 0 {
+            light = light.with_gather(view, solution, setup.gather_rays, args.gather_reach);
+        }
+        let (image, direct) =
+            renderer.frame_direct(af, &render::indirect_radiance_seen_from(view, solution, eye), &light);
+        (image, Some(direct))
+    } else {
+        (renderer.frame(af, &render::radiance_seen_from(view, solution, eye)), None)
+    }
+}
+
+/// Warns when the first frame's image shows mostly back faces, or almost
+/// no surface's front (a black image: the camera outside the scene or
+/// looking away).
+fn warn_of_the_view(renderer: &render::Renderer<'_>, image: &render::Image, samples: u32, camera: &CameraRecord) {
+    let samples = image.pixels.len() as f64 * (samples * samples) as f64;
+    let (back, nothing) = (renderer.back_faces as f64 / samples, renderer.nothing_seen as f64 / samples);
+    if back > 0.5 {
+        eprintln!(
+            "illumnet: warning: {:.0}% of the image shows back faces, which render black (surfaces are \
+             one-sided: their front is where the right-hand rule's normal points); is the camera inside \
+             a closed box or are some quads wound the wrong way?",
+            100.0 * back
+        );
+    } else if back + nothing > 0.99 {
+        eprintln!(
+            "illumnet: warning: the camera sees almost no surface's front ({:.0}% of the image shows back \
+             faces, {:.0}% nothing), so the image is black: is it outside the scene or looking away from \
+             it (position {:?}, look_at {:?})? Give one with --camera-position and --look-at",
+            100.0 * back,
+            100.0 * nothing,
+            camera.position,
+            camera.look_at
+        );
+    }
+}
+
+/// Refuses to write frame `f` when its image or direct light has a pixel
+/// that is not finite.
+fn refuse_non_finite(f: u32, image: &render::Image, direct: Option<&render::Image>) -> Result<()> {
+    for (what, im) in [("image", Some(image)), ("direct light", direct)] {
+        if let Some(i) = im.and_then(|im| im.pixels.iter().position(|p| !p.iter().all(|c| c.is_finite()))) {
+            return Err(anyhow::Error::new(ResultRefused(format!(
+                "frame {f}: the {what} has a non-finite pixel ({}, {}): nothing written; the archive holds values \
+                 beyond what its checks bound: please report it, with the archive",
+                i % image.width as usize,
+                i / image.width as usize
+            ))));
+        }
+    }
+    Ok(())
+}
