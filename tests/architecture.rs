@@ -101,7 +101,7 @@ fn modules_use_only_what_architecture_md_allows() {
 fn the_import_scanner_sees_grouped_and_plain_uses() {
     let text = "use crate::archive::{self, X};\nuse crate::{geometry::Primitive, patch};\nfn f() { crate::bake::go() }\n#[cfg(test)]\nmod tests { use crate::scene; }";
     let got: Vec<String> = used_modules(text).into_iter().collect();
-    assert_eq!(got, ["archive", "build", "geometry", "patch"]);
+    assert_eq!(got, ["archive", "bake", "geometry", "patch"]);
 }
 
 // ---------------------------------------------------------------------------
