@@ -12,7 +12,7 @@
 //! ([`crate::distribute::DirectionalRadiance::direct`] taken off).
 //!
 //! Estimator: multiple importance sampling (the balance heuristic) of two
-//! strategies per sample: [`LIGHT_RAYS`] points on the emitters (laid end to
+//! strategies per sample: [`LIGHT_POINTS`] points on the emitters (laid end to
 //! end in proportion to their unshadowed light, stratified across the
 //! pixel's samples, uniform in each emitter's parameters) and
 //! [`LOBE_RAYS`] directions drawn from the lobe's distribution of visible
