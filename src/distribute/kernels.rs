@@ -6,7 +6,6 @@
 
 use rayon::prelude::*;
 
-use super::nondiffuse::NonDiffuse;
 use super::overlay::Ends;
 use crate::archive::{EndRun, LinkWindow, PatchIds};
 
@@ -302,16 +301,31 @@ pub(super) fn gather(
     add_escapes(w, buckets, present, shoot, out);
 }
 
+/// What non-diffuse senders send along link ends ([`add_ends`]): a plain
+/// view of the non-diffuse patches' per-ray power, so that the kernels
+/// need not know the non-diffuse state that makes it
+/// (`NonDiffuse::senders`).
+#[derive(Clone, Copy)]
+pub(super) struct DirectionalSenders<'a> {
+    /// Per patch, its non-diffuse index (`u32::MAX`: diffuse).
+    pub nd_of: &'a [u32],
+    /// Directions in the set.
+    pub directions: usize,
+    /// Per-ray power of non-diffuse patch `k` along direction `d` at
+    /// `k · directions + d` (`NonDiffuse::slot`).
+    pub phi: &'a [[f32; 4]],
+}
+
 /// Adds `sign · Σ w·shoot[other]` over the ends of `ends` to each owner's
 /// bucket slot of `recv` (a sparse gather: owners without ends cost one
-/// offset comparison per bucket), and, given the non-diffuse patches and
-/// their per-ray power `phi`, what non-diffuse senders send along the ends.
+/// offset comparison per bucket), and, given the non-diffuse senders,
+/// what they send along the ends.
 pub(super) fn add_ends(
     ends: &Ends,
     buckets: usize,
     shoot: &[[f32; 4]],
     sign: f32,
-    nd: Option<(&NonDiffuse<'_>, &[[f32; 4]])>,
+    nd: Option<DirectionalSenders<'_>>,
     recv: &mut [[f32; 4]],
 ) {
     recv.par_chunks_mut(BLOCK * buckets).enumerate().for_each(|(block, out)| {
@@ -327,11 +341,11 @@ pub(super) fn add_ends(
                 for c in 0..4 {
                     slot[c] += sign * acc[c];
                 }
-                if let Some((nd, phi)) = nd {
+                if let Some(nd) = nd {
                     for e in run {
                         let j = nd.nd_of[ends.other[e] as usize];
                         if j != u32::MAX {
-                            let p = phi[nd.slot(j, ends.direction[e] ^ 1)];
+                            let p = nd.phi[j as usize * nd.directions + (ends.direction[e] ^ 1) as usize];
                             for c in 0..4 {
                                 slot[c] += sign * ends.weight[e] * p[c];
                             }

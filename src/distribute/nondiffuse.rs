@@ -42,7 +42,9 @@
 
 use rayon::prelude::*;
 
-use super::kernels::{BATCH, BLOCK, LANES, Lanes, TableColumns, gather_table_columns, scatter_table_rows};
+use super::kernels::{
+    BATCH, BLOCK, DirectionalSenders, LANES, Lanes, TableColumns, gather_table_columns, scatter_table_rows,
+};
 use crate::archive::{ArchiveError, Columns, InetView, LinkRows, ReflectanceView};
 
 /// Per-archive state of the non-diffuse patches.
@@ -78,11 +80,8 @@ pub(super) struct NonDiffuse<'a> {
     /// band (its `c_i` is the same in the three), else 3.
     in_scale: Vec<f32>,
     scale_bands: usize,
-    /// Link ends whose other patch is non-diffuse, CSR by receiving patch.
-    corr_offsets: Vec<u64>,
-    corr_weight: Vec<f32>,
-    corr_slot: Vec<u32>,
-    corr_bucket: Vec<u8>,
+    /// Link ends whose other patch is non-diffuse.
+    corrections: Corrections,
     /// Rays of each direction leaving each non-diffuse patch that reach a
     /// facing patch (frame 0's links).
     pub linked: Vec<f32>,
@@ -128,50 +127,9 @@ impl<'a> NonDiffuse<'a> {
                 inverse[o * n + p as usize] = a as u32;
             }
         }
-        let mut rays = vec![-1.0f32; patches.len() * n];
-        let mut back_rays = vec![0.0f32; if r.back_hits.is_some() { patches.len() * n } else { 0 }];
-        for (k, &q) in patches.iter().enumerate() {
-            let nq = v.patch_normal[q as usize];
-            let hits = r.pair_hits(k);
-            let backs = r.back_hits.map(|b| &b[k * (n / 2)..(k + 1) * (n / 2)]);
-            for (o, d) in v.directions.iter().enumerate() {
-                let cos = nq[0] * d.direction[0] + nq[1] * d.direction[1] + nq[2] * d.direction[2];
-                if cos > 0.0 {
-                    rays[k * n + o] = hits[o / 2] as f32;
-                    if let Some(b) = backs {
-                        back_rays[k * n + o] = b[o / 2] as f32;
-                    }
-                }
-            }
-        }
-        // The prototype normal is +y.
-        let inv_weight: Vec<f32> = v
-            .directions
-            .iter()
-            .map(|d| {
-                let w = d.direction[1] * d.solid_angle_sr;
-                if d.direction[1] > 0.0 && w > 0.0 { 1.0 / w } else { 0.0 }
-            })
-            .collect();
-        // Correction list: one scan over the link ends.
-        let mut corr_offsets = Vec::with_capacity(np + 1);
-        let (mut corr_weight, mut corr_slot, mut corr_bucket) = (Vec::new(), Vec::new(), Vec::new());
-        corr_offsets.push(0u64);
-        v.links.for_each_window(Columns::ALL, np, |w| {
-            for q in w.patches.clone() {
-                for (e, other, bucket) in w.ends_of(q) {
-                    let k = nd_of[other as usize];
-                    if k != u32::MAX {
-                        corr_weight.push(w.weight.get(e));
-                        // The sender sends along the antipode of the receiver's direction.
-                        corr_slot.push(k * n as u32 + (w.direction[e] ^ 1));
-                        corr_bucket.push(bucket);
-                    }
-                }
-                corr_offsets.push(corr_weight.len() as u64);
-            }
-            Ok::<(), ArchiveError>(())
-        })?;
+        let (rays, back_rays) = leaving_rays(v, &r, &patches);
+        let inv_weight = prototype_inverse_weights(v);
+        let corrections = Corrections::new(v, &nd_of)?;
         let rows = v.link_rows(&patches)?;
         let mut linked = vec![0.0f32; patches.len() * n];
         for k in 0..patches.len() {
@@ -180,34 +138,8 @@ impl<'a> NonDiffuse<'a> {
                 linked[k * n + d as usize] += w;
             }
         }
-        let albedo: Vec<Vec<[f32; 3]>> = (0..r.prototypes.len())
-            .map(|t| {
-                let bands = r.prototypes[t].bands as usize;
-                (0..n)
-                    .map(|i| {
-                        let (_, f) = r.row(t, i);
-                        let mut a = [0.0f32; 3];
-                        for e in f.chunks_exact(bands) {
-                            for c in 0..3 {
-                                a[c] += e[c.min(bands - 1)];
-                            }
-                        }
-                        a
-                    })
-                    .collect()
-            })
-            .collect();
-        let mut batches = Vec::new();
-        let mut k = 0;
-        while k < patches.len() {
-            let key = |j: usize| (r.patches[j].prototype, r.patches[j].orientation);
-            let mut len = 1;
-            while k + len < patches.len() && len < BATCH && key(k + len) == key(k) {
-                len += 1;
-            }
-            batches.push((k, len));
-            k += len;
-        }
+        let albedo = row_albedos(&r, n);
+        let batches = table_batches(&r);
         let columns = (0..r.prototypes.len())
             .map(|t| TableColumns::new(n, r.prototypes[t].bands as usize, &|i| r.row(t, i)))
             .collect();
@@ -244,10 +176,7 @@ impl<'a> NonDiffuse<'a> {
             bound,
             in_scale,
             scale_bands,
-            corr_offsets,
-            corr_weight,
-            corr_slot,
-            corr_bucket,
+            corrections,
             linked,
             back_rays,
             rows,
@@ -261,6 +190,12 @@ impl<'a> NonDiffuse<'a> {
     #[inline]
     pub fn slot(&self, k: u32, d: u32) -> usize {
         k as usize * self.n + d as usize
+    }
+
+    /// The non-diffuse senders with per-ray power `phi`, as the link-end
+    /// gather ([`super::kernels::add_ends`]) reads them.
+    pub fn senders<'s>(&'s self, phi: &'s [[f32; 4]]) -> DirectionalSenders<'s> {
+        DirectionalSenders { nd_of: &self.nd_of, directions: self.n, phi }
     }
 
     /// Patch `k`'s radiance per unit of per-ray power.
@@ -283,10 +218,11 @@ impl<'a> NonDiffuse<'a> {
             let first = block * BLOCK;
             for (i, r) in out.chunks_exact_mut(nb).enumerate() {
                 let q = first + i;
-                for e in self.corr_offsets[q] as usize..self.corr_offsets[q + 1] as usize {
-                    let s = phi[self.corr_slot[e] as usize];
-                    let w = self.corr_weight[e];
-                    let slot = &mut r[if use_buckets { self.corr_bucket[e] as usize } else { 0 }];
+                let corr = &self.corrections;
+                for e in corr.offsets[q] as usize..corr.offsets[q + 1] as usize {
+                    let s = phi[corr.slot[e] as usize];
+                    let w = corr.weight[e];
+                    let slot = &mut r[if use_buckets { corr.bucket[e] as usize } else { 0 }];
                     for c in 0..4 {
                         slot[c] += w * s[c];
                     }
@@ -393,6 +329,120 @@ impl<'a> NonDiffuse<'a> {
         let rows = |i: usize| self.r.row(t, map[i] as usize);
         scatter_table_rows(bands, inbuf, scratch, &rows);
     }
+}
+
+/// The correction list: link ends whose other patch is non-diffuse, CSR
+/// by receiving patch, each with its weight, the slot of the sender's
+/// per-ray power it reads (the antipode of the receiver's direction) and
+/// its bucket.
+struct Corrections {
+    offsets: Vec<u64>,
+    weight: Vec<f32>,
+    slot: Vec<u32>,
+    bucket: Vec<u8>,
+}
+
+impl Corrections {
+    /// One scan over `v`'s link ends, `nd_of` the non-diffuse index of
+    /// each patch (`u32::MAX`: diffuse).
+    fn new(v: &InetView<'_>, nd_of: &[u32]) -> Result<Self, ArchiveError> {
+        let n = v.directions.len();
+        let np = v.patch_count();
+        let mut offsets = Vec::with_capacity(np + 1);
+        let (mut weight, mut slot, mut bucket_of) = (Vec::new(), Vec::new(), Vec::new());
+        offsets.push(0u64);
+        v.links.for_each_window(Columns::ALL, np, |w| {
+            for q in w.patches.clone() {
+                for (e, other, bucket) in w.ends_of(q) {
+                    let k = nd_of[other as usize];
+                    if k != u32::MAX {
+                        weight.push(w.weight.get(e));
+                        // The sender sends along the antipode of the receiver's direction.
+                        slot.push(k * n as u32 + (w.direction[e] ^ 1));
+                        bucket_of.push(bucket);
+                    }
+                }
+                offsets.push(weight.len() as u64);
+            }
+            Ok::<(), ArchiveError>(())
+        })?;
+        Ok(Self { offsets, weight, slot, bucket: bucket_of })
+    }
+}
+
+/// Per non-diffuse patch and direction, `n_o`: the rays of `o` leaving the
+/// patch (−1 for directions behind it); and the rays whose light meets a
+/// back face (`NDBK`; empty for files without it).
+fn leaving_rays(v: &InetView<'_>, r: &ReflectanceView<'_>, patches: &[u32]) -> (Vec<f32>, Vec<f32>) {
+    let n = v.directions.len();
+    let mut rays = vec![-1.0f32; patches.len() * n];
+    let mut back_rays = vec![0.0f32; if r.back_hits.is_some() { patches.len() * n } else { 0 }];
+    for (k, &q) in patches.iter().enumerate() {
+        let nq = v.patch_normal[q as usize];
+        let hits = r.pair_hits(k);
+        let backs = r.back_hits.map(|b| &b[k * (n / 2)..(k + 1) * (n / 2)]);
+        for (o, d) in v.directions.iter().enumerate() {
+            let cos = nq[0] * d.direction[0] + nq[1] * d.direction[1] + nq[2] * d.direction[2];
+            if cos > 0.0 {
+                rays[k * n + o] = hits[o / 2] as f32;
+                if let Some(b) = backs {
+                    back_rays[k * n + o] = b[o / 2] as f32;
+                }
+            }
+        }
+    }
+    (rays, back_rays)
+}
+
+/// Per prototype direction, `1 / (cos θ_p Ω_p)` (0 below the prototype
+/// surface, whose normal is +y).
+fn prototype_inverse_weights(v: &InetView<'_>) -> Vec<f32> {
+    v.directions
+        .iter()
+        .map(|d| {
+            let w = d.direction[1] * d.solid_angle_sr;
+            if d.direction[1] > 0.0 && w > 0.0 { 1.0 / w } else { 0.0 }
+        })
+        .collect()
+}
+
+/// Per table and prototype row, its albedo (the row sum) per band (a
+/// one-band table's in all three).
+fn row_albedos(r: &ReflectanceView<'_>, n: usize) -> Vec<Vec<[f32; 3]>> {
+    (0..r.prototypes.len())
+        .map(|t| {
+            let bands = r.prototypes[t].bands as usize;
+            (0..n)
+                .map(|i| {
+                    let (_, f) = r.row(t, i);
+                    let mut a = [0.0f32; 3];
+                    for e in f.chunks_exact(bands) {
+                        for c in 0..3 {
+                            a[c] += e[c.min(bands - 1)];
+                        }
+                    }
+                    a
+                })
+                .collect()
+        })
+        .collect()
+}
+
+/// Runs of at most [`BATCH`] consecutive non-diffuse patches with the
+/// same table and orientation: `(first, len)`.
+fn table_batches(r: &ReflectanceView<'_>) -> Vec<(usize, usize)> {
+    let mut batches = Vec::new();
+    let mut k = 0;
+    while k < r.patches.len() {
+        let key = |j: usize| (r.patches[j].prototype, r.patches[j].orientation);
+        let mut len = 1;
+        while k + len < r.patches.len() && len < BATCH && key(k + len) == key(k) {
+            len += 1;
+        }
+        batches.push((k, len));
+        k += len;
+    }
+    batches
 }
 
 /// `c_i` of every non-diffuse patch and incoming direction (module docs):

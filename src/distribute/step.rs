@@ -356,7 +356,7 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
         // that made it.
         let nd_phi = d.nd.as_ref().zip(self.glossy.as_ref()).filter(|(_, g)| g.unsent).map(|(x, g)| (x, &g.phi[..]));
         if let Some(o) = &s.overlay {
-            add_ends(&o.gather, nb, &self.shoot, 1.0, nd_phi, &mut self.recv);
+            add_ends(&o.gather, nb, &self.shoot, 1.0, nd_phi.map(|(x, phi)| x.senders(phi)), &mut self.recv);
         }
         if let Some((x, phi)) = nd_phi {
             x.gather_corrections(nb, d.use_buckets, phi, &mut self.recv);

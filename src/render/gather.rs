@@ -34,7 +34,9 @@
 use glam::{Vec2, Vec3};
 
 use super::detail::SurfaceDetail;
-use super::direct::{Permutation, r2_point, unit};
+use super::primary::RayHit;
+use super::sampling::{Permutation, r2_point, unit};
+use super::vertex::vertex_radiance_seen;
 use crate::archive::InetView;
 use crate::distribute::Solution;
 use crate::geometry::grid::NO_VERTEX;
@@ -88,9 +90,9 @@ impl Gather {
             Some(direct) => {
                 let less: Vec<[f32; 3]> =
                     per_patch.iter().zip(direct).map(|(l, d)| [0, 1, 2].map(|c| (l[c] - d[c]).max(0.0))).collect();
-                Reflected::Indirect(super::vertex_radiance_seen(v, &less))
+                Reflected::Indirect(vertex_radiance_seen(v, &less))
             }
-            None => Reflected::All(super::vertex_radiance_seen(v, &per_patch)),
+            None => Reflected::All(vertex_radiance_seen(v, &per_patch)),
         };
         let reach = if reach.is_nan() { 0.0 } else { reach.max(0.0) };
         Self { rays: rays.clamp(1, 4096), reach, reflected }
@@ -104,7 +106,7 @@ impl Gather {
     /// The gather's weight in the indirect light of points around `x`
     /// (face normal `n`, on a patch of side `size`): from the nearest
     /// geometry the probes meet, rays leaving `eps` above the face.
-    pub(super) fn reach_weight(&self, x: Vec3, n: Vec3, size: f32, eps: f32, trace: &super::RayHit<'_>) -> f32 {
+    pub(super) fn reach_weight(&self, x: Vec3, n: Vec3, size: f32, eps: f32, trace: &RayHit<'_>) -> f32 {
         if self.reach.is_infinite() {
             return 1.0;
         }
@@ -136,7 +138,7 @@ impl Gather {
         (n, face): (Vec3, Vec3),
         key: u64,
         (k, samples): (u32, u32),
-        trace: &super::RayHit<'_>,
+        trace: &RayHit<'_>,
         detail: &SurfaceDetail<'_>,
         exact: ExactDirect<'_, '_>,
     ) -> Vec3 {
@@ -224,6 +226,7 @@ pub(crate) fn cosine_direction(u: Vec2, (t, b, n): (Vec3, Vec3, Vec3)) -> Vec3 {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::render::primary::{NO_HIT, SampleHit};
 
     #[test]
     fn lattice_directions_are_cosine_distributed() {
@@ -254,7 +257,7 @@ mod tests {
         let at = |d: f32| {
             move |o: Vec3, w: Vec3| {
                 let t = if w.x > 0.0 { (d - o.x) / w.x } else { f32::INFINITY };
-                super::super::SampleHit { t, ..super::super::NO_HIT }
+                SampleHit { t, ..NO_HIT }
             }
         };
         let cos30 = 0.866_025_4;

@@ -12,7 +12,7 @@
 //! ([`crate::distribute::DirectionalRadiance::direct`] taken off).
 //!
 //! Estimator: multiple importance sampling (the balance heuristic) of two
-//! strategies per sample: [`LIGHT_RAYS`] points on the emitters (laid end to
+//! strategies per sample: [`LIGHT_POINTS`] points on the emitters (laid end to
 //! end in proportion to their unshadowed light, stratified across the
 //! pixel's samples, uniform in each emitter's parameters) and
 //! [`LOBE_RAYS`] directions drawn from the lobe's distribution of visible
@@ -23,9 +23,13 @@
 
 use glam::{Vec2, Vec3};
 
-use super::{DirectLight, Permutation, mix, r2_point, sample_point, unit};
+use super::DirectLight;
+use super::polygon::sample_point;
+use crate::archive::InetView;
+use crate::archive::layout::table_model;
 use crate::geometry::accel::PrimitiveBvh;
 use crate::reflectance::model::Lobe;
+use crate::render::sampling::{Permutation, mix, r2_point, unit};
 
 /// Points on the emitters per image sample for the unshadowed highlight
 /// (no rays: a pixel of 4×4 samples takes 256, stratified across its
@@ -311,6 +315,42 @@ impl DirectLight {
         }
         (unshadowed, shadowed)
     }
+}
+
+/// Per primitive, the index of its lobe in the returned list (`u32::MAX`
+/// for diffuse primitives): the archive's prototype (GGX roughness and
+/// Fresnel) and orientation (normal and grain) of its non-diffuse patches,
+/// and `k_s` per surface. A primitive's patches share one material and one
+/// orientation; Lambertian test prototypes are left to the I-net.
+pub(super) fn glossy_frames(v: &InetView<'_>, specular: &[[f32; 3]]) -> (Vec<u32>, Vec<GlossyFrame>) {
+    let mut of = vec![u32::MAX; v.primitives.len()];
+    let mut frames = Vec::new();
+    let Some(r) = &v.reflectance else { return (of, frames) };
+    for rec in r.patches {
+        let Some(&prim) = v.patch_primitive.get(rec.patch as usize) else { continue };
+        let (Some(proto), Some(o)) =
+            (r.prototypes.get(rec.prototype as usize), r.orientations.get(rec.orientation as usize))
+        else {
+            continue;
+        };
+        if of[prim as usize] != u32::MAX || proto.model != table_model::GGX {
+            continue;
+        }
+        let surface = v.primitives[prim as usize].surface as usize;
+        let ks = specular.get(surface).map_or(Vec3::ZERO, |&k| Vec3::from(k));
+        let ior = (proto.ior != [0.0; 3]).then_some(proto.ior);
+        // Validation checks the roughness finite and not negative, not the
+        // scene's range, nor the frame unit: keep a forged archive finite.
+        let n = Vec3::from(o.normal).normalize_or_zero();
+        let t = (Vec3::from(o.grain) - n * n.dot(Vec3::from(o.grain))).normalize_or_zero();
+        if n == Vec3::ZERO || t == Vec3::ZERO || !ks.is_finite() {
+            continue;
+        }
+        let lobe = Lobe { alpha_u: proto.alpha_u.clamp(1e-3, 1e3), alpha_v: proto.alpha_v.clamp(1e-3, 1e3), ior };
+        of[prim as usize] = frames.len() as u32;
+        frames.push(GlossyFrame { ks, lobe, t, b: n.cross(t), n });
+    }
+    (of, frames)
 }
 
 #[cfg(test)]

@@ -28,19 +28,24 @@
 //! the thread count.
 
 mod glossy;
+mod polygon;
 
-use glam::{DVec3, Vec2, Vec3};
+use glam::{Vec2, Vec3};
 
 use super::gather::Gather;
+/// The seed of a pixel's light samples (`super::sampling`'s, named here
+/// where it has always been).
+pub use super::sampling::pixel_key;
+use super::sampling::{Permutation, mix, r2_point, unit};
 use crate::archive::InetView;
-use crate::archive::layout::table_model;
 use crate::distribute::Solution;
 use crate::geometry::accel::PrimitiveBvh;
 use crate::geometry::{Primitive, PrimitiveKind};
-use crate::reflectance::model::Lobe;
 pub use glossy::{
     LIGHT_POINTS as GLOSSY_LIGHT_POINTS, LOBE_RAYS as GLOSSY_LOBE_RAYS, SHADOW_RAYS as GLOSSY_SHADOW_RAYS,
 };
+pub use polygon::polygon_irradiance;
+use polygon::{sample_point, shaded_irradiance};
 
 /// Default light samples: `8 × 8` shadow rays per pixel and primitive in
 /// the second pass (pixels near a blocked first ray), shared by all
@@ -129,7 +134,7 @@ impl DirectLight {
                 emitters.push(Emitter { prim, normal: prim.normal(), radiance, centre, radius });
             }
         }
-        let (glossy_of, glossy) = glossy_frames(v, &solution.surface_specular);
+        let (glossy_of, glossy) = glossy::glossy_frames(v, &solution.surface_specular);
         let epsilon = if lo.x <= hi.x { (hi - lo).max_element() * 1e-5 } else { 1e-6 };
         Self { emitters, kd, glossy_of, glossy, samples: samples.clamp(1, 64), epsilon, gather: None }
     }
@@ -425,174 +430,6 @@ impl DirectLight {
     }
 }
 
-/// Per primitive, the index of its lobe in the returned list (`u32::MAX`
-/// for diffuse primitives): the archive's prototype (GGX roughness and
-/// Fresnel) and orientation (normal and grain) of its non-diffuse patches,
-/// and `k_s` per surface. A primitive's patches share one material and one
-/// orientation; Lambertian test prototypes are left to the I-net.
-fn glossy_frames(v: &InetView<'_>, specular: &[[f32; 3]]) -> (Vec<u32>, Vec<glossy::GlossyFrame>) {
-    let mut of = vec![u32::MAX; v.primitives.len()];
-    let mut frames = Vec::new();
-    let Some(r) = &v.reflectance else { return (of, frames) };
-    for rec in r.patches {
-        let Some(&prim) = v.patch_primitive.get(rec.patch as usize) else { continue };
-        let (Some(proto), Some(o)) =
-            (r.prototypes.get(rec.prototype as usize), r.orientations.get(rec.orientation as usize))
-        else {
-            continue;
-        };
-        if of[prim as usize] != u32::MAX || proto.model != table_model::GGX {
-            continue;
-        }
-        let surface = v.primitives[prim as usize].surface as usize;
-        let ks = specular.get(surface).map_or(Vec3::ZERO, |&k| Vec3::from(k));
-        let ior = (proto.ior != [0.0; 3]).then_some(proto.ior);
-        // Validation checks the roughness finite and not negative, not the
-        // scene's range, nor the frame unit: keep a forged archive finite.
-        let n = Vec3::from(o.normal).normalize_or_zero();
-        let t = (Vec3::from(o.grain) - n * n.dot(Vec3::from(o.grain))).normalize_or_zero();
-        if n == Vec3::ZERO || t == Vec3::ZERO || !ks.is_finite() {
-            continue;
-        }
-        let lobe = Lobe { alpha_u: proto.alpha_u.clamp(1e-3, 1e3), alpha_v: proto.alpha_v.clamp(1e-3, 1e3), ior };
-        of[prim as usize] = frames.len() as u32;
-        frames.push(glossy::GlossyFrame { ks, lobe, t, b: n.cross(t), n });
-    }
-    (of, frames)
-}
-
-/// Point `i` of the R2 sequence (Roberts' generalised golden ratio, the
-/// best-spread additive recurrence in two dimensions) shifted by `shift`.
-pub(super) fn r2_point(i: u32, shift: Vec2) -> Vec2 {
-    const A: Vec2 = Vec2::new(0.754_877_7, 0.569_840_3);
-    let p = shift + A * i as f32;
-    p - p.floor()
-}
-
-/// A point of `p` at stratified coordinates `uv` ∈ [0, 1)², and the
-/// Jacobian (area per unit of uv) there: bilinear over a quad, the
-/// uniform square-root warp over a triangle.
-fn sample_point(p: &Primitive, uv: Vec2) -> (Vec3, f32) {
-    match p.kind {
-        PrimitiveKind::Quad => {
-            let (u, v) = (uv.x, uv.y);
-            let y = p.point(uv);
-            let du = (1.0 - v) * (p.p[1] - p.p[0]) + v * (p.p[2] - p.p[3]);
-            let dv = (1.0 - u) * (p.p[3] - p.p[0]) + u * (p.p[2] - p.p[1]);
-            (y, du.cross(dv).length())
-        }
-        PrimitiveKind::Triangle => {
-            let r = uv.x.sqrt();
-            let y = (1.0 - r) * p.p[0] + r * (1.0 - uv.y) * p.p[1] + r * uv.y * p.p[2];
-            (y, p.area())
-        }
-    }
-}
-
-/// [`polygon_irradiance`] with shading normal `n` over the part of `poly`
-/// above the plane of `x` with normal `face` (the geometry's), which a
-/// shading normal leaning past it would otherwise see; `poly` as it is
-/// when the two are equal.
-fn shaded_irradiance(x: Vec3, n: Vec3, face: Vec3, poly: &[Vec3]) -> f32 {
-    if n == face {
-        return polygon_irradiance(x, n, poly);
-    }
-    let mut clipped = [Vec3::ZERO; 8];
-    let mut m = 0;
-    let k = poly.len();
-    for i in 0..k {
-        let (a, b) = (poly[i], poly[if i + 1 == k { 0 } else { i + 1 }]);
-        let (da, db) = (face.dot(a - x), face.dot(b - x));
-        if da > 0.0 && m < clipped.len() {
-            clipped[m] = a;
-            m += 1;
-        }
-        if (da > 0.0) != (db > 0.0) && m < clipped.len() {
-            clipped[m] = a + (b - a) * (da / (da - db));
-            m += 1;
-        }
-    }
-    if m < 3 { 0.0 } else { polygon_irradiance(x, n, &clipped[..m]) }
-}
-
-/// Irradiance at `x` (normal `n`) from the planar polygon `poly` of unit
-/// radiance, unoccluded: Lambert's formula over the part of the polygon
-/// above the tangent plane of `x`. W·m⁻² per W·sr⁻¹·m⁻².
-pub fn polygon_irradiance(x: Vec3, n: Vec3, poly: &[Vec3]) -> f32 {
-    // Clip to n·(y − x) > 0 (Sutherland–Hodgman against one plane).
-    let mut clipped = [Vec3::ZERO; 8];
-    let mut m = 0;
-    let k = poly.len();
-    for i in 0..k {
-        let (a, b) = (poly[i] - x, poly[if i + 1 == k { 0 } else { i + 1 }] - x);
-        let (da, db) = (n.dot(a), n.dot(b));
-        if da > 0.0 {
-            clipped[m] = a;
-            m += 1;
-        }
-        if (da > 0.0) != (db > 0.0) && m < clipped.len() {
-            let t = da / (da - db);
-            clipped[m] = a + (b - a) * t;
-            m += 1;
-        }
-    }
-    if m < 3 {
-        return 0.0;
-    }
-    let mut sum = 0.0f64;
-    for i in 0..m {
-        let (a, b) = (clipped[i].as_dvec3(), clipped[if i + 1 == m { 0 } else { i + 1 }].as_dvec3());
-        if a == DVec3::ZERO || b == DVec3::ZERO {
-            continue;
-        }
-        let cross = a.cross(b);
-        let cl = cross.length();
-        if cl == 0.0 {
-            continue;
-        }
-        let theta = angle(cl, a.dot(b));
-        sum += theta * n.as_dvec3().dot(cross / cl);
-    }
-    (0.5 * sum.abs()) as f32
-}
-
-/// The angle in [0, π] whose sine and cosine are in the ratio `s` : `c`
-/// (`s` > 0): `s.atan2(c)` to within 10⁻¹⁰ of itself (unit test: 2.4·10⁻¹¹), at a
-/// fraction of libm's cost, which the closed forms of every pixel and
-/// every gather ray pay four times per emitter.
-#[inline]
-fn angle(s: f64, c: f64) -> f64 {
-    use std::f64::consts::{FRAC_PI_2, FRAC_PI_4, PI};
-    // tan(π/8): beyond it, atan t = π/4 + atan((t − 1)/(t + 1)).
-    const TAN_PI_8: f64 = 0.414_213_562_373_095_05;
-    let ac = c.abs();
-    let steep = s > ac;
-    // t = num / den ∈ [0, 1]; u = (t − 1)/(t + 1) in one division.
-    let (num, den) = if steep { (ac, s) } else { (s, ac) };
-    let (u, base) = if num > TAN_PI_8 * den { ((num - den) / (num + den), FRAC_PI_4) } else { (num / den, 0.0) };
-    // atan u for |u| ≤ tan(π/8): its Taylor series to u²³ (the first
-    // term left out is below 2·10⁻¹⁰ of u).
-    const INV_ODD: [f64; 12] = [
-        1.0,
-        1.0 / 3.0,
-        1.0 / 5.0,
-        1.0 / 7.0,
-        1.0 / 9.0,
-        1.0 / 11.0,
-        1.0 / 13.0,
-        1.0 / 15.0,
-        1.0 / 17.0,
-        1.0 / 19.0,
-        1.0 / 21.0,
-        1.0 / 23.0,
-    ];
-    let u2 = u * u;
-    let p = INV_ODD.iter().rev().fold(0.0, |p, &c| c - u2 * p);
-    let a = base + u * p;
-    let a = if steep { FRAC_PI_2 - a } else { a };
-    if c < 0.0 { PI - a } else { a }
-}
-
 /// Emitter `e`'s bit in a mask of a frame's emitters; emitters from 63 on
 /// share the last bit.
 #[inline]
@@ -600,100 +437,9 @@ pub(crate) fn emitter_bit(e: u32) -> u64 {
     1 << e.min(63)
 }
 
-/// splitmix64: a well-mixed 64-bit hash.
-fn mix(mut z: u64) -> u64 {
-    z = z.wrapping_add(0x9e37_79b9_7f4a_7c15);
-    z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-    z ^ (z >> 31)
-}
-
-/// The top 24 bits of `h` as a float in [0, 1).
-pub(super) fn unit(h: u64) -> f32 {
-    ((h as u32) >> 8) as f32 * (1.0 / (1u32 << 24) as f32)
-}
-
-/// The seed of pixel `(x, y)`'s light samples at `frame`.
-pub fn pixel_key(frame: u32, x: u32, y: u32) -> u64 {
-    mix(mix(((frame as u64) << 32) | y as u64) ^ ((x as u64) << 32))
-}
-
-/// `i ↦ (a·i + b) mod n`, a permutation of `0..n` chosen by a key (`a`
-/// odd and coprime with `n`): made once, applied to every ray.
-#[derive(Clone, Copy)]
-pub(super) struct Permutation {
-    a: u64,
-    b: u64,
-    n: u64,
-}
-
-impl Permutation {
-    pub(super) fn new(n: u32, key: u64) -> Self {
-        let h = mix(key);
-        let (n64, b) = (n as u64, (h >> 32) % n.max(1) as u64);
-        let mut a = ((h as u32) % n.max(1)) as u64 | 1;
-        while gcd(a, n64) != 1 {
-            a += 2;
-        }
-        Self { a, b, n: n64.max(1) }
-    }
-
-    #[inline]
-    pub(super) fn apply(&self, i: u32) -> u32 {
-        ((self.a * i as u64 + self.b) % self.n) as u32
-    }
-}
-
-fn gcd(mut a: u64, mut b: u64) -> u64 {
-    while b != 0 {
-        (a, b) = (b, a % b);
-    }
-    a
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    /// Irradiance of unit radiance from an a×b rectangle whose corner is
-    /// straight above the point at height c, facing it: π·F with the
-    /// point-to-rectangle form factor F (Howell's catalogue, B-3).
-    fn corner_rectangle(a: f64, b: f64, c: f64) -> f64 {
-        let (x, y) = (a / c, b / c);
-        let (sx, sy) = ((1.0 + x * x).sqrt(), (1.0 + y * y).sqrt());
-        let f = (x / sx * (y / sx).atan() + y / sy * (x / sy).atan()) / (2.0 * std::f64::consts::PI);
-        std::f64::consts::PI * f
-    }
-
-    #[test]
-    fn polygon_irradiance_matches_the_point_to_rectangle_form_factor() {
-        let x = Vec3::ZERO;
-        let n = Vec3::Y;
-        for (a, b, c) in [(1.0f32, 1.0f32, 1.0f32), (0.3, 2.0, 0.5), (4.0, 0.1, 2.0)] {
-            let quad = [Vec3::new(0.0, c, 0.0), Vec3::new(a, c, 0.0), Vec3::new(a, c, b), Vec3::new(0.0, c, b)];
-            let got = polygon_irradiance(x, n, &quad) as f64;
-            let want = corner_rectangle(a as f64, b as f64, c as f64);
-            assert!((got - want).abs() < 1e-5 * want, "{a}×{b} at {c}: {got} vs {want}");
-            // Winding does not matter.
-            let rev = [quad[3], quad[2], quad[1], quad[0]];
-            assert!((polygon_irradiance(x, n, &rev) as f64 - want).abs() < 1e-5 * want);
-        }
-        // A rectangle straddling the horizon counts only its upper part:
-        // the same as the rectangle cut at the plane.
-        let tall =
-            [Vec3::new(1.0, -1.0, 0.0), Vec3::new(1.0, 1.0, 0.0), Vec3::new(1.0, 1.0, 1.0), Vec3::new(1.0, -1.0, 1.0)];
-        let upper =
-            [Vec3::new(1.0, 0.0, 0.0), Vec3::new(1.0, 1.0, 0.0), Vec3::new(1.0, 1.0, 1.0), Vec3::new(1.0, 0.0, 1.0)];
-        let (t, u) = (polygon_irradiance(x, n, &tall), polygon_irradiance(x, n, &upper));
-        assert!(t > 0.0 && (t - u).abs() < 1e-6, "{t} vs {u}");
-        // Wholly below the horizon: nothing.
-        let below = tall.map(|p| Vec3::new(p.x, p.y - 2.0, p.z));
-        assert_eq!(polygon_irradiance(x, n, &below), 0.0);
-        // The hemisphere: a huge square just above gives π (E = π·L).
-        let s = 1e4;
-        let sky = [Vec3::new(-s, 1e-3, -s), Vec3::new(s, 1e-3, -s), Vec3::new(s, 1e-3, s), Vec3::new(-s, 1e-3, s)];
-        assert!((polygon_irradiance(x, n, &sky) - std::f32::consts::PI).abs() < 1e-3);
-    }
 
     /// A quad emitter facing down of radiance `l` over `[x0, x1] × [z0, z1]`
     /// at height `y`.
@@ -764,49 +510,6 @@ mod tests {
             let first = light.estimate(&points, (n, n), 0, &bvh, mix(k), FIRST_RAYS, &mut lit).0;
             let only_b = light.estimate_refined(&points, (n, n), 0, &bvh, mix(k), (64, emitter_bit(1)), &mut lit);
             assert!((first - only_b).abs().max_element() < 1e-5 * want as f32, "{first} vs {only_b}");
-        }
-    }
-
-    #[test]
-    fn angle_is_atan2_over_the_half_plane() {
-        let mut worst = 0.0f64;
-        for i in 0..=20_000 {
-            let phi = std::f64::consts::PI * i as f64 / 20_000.0;
-            for r in [1e-6, 1.0, 3e4] {
-                let (s, c) = (r * phi.sin(), r * phi.cos());
-                if s > 0.0 {
-                    let (got, want) = (angle(s, c), s.atan2(c));
-                    worst = worst.max((got - want).abs() / want);
-                }
-            }
-        }
-        // Tiny angles, near 0 and near π, keep their relative precision.
-        for s in [1e-300, 1e-12, 1e-7] {
-            for c in [1.0, -1.0] {
-                let (got, want) = (angle(s, c), s.atan2(c));
-                worst = worst.max((got - want).abs() / want);
-            }
-        }
-        eprintln!("angle: worst relative error {worst:e}");
-        assert!(worst < 1e-10, "worst relative error {worst:e}");
-    }
-
-    #[test]
-    fn sample_points_cover_the_primitive_with_its_area() {
-        // Mean Jacobian over uv is the area, for a non-parallelogram quad
-        // and a triangle.
-        let quad =
-            Primitive::quad([Vec3::ZERO, Vec3::new(2.0, 0.0, 0.0), Vec3::new(1.5, 0.0, 1.0), Vec3::new(0.0, 0.0, 1.0)]);
-        let tri = Primitive::triangle(Vec3::ZERO, Vec3::new(1.0, 0.0, 0.0), Vec3::new(0.0, 0.0, 3.0));
-        for p in [quad, tri] {
-            let m = 64;
-            let mut sum = 0.0;
-            for i in 0..m * m {
-                let uv = Vec2::new(((i % m) as f32 + 0.5) / m as f32, ((i / m) as f32 + 0.5) / m as f32);
-                sum += sample_point(&p, uv).1 as f64;
-            }
-            let mean = sum / (m * m) as f64;
-            assert!((mean - p.area() as f64).abs() < 1e-4 * p.area() as f64, "{mean} vs {}", p.area());
         }
     }
 }
