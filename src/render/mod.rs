@@ -12,7 +12,6 @@ mod camera;
 mod detail;
 pub mod direct;
 pub mod false_colour;
-mod gather;
 pub mod image_io;
 mod pixels;
 pub mod plan;
@@ -27,7 +26,7 @@ use rayon::prelude::*;
 
 pub use camera::PinholeCamera;
 pub use direct::DirectLight;
-pub use gather::Gather;
+pub use direct::gather::Gather;
 pub use vertex::{vertex_radiance, vertex_radiance_seen};
 pub use view::{frame_radiance, indirect_frame_radiance, indirect_radiance_seen_from, radiance_seen_from};
 

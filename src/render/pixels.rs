@@ -9,8 +9,8 @@ use rayon::prelude::*;
 
 use super::Image;
 use super::detail::SurfaceDetail;
+use super::direct::gather::ExactDirect;
 use super::direct::{self, DirectLight};
-use super::gather::ExactDirect;
 use super::primary::{PatchSize, RayHit, SampleHit, SamplePoint};
 use super::sampling::pixel_key;
 use crate::geometry::accel::PrimitiveBvh;

@@ -27,12 +27,12 @@
 //! pixel and primitive, so images are deterministic and do not depend on
 //! the thread count.
 
+pub(super) mod gather;
 mod glossy;
 mod polygon;
 
 use glam::{Vec2, Vec3};
 
-use super::gather::Gather;
 /// The seed of a pixel's light samples (`super::sampling`'s, named here
 /// where it has always been).
 pub use super::sampling::pixel_key;
@@ -41,6 +41,7 @@ use crate::archive::InetView;
 use crate::distribute::Solution;
 use crate::geometry::accel::PrimitiveBvh;
 use crate::geometry::{Primitive, PrimitiveKind};
+use gather::Gather;
 pub use glossy::{
     LIGHT_POINTS as GLOSSY_LIGHT_POINTS, LOBE_RAYS as GLOSSY_LOBE_RAYS, SHADOW_RAYS as GLOSSY_SHADOW_RAYS,
 };

@@ -33,13 +33,13 @@
 
 use glam::{Vec2, Vec3};
 
-use super::detail::SurfaceDetail;
-use super::primary::RayHit;
-use super::sampling::{Permutation, r2_point, unit};
-use super::vertex::vertex_radiance_seen;
 use crate::archive::InetView;
 use crate::distribute::Solution;
 use crate::geometry::grid::NO_VERTEX;
+use crate::render::detail::SurfaceDetail;
+use crate::render::primary::RayHit;
+use crate::render::sampling::{Permutation, r2_point, unit};
+use crate::render::vertex::vertex_radiance_seen;
 
 /// The gather's per-vertex light and where it applies.
 #[derive(Debug, Clone)]
@@ -75,7 +75,8 @@ impl Gather {
             .collect();
         if let Some(d) = &solution.directional {
             for (k, &q) in d.patches.iter().enumerate() {
-                let normal = super::primitive_of(&v.primitives[v.patch_primitive[q as usize] as usize]).0.normal();
+                let normal =
+                    crate::render::primitive_of(&v.primitives[v.patch_primitive[q as usize] as usize]).0.normal();
                 let mut sum = Vec3::ZERO;
                 for (dir, l) in v.directions.iter().zip(d.of(k)) {
                     let c = normal.dot(Vec3::from(dir.direction)).max(0.0);
@@ -106,7 +107,7 @@ impl Gather {
     /// The gather's weight in the indirect light of points around `x`
     /// (face normal `n`, on a patch of side `size`): from the nearest
     /// geometry the probes meet, rays leaving `eps` above the face.
-    pub(super) fn reach_weight(&self, x: Vec3, n: Vec3, size: f32, eps: f32, trace: &RayHit<'_>) -> f32 {
+    pub(in crate::render) fn reach_weight(&self, x: Vec3, n: Vec3, size: f32, eps: f32, trace: &RayHit<'_>) -> f32 {
         if self.reach.is_infinite() {
             return 1.0;
         }
@@ -132,7 +133,7 @@ impl Gather {
     /// samples'. `trace` finds what a ray from a point along a direction
     /// meets.
     #[allow(clippy::too_many_arguments)]
-    pub(super) fn incoming(
+    pub(in crate::render) fn incoming(
         &self,
         x: Vec3,
         (n, face): (Vec3, Vec3),
@@ -206,11 +207,11 @@ enum Reflected {
 
 /// What computes the direct light exactly where a gather ray lands: the
 /// frame's emitters, shadow-ray BVH and face normals, and scratch space.
-pub(super) struct ExactDirect<'a, 'e> {
-    pub(super) light: &'a super::DirectLight,
-    pub(super) bvh: &'a crate::geometry::accel::PrimitiveBvh,
-    pub(super) normals: &'a [Vec3],
-    pub(super) emitters: &'e mut Vec<(u32, f32)>,
+pub(in crate::render) struct ExactDirect<'a, 'e> {
+    pub(in crate::render) light: &'a super::DirectLight,
+    pub(in crate::render) bvh: &'a crate::geometry::accel::PrimitiveBvh,
+    pub(in crate::render) normals: &'a [Vec3],
+    pub(in crate::render) emitters: &'e mut Vec<(u32, f32)>,
 }
 
 /// The cosine-distributed direction about `n` (`t`, `b` completing its
