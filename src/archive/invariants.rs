@@ -7,68 +7,18 @@
 //! it holds is something a build can produce. A forged or buggy file that
 //! breaks them would divide by a share of zero, give links negative
 //! weights, or send more power than a patch holds, and render NaN.
+//!
+//! The first rule is checked as the weights are read, by
+//! [`super::weights::WeightSums`] (beside the weights it sums, so that the
+//! link stream, which this module's frame check walks, can use it); the
+//! second, a frame at a time, here.
 
 use rayon::prelude::*;
 
 use super::ArchiveError;
+use super::ends::Links;
 use super::layout::DeltaRecord;
-use super::links::{Columns, EndRun, LinkWindow, Links};
-use super::weights::Weights;
-
-/// Relative slack on sums of f32 ray counts (exact integers below 2²⁴;
-/// larger sums round).
-const SUM_SLACK: f64 = 1e-6;
-
-/// Folds link-end weights into per-patch sums and checks each finished
-/// patch's sum against its hit count `PHIT[p]` (each ray line crossing a
-/// patch makes at most one link end there). Fed weights in end order, in
-/// any slicing.
-pub(super) struct WeightSums<'a> {
-    offsets: &'a [u64],
-    hits: &'a [u32],
-    /// The patch whose ends come next.
-    patch: usize,
-    /// The end that comes next.
-    end: usize,
-    sum: f64,
-}
-
-impl<'a> WeightSums<'a> {
-    /// Sums over the rows `offsets` (validated CSR) of patches with `hits`.
-    pub(super) fn new(offsets: &'a [u64], hits: &'a [u32]) -> Self {
-        Self { offsets, hits, patch: 0, end: 0, sum: 0.0 }
-    }
-
-    /// Adds the next `weights` (ends `self.end ..`).
-    pub(super) fn add(&mut self, weights: Weights<'_>) -> Result<(), ArchiveError> {
-        let mut i = 0;
-        while i < weights.len() {
-            self.finish_empty()?;
-            let row_end = self.offsets[self.patch + 1] as usize;
-            let take = (row_end - self.end).min(weights.len() - i);
-            self.sum += weights.slice(i..i + take).iter().map(|w| w as f64).sum::<f64>();
-            self.end += take;
-            i += take;
-        }
-        self.finish_empty()
-    }
-
-    /// Closes every patch whose row is complete.
-    fn finish_empty(&mut self) -> Result<(), ArchiveError> {
-        while self.patch + 1 < self.offsets.len() && self.offsets[self.patch + 1] as usize == self.end {
-            let h = self.hits[self.patch] as f64;
-            if self.sum > h * (1.0 + SUM_SLACK) {
-                return Err(ArchiveError::corrupt(format!(
-                    "LCNT: patch {}'s link ends carry {} rays, more than the {h} that cross it (PHIT)",
-                    self.patch, self.sum
-                )));
-            }
-            self.sum = 0.0;
-            self.patch += 1;
-        }
-        Ok(())
-    }
-}
+use super::links::{Columns, EndRun, LinkWindow};
 
 /// A run of a row: (bucket, sender chunk).
 type RunKey = (u8, u16);
@@ -268,6 +218,7 @@ fn first_false(n: usize, before: impl Fn(usize) -> bool) -> usize {
 mod tests {
     use super::super::layout::{CHUNK_PATCHES, LinkRunRecord};
     use super::super::links::{LinkRuns, LinkSlices};
+    use super::super::weights::Weights;
     use super::*;
 
     /// The run walk finds frame 0's weight of every removed end, in rows

@@ -18,6 +18,7 @@
 //! produced (build) or consumed (distribute, render).
 
 pub mod deltas;
+mod ends;
 mod invariants;
 pub mod layout;
 mod links;
@@ -32,7 +33,8 @@ mod write;
 use std::fmt;
 use std::path::PathBuf;
 
-pub use links::{Columns, EndRun, LinkRows, LinkRuns, LinkSlices, LinkWindow, Links, PatchIds};
+pub use ends::{LinkRows, Links};
+pub use links::{Columns, EndRun, LinkRuns, LinkSlices, LinkWindow, PatchIds};
 pub use read::{Archive, ArchiveSummary, DeltaBytes, InetView, OnDisk, ReflectanceView, SequenceView, ShadingView};
 pub use stream::{CHUNK_ENDS, LinkStream, bytes_per_end};
 pub use weights::Weights;

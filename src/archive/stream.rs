@@ -21,11 +21,10 @@ use std::sync::mpsc::sync_channel;
 use xxhash_rust::xxh3::{Xxh3, xxh3_64};
 
 use super::ArchiveError;
-use super::invariants::WeightSums;
 use super::layout::LinkRunRecord;
 use super::layout::{SectionEntry, WeightEscape};
 use super::links::{Columns, IdCheck, LinkRuns, LinkWindow, check_rows};
-use super::weights::{self, Weights};
+use super::weights::{self, WeightSums, Weights};
 
 /// Link ends per checked chunk: windows are read in whole chunks.
 pub const CHUNK_ENDS: usize = 1 << 16;
@@ -181,39 +180,12 @@ impl LinkStream {
         window_ends: usize,
     ) -> Result<Self, ArchiveError> {
         let ends = offsets.last().copied().unwrap_or(0) as usize;
-        let chunks = ends.div_ceil(CHUNK_ENDS);
-        let mut sums = vec![[0u64; 3]; chunks];
-        let names = NAMES;
-        let mut buf = Vec::new();
-        let mut next_escape = 0;
         let (windows, capacity) = plan(offsets, window_ends.max(1));
-        // The runs, window by window: their rules (§7), a checksum per
-        // window for later reads, and the section's.
         let run_entry = entries[3];
         let run_offsets = runs.offsets();
         let run_count = run_offsets.last().copied().unwrap_or(0);
-        if run_entry.length != run_count * 8 {
-            return Err(ArchiveError::corrupt(format!(
-                "section LRUN: {} bytes, expected {} for LROF's {run_count} runs",
-                run_entry.length,
-                run_count * 8
-            )));
-        }
-        let (mut run_sums, mut run_capacity, mut section) = (Vec::with_capacity(windows.len()), 0, Xxh3::new());
-        let mut run_buf: Vec<LinkRunRecord> = Vec::new();
-        for w in &windows {
-            let (a, b) = (run_offsets[w.patches.start], run_offsets[w.patches.end]);
-            run_buf.resize((b - a) as usize, LinkRunRecord::default());
-            read_at(&file, bytemuck::cast_slice_mut(&mut run_buf), run_entry.offset + a * 8)
-                .map_err(|x| short(path, "LRUN", x))?;
-            let bytes: &[u8] = bytemuck::cast_slice(&run_buf);
-            section.update(bytes);
-            run_sums.push(xxh3_64(bytes));
-            run_capacity = run_capacity.max(run_buf.len());
-            check_rows(offsets, run_offsets, w.patches.clone(), &run_buf, limits.max_bucket)
-                .map_err(ArchiveError::Corrupt)?;
-        }
-        check_sum_of(run_entry, section.digest(), "LRUN")?;
+        let (run_sums, run_capacity) =
+            check_window_runs(&file, path, run_entry, offsets, run_offsets, &windows, limits.max_bucket)?;
         let mut run_reader = RunReader {
             file: &file,
             at: run_entry.offset,
@@ -224,49 +196,8 @@ impl LinkStream {
             error: None,
         };
         let mut ids = IdCheck::new(&mut run_reader, limits.patches);
-        for (c, e) in entries[..3].iter().enumerate() {
-            let mut sums_of_rows = WeightSums::new(offsets, limits.hits);
-            if e.length != (ends * WIDTH[c]) as u64 {
-                return Err(ArchiveError::corrupt(format!(
-                    "section {}: {} bytes, expected {} for {ends} link ends",
-                    names[c],
-                    e.length,
-                    ends * WIDTH[c]
-                )));
-            }
-            let mut section = Xxh3::new();
-            for first in (0..chunks).step_by(OPEN_READ_CHUNKS) {
-                let a = first * CHUNK_ENDS;
-                let b = ((first + OPEN_READ_CHUNKS) * CHUNK_ENDS).min(ends);
-                buf.resize((b - a) * WIDTH[c], 0u8);
-                read_at(&file, &mut buf, e.offset + (a * WIDTH[c]) as u64).map_err(|x| short(path, names[c], x))?;
-                section.update(&buf);
-                for (i, chunk) in buf.chunks(CHUNK_ENDS * WIDTH[c]).enumerate() {
-                    sums[first + i][c] = xxh3_64(chunk);
-                }
-                check_column(c, &buf, limits)?;
-                if c == 0 && !ids.add(bytemuck::cast_slice(&buf)) {
-                    return Err(ArchiveError::corrupt("LOTH: patch id out of range"));
-                }
-                if c == 1 {
-                    weights::check(&buf, a as u64, &escapes, &mut next_escape).map_err(ArchiveError::Corrupt)?;
-                    sums_of_rows.add(Weights::new(&buf, &escapes, a as u64))?;
-                }
-            }
-            let sum = section.digest();
-            if sum != e.checksum {
-                return Err(ArchiveError::corrupt(format!(
-                    "section {}: checksum mismatch (stored {:#018x}, computed {sum:#018x})",
-                    names[c], e.checksum
-                )));
-            }
-        }
-        if next_escape != escapes.len() {
-            return Err(ArchiveError::corrupt(format!(
-                "LCNX: {} entries, but LCNT has {next_escape} zero counts",
-                escapes.len()
-            )));
-        }
+        let columns = [entries[0], entries[1], entries[2]];
+        let sums = check_columns(&file, path, columns, &escapes, offsets, limits, &mut ids)?;
         if !ids.done() {
             return Err(ArchiveError::corrupt("LOTH: fewer ids than the runs hold"));
         }
@@ -572,6 +503,112 @@ impl LinkStream {
         }
         Ok(())
     }
+}
+
+/// The runs of an archive being opened (`LRUN`, `run_entry`, with `LOFF`
+/// and `LROF`, checked), read window by window: their rules (§7) against
+/// `max_bucket`, and the section's checksum. Returns per window the XXH3-64
+/// of its runs' bytes (what later reads are checked against) and the most
+/// runs a window holds.
+fn check_window_runs(
+    file: &File,
+    path: &Path,
+    run_entry: &SectionEntry,
+    offsets: &[u64],
+    run_offsets: &[u64],
+    windows: &[Window],
+    max_bucket: u8,
+) -> Result<(Vec<u64>, usize), ArchiveError> {
+    let run_count = run_offsets.last().copied().unwrap_or(0);
+    if run_entry.length != run_count * 8 {
+        return Err(ArchiveError::corrupt(format!(
+            "section LRUN: {} bytes, expected {} for LROF's {run_count} runs",
+            run_entry.length,
+            run_count * 8
+        )));
+    }
+    let (mut run_sums, mut run_capacity, mut section) = (Vec::with_capacity(windows.len()), 0, Xxh3::new());
+    let mut run_buf: Vec<LinkRunRecord> = Vec::new();
+    for w in windows {
+        let (a, b) = (run_offsets[w.patches.start], run_offsets[w.patches.end]);
+        run_buf.resize((b - a) as usize, LinkRunRecord::default());
+        read_at(file, bytemuck::cast_slice_mut(&mut run_buf), run_entry.offset + a * 8)
+            .map_err(|x| short(path, "LRUN", x))?;
+        let bytes: &[u8] = bytemuck::cast_slice(&run_buf);
+        section.update(bytes);
+        run_sums.push(xxh3_64(bytes));
+        run_capacity = run_capacity.max(run_buf.len());
+        check_rows(offsets, run_offsets, w.patches.clone(), &run_buf, max_bucket).map_err(ArchiveError::Corrupt)?;
+    }
+    check_sum_of(run_entry, section.digest(), "LRUN")?;
+    Ok((run_sums, run_capacity))
+}
+
+/// The columns `LOTH`, `LCNT` and `LDIR` (`entries`) of an archive being
+/// opened, read once, a few chunks at a time: each checked against its
+/// section checksum and its content rules (§7), `LOTH`'s ids against the
+/// runs (`ids`, fed in file order), `LCNT` against `escapes` (`LCNX`) and
+/// its rows' sums against `limits.hits`. Returns per chunk of
+/// [`CHUNK_ENDS`] ends each column's XXH3-64.
+fn check_columns<R: Iterator<Item = LinkRunRecord>>(
+    file: &File,
+    path: &Path,
+    entries: [&SectionEntry; 3],
+    escapes: &[WeightEscape],
+    offsets: &[u64],
+    limits: &Limits<'_>,
+    ids: &mut IdCheck<R>,
+) -> Result<Vec<[u64; 3]>, ArchiveError> {
+    let ends = offsets.last().copied().unwrap_or(0) as usize;
+    let chunks = ends.div_ceil(CHUNK_ENDS);
+    let mut sums = vec![[0u64; 3]; chunks];
+    let names = NAMES;
+    let mut buf = Vec::new();
+    let mut next_escape = 0;
+    for (c, e) in entries.iter().enumerate() {
+        let mut sums_of_rows = WeightSums::new(offsets, limits.hits);
+        if e.length != (ends * WIDTH[c]) as u64 {
+            return Err(ArchiveError::corrupt(format!(
+                "section {}: {} bytes, expected {} for {ends} link ends",
+                names[c],
+                e.length,
+                ends * WIDTH[c]
+            )));
+        }
+        let mut section = Xxh3::new();
+        for first in (0..chunks).step_by(OPEN_READ_CHUNKS) {
+            let a = first * CHUNK_ENDS;
+            let b = ((first + OPEN_READ_CHUNKS) * CHUNK_ENDS).min(ends);
+            buf.resize((b - a) * WIDTH[c], 0u8);
+            read_at(file, &mut buf, e.offset + (a * WIDTH[c]) as u64).map_err(|x| short(path, names[c], x))?;
+            section.update(&buf);
+            for (i, chunk) in buf.chunks(CHUNK_ENDS * WIDTH[c]).enumerate() {
+                sums[first + i][c] = xxh3_64(chunk);
+            }
+            check_column(c, &buf, limits)?;
+            if c == 0 && !ids.add(bytemuck::cast_slice(&buf)) {
+                return Err(ArchiveError::corrupt("LOTH: patch id out of range"));
+            }
+            if c == 1 {
+                weights::check(&buf, a as u64, escapes, &mut next_escape).map_err(ArchiveError::Corrupt)?;
+                sums_of_rows.add(Weights::new(&buf, escapes, a as u64))?;
+            }
+        }
+        let sum = section.digest();
+        if sum != e.checksum {
+            return Err(ArchiveError::corrupt(format!(
+                "section {}: checksum mismatch (stored {:#018x}, computed {sum:#018x})",
+                names[c], e.checksum
+            )));
+        }
+    }
+    if next_escape != escapes.len() {
+        return Err(ArchiveError::corrupt(format!(
+            "LCNX: {} entries, but LCNT has {next_escape} zero counts",
+            escapes.len()
+        )));
+    }
+    Ok(sums)
 }
 
 /// A section's checksum against `sum`, its bytes' XXH3-64.

@@ -13,6 +13,7 @@
 
 use std::ops::Range;
 
+use super::ArchiveError;
 use super::layout::WeightEscape;
 
 /// The weights of a run of link ends: `counts[i]` is end `first_end + i`'s
@@ -145,6 +146,61 @@ pub fn check(counts: &[u8], first_end: u64, escapes: &[WeightEscape], next: &mut
         *next += 1;
     }
     Ok(())
+}
+
+/// Relative slack on sums of f32 ray counts (exact integers below 2²⁴;
+/// larger sums round).
+const SUM_SLACK: f64 = 1e-6;
+
+/// Folds link-end weights into per-patch sums and checks each finished
+/// patch's sum against its hit count `PHIT[p]` (each ray line crossing a
+/// patch makes at most one link end there). Fed weights in end order, in
+/// any slicing.
+pub(super) struct WeightSums<'a> {
+    offsets: &'a [u64],
+    hits: &'a [u32],
+    /// The patch whose ends come next.
+    patch: usize,
+    /// The end that comes next.
+    end: usize,
+    sum: f64,
+}
+
+impl<'a> WeightSums<'a> {
+    /// Sums over the rows `offsets` (validated CSR) of patches with `hits`.
+    pub(super) fn new(offsets: &'a [u64], hits: &'a [u32]) -> Self {
+        Self { offsets, hits, patch: 0, end: 0, sum: 0.0 }
+    }
+
+    /// Adds the next `weights` (ends `self.end ..`).
+    pub(super) fn add(&mut self, weights: Weights<'_>) -> Result<(), ArchiveError> {
+        let mut i = 0;
+        while i < weights.len() {
+            self.finish_empty()?;
+            let row_end = self.offsets[self.patch + 1] as usize;
+            let take = (row_end - self.end).min(weights.len() - i);
+            self.sum += weights.slice(i..i + take).iter().map(|w| w as f64).sum::<f64>();
+            self.end += take;
+            i += take;
+        }
+        self.finish_empty()
+    }
+
+    /// Closes every patch whose row is complete.
+    fn finish_empty(&mut self) -> Result<(), ArchiveError> {
+        while self.patch + 1 < self.offsets.len() && self.offsets[self.patch + 1] as usize == self.end {
+            let h = self.hits[self.patch] as f64;
+            if self.sum > h * (1.0 + SUM_SLACK) {
+                return Err(ArchiveError::corrupt(format!(
+                    "LCNT: patch {}'s link ends carry {} rays, more than the {h} that cross it (PHIT)",
+                    self.patch, self.sum
+                )));
+            }
+            self.sum = 0.0;
+            self.patch += 1;
+        }
+        Ok(())
+    }
 }
 
 #[cfg(test)]
