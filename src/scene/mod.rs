@@ -9,7 +9,10 @@
 //! with its MTL), which map what they can and say the rest in
 //! [`Scene::notes`].
 
+mod check;
+mod error;
 pub mod gltf;
+mod import;
 pub mod motion;
 mod obj;
 mod parse;
@@ -19,8 +22,8 @@ use std::path::Path;
 
 use glam::Vec3;
 
+pub use error::SceneError;
 pub use gltf::GltfOptions;
-pub use parse::SceneError;
 
 use crate::geometry::Primitive;
 

@@ -18,8 +18,9 @@ use std::path::Path;
 
 use glam::{Vec2, Vec3};
 
-use super::gltf::error;
-use super::gltf::triangles::merge_quads_indexed;
+use super::check::check_primitive;
+use super::error::error;
+use super::import::{Notes, merge_quads_indexed, unique_name, unique_names};
 use super::texture::{MAX_TEXEL_BYTES, Shading, Texture, TextureImage, Wrap, srgb_to_linear};
 use super::{BuildHints, Material, ReflectanceModel, Scene, SceneError, Surface};
 use crate::reflectance::Lobe;
@@ -63,7 +64,7 @@ pub(super) fn import(path: &Path) -> Result<Scene, SceneError> {
     }
     let opts = tobj::LoadOptions { triangulate: true, single_index: true, ..Default::default() };
     let (models, mtl) = tobj::load_obj(path, &opts).map_err(|e| error(path, "", format!("cannot load OBJ: {e}")))?;
-    let mut notes = super::gltf::Notes::default();
+    let mut notes = Notes::default();
     let mtl = match mtl {
         Ok(m) => m,
         Err(e) => {
@@ -93,7 +94,7 @@ pub(super) fn import(path: &Path) -> Result<Scene, SceneError> {
                 positions[t[1] as usize],
                 positions[t[2] as usize],
             );
-            if super::parse::check_primitive(&p).is_ok() {
+            if check_primitive(&p).is_ok() {
                 tri.push(t);
             } else {
                 degenerate += 1;
@@ -221,7 +222,7 @@ pub(super) fn import(path: &Path) -> Result<Scene, SceneError> {
                         } else {
                             src.name.clone()
                         };
-                        let name = super::gltf::unique_name(&name, |n| materials.iter().any(|x| x.name == n));
+                        let name = unique_name(&name, |n| materials.iter().any(|x| x.name == n));
                         materials.push(Material { name, model });
                         let i = (materials.len() - 1) as u32;
                         if !own {
@@ -272,7 +273,7 @@ pub(super) fn import(path: &Path) -> Result<Scene, SceneError> {
             shading,
         });
     }
-    super::gltf::unique_names(&mut surfaces);
+    unique_names(&mut surfaces);
     if surfaces.is_empty() {
         return Err(error(path, "", "the OBJ has no faces"));
     }

@@ -9,8 +9,10 @@ use std::path::Path;
 use glam::{Mat4, Quat, Vec3, Vec4};
 use gltf::animation::{Interpolation, Property, util::ReadOutputs};
 
-use super::{GltfOptions, Notes, error};
+use super::GltfOptions;
 use crate::scene::SceneError;
+use crate::scene::error::error;
+use crate::scene::import::Notes;
 
 /// Most node placements (moving nodes × frames) an animation may make: 4 Mi
 /// matrices, 256 MiB.

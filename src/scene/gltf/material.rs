@@ -19,8 +19,9 @@ use std::path::Path;
 use glam::Vec3;
 
 use super::triangles::Triangles;
-use super::{Notes, error};
 use crate::reflectance::Lobe;
+use crate::scene::error::error;
+use crate::scene::import::Notes;
 use crate::scene::texture::{MAX_TEXEL_BYTES, Texture, TextureImage, Wrap, linear_to_srgb_byte, srgb_to_linear};
 use crate::scene::{Material, ReflectanceModel, SceneError};
 
@@ -146,7 +147,7 @@ impl<'a> Materials<'a> {
     }
 
     fn push(&mut self, name: String, model: ReflectanceModel) -> u32 {
-        let name = super::unique_name(&name, |n| self.out.iter().any(|m| m.name == n));
+        let name = crate::scene::import::unique_name(&name, |n| self.out.iter().any(|m| m.name == n));
         self.out.push(Material { name, model });
         (self.out.len() - 1) as u32
     }

@@ -19,12 +19,14 @@ mod animation;
 mod light;
 mod load;
 mod material;
-pub(super) mod triangles;
+mod triangles;
 
 use std::path::Path;
 
 use glam::{Mat4, Vec3};
 
+use super::error::error;
+use super::import::{Notes, unique_names};
 use super::motion::{Animation, CameraKey, Interpolation, Keyframe, Motion};
 use super::texture::Shading;
 use super::{BuildHints, Camera, Scene, SceneError, Surface};
@@ -60,55 +62,6 @@ const DEFAULT_FPS: f32 = 24.0;
 const MAX_SURFACES: usize = 1_000_000;
 /// Most triangles one file may make, over all instances.
 const MAX_TRIANGLES: usize = 50_000_000;
-
-/// An error at a field of an imported file (a JSON pointer for glTF; an
-/// object or material for OBJ): no line or column.
-pub(in crate::scene) fn error(file: &Path, pointer: impl Into<String>, message: impl Into<String>) -> SceneError {
-    SceneError {
-        file: file.into(),
-        line: 0,
-        column: 0,
-        field: pointer.into(),
-        message: message.into(),
-        unreadable: false,
-    }
-}
-
-/// What the importer could not map, each said once; after
-/// [`Notes::MAX`] different notes the rest are counted.
-#[derive(Default)]
-pub(super) struct Notes {
-    said: Vec<String>,
-    seen: std::collections::HashSet<String>,
-    more: usize,
-}
-
-impl Notes {
-    const MAX: usize = 50;
-
-    pub(super) fn into_vec(mut self) -> Vec<String> {
-        if self.more > 0 {
-            self.said.push(format!("… and {} more notes", self.more));
-        }
-        self.said
-    }
-
-    pub(super) fn add(&mut self, note: impl Into<String>) {
-        let note = note.into();
-        if self.seen.contains(&note) {
-            return;
-        }
-        if self.said.len() >= Self::MAX {
-            self.more += 1;
-            if self.seen.len() < 10 * Self::MAX {
-                self.seen.insert(note);
-            }
-            return;
-        }
-        self.seen.insert(note.clone());
-        self.said.push(note);
-    }
-}
 
 /// A node met walking the scene, with its place in the hierarchy.
 struct Placed<'a> {
@@ -437,24 +390,6 @@ fn shading_of(tri: &triangles::Triangles, texture: Option<&material::TextureUse>
 
 fn mesh_name(mesh: &gltf::Mesh<'_>) -> String {
     mesh.name().map_or_else(|| format!("mesh{}", mesh.index()), str::to_string)
-}
-
-/// Makes surface names unique (`name`, `name~2`, …): a file may reuse node
-/// names, and `--set NAME.FIELD` needs one surface per name.
-pub(super) fn unique_names(surfaces: &mut [Surface]) {
-    let mut taken: std::collections::HashSet<String> = std::collections::HashSet::new();
-    for s in surfaces.iter_mut() {
-        s.name = unique_name(&s.name, |c| taken.contains(c));
-        taken.insert(s.name.clone());
-    }
-}
-
-/// `name`, or the first of `name~2`, `name~3`, … that is not `taken`.
-pub(in crate::scene) fn unique_name(name: &str, taken: impl Fn(&str) -> bool) -> String {
-    if !taken(name) {
-        return name.to_string();
-    }
-    (2..).map(|k| format!("{name}~{k}")).find(|c| !taken(c)).expect("unbounded")
 }
 
 /// Keyframes moving a surface from its frame-0 world placement (where its

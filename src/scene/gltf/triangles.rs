@@ -12,9 +12,11 @@ use std::path::Path;
 use glam::{Mat4, Vec2, Vec3};
 use gltf::mesh::Mode;
 
-use super::{Notes, error};
 use crate::geometry::{Primitive, PrimitiveKind};
 use crate::scene::SceneError;
+use crate::scene::check::check_primitive;
+use crate::scene::error::error;
+use crate::scene::import::{Notes, merge_quads_indexed};
 
 /// One source triangle's shading frame and texture coordinates.
 #[derive(Clone, Copy)]
@@ -157,7 +159,7 @@ pub(super) fn read(
     for t in tri {
         let t = if mirrored { [t[0], t[2], t[1]] } else { t };
         let p = Primitive::triangle(positions[t[0] as usize], positions[t[1] as usize], positions[t[2] as usize]);
-        if crate::scene::parse::check_primitive(&p).is_ok() {
+        if check_primitive(&p).is_ok() {
             kept.push(t);
         } else {
             degenerate += 1;
@@ -215,31 +217,6 @@ fn is_closed(pos: &[Vec3], tri: &[[u32; 3]]) -> bool {
     !tri.is_empty() && edges.values().all(|&n| n == 2)
 }
 
-/// Consecutive triangles `(a, b, c)`, `(c, d, a)` (in any rotation) that make
-/// a planar convex quad, as that quad; the rest as triangles.
-/// Also returns each primitive's corners as vertex indices (a triangle
-/// repeats its corner 2).
-pub(in crate::scene) fn merge_quads_indexed(pos: &[Vec3], tri: &[[u32; 3]]) -> (Vec<Primitive>, Vec<[u32; 4]>) {
-    let mut out = Vec::with_capacity(tri.len());
-    let mut corners = Vec::with_capacity(tri.len());
-    let mut i = 0;
-    while i < tri.len() {
-        if i + 1 < tri.len()
-            && let Some((q, c)) = quad_of(pos, tri[i], tri[i + 1])
-        {
-            out.push(q);
-            corners.push(c);
-            i += 2;
-            continue;
-        }
-        let t = tri[i].map(|k| pos[k as usize]);
-        out.push(Primitive::triangle(t[0], t[1], t[2]));
-        corners.push([tri[i][0], tri[i][1], tri[i][2], tri[i][2]]);
-        i += 1;
-    }
-    (out, corners)
-}
-
 /// The corners of `p` flipped by [`flipped`], in its order.
 pub(super) fn flipped_corners<T: Copy>(kind: PrimitiveKind, c: [T; 4]) -> [T; 4] {
     match kind {
@@ -248,52 +225,9 @@ pub(super) fn flipped_corners<T: Copy>(kind: PrimitiveKind, c: [T; 4]) -> [T; 4]
     }
 }
 
-fn quad_of(pos: &[Vec3], t1: [u32; 3], t2: [u32; 3]) -> Option<(Primitive, [u32; 4])> {
-    for r1 in 0..3 {
-        let (a, b, c) = (t1[r1], t1[(r1 + 1) % 3], t1[(r1 + 2) % 3]);
-        for r2 in 0..3 {
-            if t2[r2] == c && t2[(r2 + 2) % 3] == a {
-                let d = t2[(r2 + 1) % 3];
-                let q = Primitive::quad([a, b, c, d].map(|k| pos[k as usize]));
-                let size = (q.p[2] - q.p[0]).length().max((q.p[3] - q.p[1]).length());
-                let n = q.normal();
-                let off = (q.p[3] - q.p[0]).dot(n).abs().max((q.p[1] - q.p[0]).dot(n).abs());
-                if off <= 1e-6 * size && crate::scene::parse::check_primitive(&q).is_ok() {
-                    return Some((q, [a, b, c, d]));
-                }
-                return None;
-            }
-        }
-    }
-    None
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn triangle_pairs_become_quads_only_when_planar_and_convex() {
-        let pos = [Vec3::ZERO, Vec3::X, Vec3::new(1.0, 1.0, 0.0), Vec3::Y, Vec3::new(1.0, 1.0, 0.5)];
-        // (0,1,2),(0,2,3): the usual split; any rotation of either triangle.
-        for (t1, t2) in [([0, 1, 2], [0, 2, 3]), ([1, 2, 0], [2, 3, 0]), ([2, 0, 1], [3, 0, 2])] {
-            let (out, corners) = merge_quads_indexed(&pos, &[t1, t2]);
-            assert_eq!(out.len(), 1);
-            // The corners' vertices, in the quad's order.
-            assert_eq!(corners[0].map(|i| pos[i as usize]), out[0].p);
-            assert_eq!(out[0].kind, PrimitiveKind::Quad);
-            assert!((out[0].area() - 1.0).abs() < 1e-6);
-        }
-        // Not planar: the fourth corner is lifted.
-        let (out, corners) = merge_quads_indexed(&pos, &[[0, 1, 4], [0, 4, 3]]);
-        assert_eq!(out.len(), 2);
-        assert_eq!(corners, vec![[0, 1, 4, 4], [0, 4, 3, 3]]);
-        // Not sharing a reversed diagonal (opposite windings).
-        assert_eq!(merge_quads_indexed(&pos, &[[0, 1, 2], [0, 3, 2]]).0.len(), 2);
-        // Not convex: a dart.
-        let dart = [Vec3::ZERO, Vec3::new(2.0, 0.0, 0.0), Vec3::new(0.5, 0.5, 0.0), Vec3::new(0.0, 2.0, 0.0)];
-        assert_eq!(merge_quads_indexed(&dart, &[[0, 1, 2], [0, 2, 3]]).0.len(), 2);
-    }
 
     #[test]
     fn closed_means_every_edge_twice() {
