@@ -67,9 +67,6 @@ pub(super) fn read(
     world: Mat4,
     notes: &mut Notes,
 ) -> Result<Triangles, SceneError> {
-    use gltf::Semantic;
-    use gltf::accessor::{DataType::*, Dimensions};
-    let check = super::load::check_accessor;
     let reader = prim.reader(|b| buffers.get(b.index()).map(|d| &d.0[..]));
     let empty = || Triangles {
         primitives: Vec::new(),
@@ -88,23 +85,7 @@ pub(super) fn read(
             return Ok(empty());
         }
     }
-    if let Some(a) = prim.get(&Semantic::Positions) {
-        check(path, &a, &[F32], Dimensions::Vec3, "POSITION")?;
-    }
-    if let Some(a) = prim.indices() {
-        check(path, &a, &[U8, U16, U32], Dimensions::Scalar, "indices")?;
-    }
-    for set in 0..2 {
-        if let Some(a) = prim.get(&Semantic::TexCoords(set)) {
-            check(path, &a, &[F32, U8, U16], Dimensions::Vec2, "TEXCOORD")?;
-        }
-    }
-    if let Some(a) = prim.get(&Semantic::Tangents) {
-        check(path, &a, &[F32], Dimensions::Vec4, "TANGENT")?;
-    }
-    if let Some(a) = prim.get(&Semantic::Normals) {
-        check(path, &a, &[F32], Dimensions::Vec3, "NORMAL")?;
-    }
+    check_attributes(path, prim)?;
     let positions: Vec<Vec3> = reader
         .read_positions()
         .ok_or_else(|| error(path, format!("{at}/attributes/POSITION"), "the primitive has no readable positions"))?
@@ -121,18 +102,7 @@ pub(super) fn read(
             format!("index {bad} is out of range ({} vertices)", positions.len()),
         ));
     }
-    let tri: Vec<[u32; 3]> = match prim.mode() {
-        Mode::TriangleStrip => (0..indices.len().saturating_sub(2))
-            .map(|i| {
-                let o = i % 2;
-                [indices[i], indices[i + 1 + o], indices[i + 2 - o]]
-            })
-            .collect(),
-        Mode::TriangleFan => {
-            (1..indices.len().saturating_sub(1)).map(|i| [indices[i], indices[i + 1], indices[0]]).collect()
-        }
-        _ => indices.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect(),
-    };
+    let tri = triangle_indices(prim.mode(), &indices);
     let mirrored = world.determinant() < 0.0;
     let uv_sets: [Option<Vec<Vec2>>; 2] =
         [0, 1].map(|set| reader.read_tex_coords(set).map(|t| t.into_f32().map(Vec2::from).collect()));
@@ -154,6 +124,60 @@ pub(super) fn read(
         return Err(error(path, format!("{at}/attributes/TANGENT"), "not one tangent per vertex"));
     }
 
+    let (kept, degenerate) = kept_triangles(&positions, tri, mirrored);
+    let corners = corners_of(&positions, &kept, tangents.as_deref(), uv_sets[0].as_deref(), world);
+    let uvs = uv_sets.clone().map(|u| u.map(|uv| kept.iter().map(|t| t.map(|i| uv[i as usize])).collect()));
+    let closed = prim.material().double_sided() && is_closed(&positions, &kept);
+    let (primitives, vertices) = merge_quads_indexed(&positions, &kept);
+    Ok(Triangles { primitives, corners, uvs, vertices, vertex_uv: uv_sets, vertex_normal, closed, degenerate })
+}
+
+/// Checks the component types and shapes of `prim`'s accessors before any
+/// is read.
+fn check_attributes(path: &Path, prim: &gltf::Primitive<'_>) -> Result<(), SceneError> {
+    use gltf::Semantic;
+    use gltf::accessor::{DataType::*, Dimensions};
+    let check = super::load::check_accessor;
+    if let Some(a) = prim.get(&Semantic::Positions) {
+        check(path, &a, &[F32], Dimensions::Vec3, "POSITION")?;
+    }
+    if let Some(a) = prim.indices() {
+        check(path, &a, &[U8, U16, U32], Dimensions::Scalar, "indices")?;
+    }
+    for set in 0..2 {
+        if let Some(a) = prim.get(&Semantic::TexCoords(set)) {
+            check(path, &a, &[F32, U8, U16], Dimensions::Vec2, "TEXCOORD")?;
+        }
+    }
+    if let Some(a) = prim.get(&Semantic::Tangents) {
+        check(path, &a, &[F32], Dimensions::Vec4, "TANGENT")?;
+    }
+    if let Some(a) = prim.get(&Semantic::Normals) {
+        check(path, &a, &[F32], Dimensions::Vec3, "NORMAL")?;
+    }
+    Ok(())
+}
+
+/// The triangles of `indices` in `mode` (a list, strip or fan), as the
+/// file winds them.
+fn triangle_indices(mode: Mode, indices: &[u32]) -> Vec<[u32; 3]> {
+    match mode {
+        Mode::TriangleStrip => (0..indices.len().saturating_sub(2))
+            .map(|i| {
+                let o = i % 2;
+                [indices[i], indices[i + 1 + o], indices[i + 2 - o]]
+            })
+            .collect(),
+        Mode::TriangleFan => {
+            (1..indices.len().saturating_sub(1)).map(|i| [indices[i], indices[i + 1], indices[0]]).collect()
+        }
+        _ => indices.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect(),
+    }
+}
+
+/// The triangles of `tri` that pass [`check_primitive`] (re-wound when
+/// `mirrored`, so that they face front), and how many did not.
+fn kept_triangles(positions: &[Vec3], tri: Vec<[u32; 3]>, mirrored: bool) -> (Vec<[u32; 3]>, usize) {
     let mut kept: Vec<[u32; 3]> = Vec::with_capacity(tri.len());
     let mut degenerate = 0usize;
     for t in tri {
@@ -165,19 +189,31 @@ pub(super) fn read(
             degenerate += 1;
         }
     }
+    (kept, degenerate)
+}
 
-    let corners = kept
-        .iter()
+/// Per triangle of `kept`, its area and tangent frame: from `TANGENT`s
+/// (placed by `world`), else from the +u direction of texture set 0,
+/// else none.
+fn corners_of(
+    positions: &[Vec3],
+    kept: &[[u32; 3]],
+    tangents: Option<&[[f32; 4]]>,
+    uv0: Option<&[Vec2]>,
+    world: Mat4,
+) -> Vec<Corner> {
+    let mirrored = world.determinant() < 0.0;
+    kept.iter()
         .map(|t| {
             let p = t.map(|i| positions[i as usize]);
             let normal = (p[1] - p[0]).cross(p[2] - p[0]);
             let area = normal.length() / 2.0;
             let n = normal.normalize_or_zero();
-            let (tangent, sign) = if let Some(tg) = &tangents {
+            let (tangent, sign) = if let Some(tg) = tangents {
                 let s: Vec3 = t.iter().map(|&i| Vec3::from_slice(&tg[i as usize][..3])).sum();
                 let w = tg[t[0] as usize][3];
                 (world.transform_vector3(s), if w < 0.0 { -1.0 } else { 1.0 })
-            } else if let Some(uv) = &uv_sets[0] {
+            } else if let Some(uv) = uv0 {
                 let q = t.map(|i| uv[i as usize]);
                 let (d1, d2) = (q[1] - q[0], q[2] - q[0]);
                 let det = d1.x * d2.y - d2.x * d1.y;
@@ -190,11 +226,7 @@ pub(super) fn read(
             let bitangent = if tangent == Vec3::ZERO { Vec3::ZERO } else { n.cross(tangent) * sign };
             Corner { area, tangent, bitangent }
         })
-        .collect();
-    let uvs = uv_sets.clone().map(|u| u.map(|uv| kept.iter().map(|t| t.map(|i| uv[i as usize])).collect()));
-    let closed = prim.material().double_sided() && is_closed(&positions, &kept);
-    let (primitives, vertices) = merge_quads_indexed(&positions, &kept);
-    Ok(Triangles { primitives, corners, uvs, vertices, vertex_uv: uv_sets, vertex_normal, closed, degenerate })
+        .collect()
 }
 
 /// Whether every edge of `tri` is shared by exactly two triangles, vertices
