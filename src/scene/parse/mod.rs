@@ -8,8 +8,9 @@
 //! * `material`, `surface`, `motion`: `[[material]]`, `[[surface]]` (its
 //!   primitives, boxes, OBJ meshes) and keyframes with `[animation]`.
 //!
-//! [`parse`] reads the tables in that order, so the first mistake in the
-//! file's own order of concepts is the one reported.
+//! [`parse`] checks `[gltf]`, `[camera]`, `[build]`, the materials, the
+//! surfaces (each whole, in file order) and then `[animation]`: the first
+//! mistake in that order is the one reported.
 
 mod camera;
 mod errors;
