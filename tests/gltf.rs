@@ -429,6 +429,83 @@ quad = [[-1.0, 3.0, -1.0], [-1.0, 3.0, 1.0], [1.0, 3.0, 1.0], [1.0, 3.0, -1.0]]
 
 /// OBJ + MTL scenes (format-spec/scene.md, "OBJ + MTL scenes"), written by
 /// `tools/make_gltf.py` too.
+/// A glTF file (and its `.bin`) at `dir/name` that keys a lit triangle's
+/// translation every `step` seconds for one second (LINEAR), as an
+/// exporter keying every frame of a 1/`step` fps animation writes it.
+fn keyed_every(dir: &Path, name: &str, step: f32) -> PathBuf {
+    let times: Vec<f32> = (0..).map(|k| k as f32 * step).take_while(|t| *t <= 1.0 + 1e-6).collect();
+    let mut bin: Vec<u8> = Vec::new();
+    let triangle = [0.0f32, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0];
+    bin.extend(triangle.iter().flat_map(|x| x.to_le_bytes()));
+    bin.extend(times.iter().flat_map(|x| x.to_le_bytes()));
+    bin.extend(times.iter().flat_map(|t| [0.0f32, *t, -1.0].map(f32::to_le_bytes)).flatten());
+    let n = times.len();
+    let gltf = serde_json::json!({
+        "asset": { "version": "2.0" },
+        "scene": 0,
+        "scenes": [{ "nodes": [0, 1] }],
+        "nodes": [{ "name": "lamp", "mesh": 0 }, { "name": "mover", "mesh": 0, "translation": [0.0, 0.0, -1.0] }],
+        "meshes": [{ "primitives": [{ "attributes": { "POSITION": 0 }, "material": 0 }] }],
+        "materials": [{ "emissiveFactor": [1.0, 1.0, 1.0] }],
+        "buffers": [{ "uri": format!("{name}.bin"), "byteLength": bin.len() }],
+        "bufferViews": [
+            { "buffer": 0, "byteOffset": 0, "byteLength": 36 },
+            { "buffer": 0, "byteOffset": 36, "byteLength": 4 * n },
+            { "buffer": 0, "byteOffset": 36 + 4 * n, "byteLength": 12 * n },
+        ],
+        "accessors": [
+            { "bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3", "min": [0.0, 0.0, 0.0], "max": [1.0, 1.0, 0.0] },
+            { "bufferView": 1, "componentType": 5126, "count": n, "type": "SCALAR", "min": [0.0], "max": [times[n - 1]] },
+            { "bufferView": 2, "componentType": 5126, "count": n, "type": "VEC3" },
+        ],
+        "animations": [{
+            "channels": [{ "sampler": 0, "target": { "node": 1, "path": "translation" } }],
+            "samplers": [{ "input": 1, "output": 2, "interpolation": "LINEAR" }],
+        }],
+    });
+    std::fs::write(dir.join(format!("{name}.bin")), bin).unwrap();
+    let path = dir.join(format!("{name}.gltf"));
+    std::fs::write(&path, gltf.to_string()).unwrap();
+    path
+}
+
+#[test]
+fn keys_between_the_frames_of_the_default_rate_are_warned_of() {
+    let dir = tempfile::tempdir().unwrap();
+    // Keys every 1/15 s sampled at the default 24 fps: only every fifth
+    // (0, 1/3, 2/3 and 1 s) falls on a frame.
+    let file = keyed_every(dir.path(), "fifteen", 1.0 / 15.0);
+    let warning = "animation: 12 of 16 key times fall between the frames of the default 24 fps; \
+                   the keys imply 15 fps: give it with --fps 15 (or [gltf] fps = 15)";
+    let s = Scene::from_file(&file).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(s.frame_count(), 25);
+    assert!(s.notes.iter().any(|n| n == warning), "{:?}", s.notes);
+    // A rate given (the keys' own, or any other) is the user's: no note.
+    for fps in [15.0, 24.0] {
+        let s = Scene::from_file_with(&file, &GltfOptions { fps: Some(fps), ..Default::default() }).unwrap();
+        assert!(!s.notes.iter().any(|n| n.contains("key times")), "{fps} fps: {:?}", s.notes);
+    }
+    // Keys on the frames of the default rate: no note.
+    let twelve = Scene::from_file(&keyed_every(dir.path(), "twelve", 1.0 / 12.0)).unwrap();
+    assert!(!twelve.notes.iter().any(|n| n.contains("key times")), "{:?}", twelve.notes);
+    // `illumnet build` prints it as a warning, and not with `--fps`.
+    let build = |extra: &[&str]| {
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_illumnet"))
+            .args(["build", "-q", "--frame", "0", "--quality", "draft"])
+            .arg(&file)
+            .arg("-o")
+            .arg(dir.path().join("f.inet"))
+            .args(extra)
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        String::from_utf8_lossy(&out.stderr).into_owned()
+    };
+    let err = build(&[]);
+    assert_eq!(err.matches(&format!("illumnet: warning: {}: {warning}", file.display())).count(), 1, "{err}");
+    assert!(!build(&["--fps", "15"]).contains("key times"));
+}
+
 fn obj(name: &str) -> Scene {
     let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/obj").join(name);
     Scene::from_file(&p).unwrap_or_else(|e| panic!("{e}"))

@@ -8,8 +8,17 @@
 //! other tools come in through [`gltf`] (glTF 2.0) and `obj` (Wavefront OBJ
 //! with its MTL), which map what they can and say the rest in
 //! [`Scene::notes`].
+//!
+//! [`Scene::from_file`] is the one constructor for files: it reads each
+//! kind by its own reader (`parse`, [`gltf`], `obj`). Below them lie what
+//! they share, so that no reader imports another: `error` ([`SceneError`]),
+//! `check` (the rule every primitive is held to) and `import` (the
+//! importers' notes, unique names and quads re-merged from triangle pairs).
 
+mod check;
+mod error;
 pub mod gltf;
+mod import;
 pub mod motion;
 mod obj;
 mod parse;
@@ -19,8 +28,8 @@ use std::path::Path;
 
 use glam::Vec3;
 
+pub use error::SceneError;
 pub use gltf::GltfOptions;
-pub use parse::SceneError;
 
 use crate::geometry::Primitive;
 

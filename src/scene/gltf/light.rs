@@ -22,9 +22,10 @@ use std::path::Path;
 use glam::{Mat4, Vec3};
 use gltf::khr_lights_punctual::Kind;
 
-use super::{Notes, error};
 use crate::geometry::Primitive;
 use crate::scene::SceneError;
+use crate::scene::error::error;
+use crate::scene::import::Notes;
 
 /// Lumens per watt at 555 nm: candela → W/sr.
 pub const LUMENS_PER_WATT: f32 = 683.0;

@@ -9,8 +9,8 @@ use std::path::{Path, PathBuf};
 
 use gltf::accessor::{DataType, Dimensions};
 
-use super::error;
 use crate::scene::SceneError;
+use crate::scene::error::error;
 
 /// Most elements one accessor may hold (2²⁴ vertices, indices or keys).
 pub(super) const MAX_ACCESSOR: usize = 1 << 24;

@@ -19,8 +19,9 @@ use std::path::Path;
 use glam::Vec3;
 
 use super::triangles::Triangles;
-use super::{Notes, error};
 use crate::reflectance::Lobe;
+use crate::scene::error::error;
+use crate::scene::import::Notes;
 use crate::scene::texture::{MAX_TEXEL_BYTES, Texture, TextureImage, Wrap, linear_to_srgb_byte, srgb_to_linear};
 use crate::scene::{Material, ReflectanceModel, SceneError};
 
@@ -146,7 +147,7 @@ impl<'a> Materials<'a> {
     }
 
     fn push(&mut self, name: String, model: ReflectanceModel) -> u32 {
-        let name = super::unique_name(&name, |n| self.out.iter().any(|m| m.name == n));
+        let name = crate::scene::import::unique_name(&name, |n| self.out.iter().any(|m| m.name == n));
         self.out.push(Material { name, model });
         (self.out.len() - 1) as u32
     }
@@ -187,30 +188,13 @@ impl<'a> Materials<'a> {
         let m = prim.material();
         let Some(index) = m.index() else {
             notes.add("a primitive has no material: a diffuse grey of 0.8 is used");
-            if let Some(&i) = self.by_source.get(&None) {
-                return Ok((i, None, None));
-            }
-            let i = self.push("default".into(), ReflectanceModel::Diffuse { reflectance: [0.8; 3] });
-            self.by_source.insert(None, i);
-            return Ok((i, None, None));
+            return Ok((self.default_material(), None, None));
         };
         let at = format!("/materials/{index}");
         let name = m.name().map_or_else(|| format!("material{index}"), str::to_string);
         let pbr = m.pbr_metallic_roughness();
         let [r, g, b, a] = pbr.base_color_factor();
-        if a < 1.0 || m.alpha_mode() != gltf::material::AlphaMode::Opaque {
-            notes.add(format!("material `{name}`: transparency is not supported; it is opaque"));
-        }
-        for (present, what) in [
-            (pbr.metallic_roughness_texture().is_some(), "metallicRoughnessTexture (its factors are used)"),
-            (m.normal_texture().is_some(), "normalTexture"),
-            (m.occlusion_texture().is_some(), "occlusionTexture"),
-            (m.emissive_texture().is_some(), "emissiveTexture (its factor is used)"),
-        ] {
-            if present {
-                notes.add(format!("material `{name}`: {what} is ignored"));
-            }
-        }
+        note_ignored(&m, &pbr, a, &name, notes);
         let (strength, rotation) = anisotropy(self.path, &at, &m, &name, notes)?;
         let texture = pbr.base_color_texture();
         let mut base = [r, g, b];
@@ -222,89 +206,18 @@ impl<'a> Materials<'a> {
         }
         let mut kept: Option<(usize, [Wrap; 2], bool, [f32; 3])> = None;
         if let Some(info) = &texture {
-            let set = info.tex_coord() as usize;
-            let Some(Some(uvs)) = tri.uvs.get(set) else {
-                return Err(error(
-                    self.path,
-                    format!("{at}/pbrMetallicRoughness/baseColorTexture/texCoord"),
-                    format!("the mesh has no TEXCOORD_{set} for the base-colour texture"),
-                ));
-            };
-            let tex = info.texture();
-            let sampler = tex.sampler();
-            let wrap = |m: gltf::texture::WrappingMode| match m {
-                gltf::texture::WrappingMode::ClampToEdge => Wrap::Clamp,
-                gltf::texture::WrappingMode::Repeat => Wrap::Repeat,
-                gltf::texture::WrappingMode::MirroredRepeat => Wrap::Mirror,
-            };
-            let wraps = [wrap(sampler.wrap_s()), wrap(sampler.wrap_t())];
-            let nearest = sampler.mag_filter() == Some(gltf::texture::MagFilter::Nearest);
-            let mean = match self.means.get(&key) {
-                Some(m) => *m,
-                None => {
-                    let image = self.images.get(self.path, self.doc, self.buffers, tex.source().index())?;
-                    let fetch = |i: usize| texel(image, i);
-                    let texture = Texture { width: image.width, height: image.height, texel: &fetch };
-                    let m = texture.mean_albedo((wraps[0], wraps[1]), uvs, tri.corners.iter().map(|c| c.area));
-                    self.means.insert(key, m);
-                    m
-                }
-            };
+            let (image, wraps, nearest, mean) = self.base_colour_mean(info, &at, key, tri)?;
             for (c, m) in base.iter_mut().zip(mean) {
                 *c *= m;
             }
-            kept = Some((tex.source().index(), wraps, nearest, mean));
+            kept = Some((image, wraps, nearest, mean));
         }
         let (model, clamped) = model_of(base, pbr.metallic_factor(), pbr.roughness_factor(), strength);
-        // The render applies the texels to diffuse reflection; a metal's
-        // base colour is its specular colour, which keeps the mean.
-        let texture_use = match (kept, &model) {
-            (Some(_), ReflectanceModel::RoughConductor { .. }) => {
-                notes.add(format!(
-                    "material `{name}`: a metal's base-colour texture enters as its mean colour (no per-texel detail)"
-                ));
-                None
-            }
-            (Some((image, wraps, nearest, mean)), _) => {
-                self.keep_texture(image, wraps, nearest, notes)?.map(|texture| TextureUse {
-                    texture,
-                    set: tex_coord_set(&pbr),
-                    tint: mean.map(|m| if m > 0.0 { 1.0 / m } else { 0.0 }),
-                })
-            }
-            (None, _) => None,
-        };
+        let texture_use = self.texture_use(kept, &model, &pbr, &name, notes)?;
         if clamped {
             notes.add(format!("material `{name}`: roughness below 0.1 is taken as 0.1 (GGX α ≥ 0.01)"));
         }
-        let grain = if strength > 0.0 && model.lobe().is_some() {
-            let (s, c) = rotation.sin_cos();
-            let mut sum = Vec3::ZERO;
-            for k in &tri.corners {
-                sum += (k.tangent * c + k.bitangent * s) * k.area;
-            }
-            let dir = sum.normalize_or_zero();
-            if dir == Vec3::ZERO {
-                notes.add(format!(
-                    "material `{name}`: anisotropic without TANGENT or TEXCOORD_0; each triangle's first edge is its grain"
-                ));
-                None
-            } else {
-                let spread = tri
-                    .corners
-                    .iter()
-                    .filter(|k| k.area > 0.0)
-                    .any(|k| (k.tangent * c + k.bitangent * s).dot(dir) < 0.95);
-                if spread {
-                    notes.add(format!(
-                        "material `{name}`: the anisotropy direction varies over a surface; its mean direction is used"
-                    ));
-                }
-                Some(dir)
-            }
-        } else {
-            None
-        };
+        let grain = if strength > 0.0 && model.lobe().is_some() { grain_of(tri, rotation, &name, notes) } else { None };
         let i = if texture.is_some() || grain.is_some() {
             self.textured += 1;
             self.push(format!("{name}@{}", self.textured), model)
@@ -314,6 +227,143 @@ impl<'a> Materials<'a> {
             i
         };
         Ok((i, grain, texture_use))
+    }
+
+    /// The diffuse grey 0.8 of primitives without a material, made once.
+    fn default_material(&mut self) -> u32 {
+        if let Some(&i) = self.by_source.get(&None) {
+            return i;
+        }
+        let i = self.push("default".into(), ReflectanceModel::Diffuse { reflectance: [0.8; 3] });
+        self.by_source.insert(None, i);
+        i
+    }
+
+    /// A base-colour texture (`info`, of the material at `at`) over the
+    /// surface `tri` of mesh primitive `key`: its image, wraps, whether
+    /// sampled nearest, and its mean linear albedo over the surface (every
+    /// instance of a mesh primitive shares the first one's).
+    #[allow(clippy::type_complexity)]
+    fn base_colour_mean(
+        &mut self,
+        info: &gltf::texture::Info<'_>,
+        at: &str,
+        key: (usize, usize),
+        tri: &Triangles,
+    ) -> Result<(usize, [Wrap; 2], bool, [f32; 3]), SceneError> {
+        let set = info.tex_coord() as usize;
+        let Some(Some(uvs)) = tri.uvs.get(set) else {
+            return Err(error(
+                self.path,
+                format!("{at}/pbrMetallicRoughness/baseColorTexture/texCoord"),
+                format!("the mesh has no TEXCOORD_{set} for the base-colour texture"),
+            ));
+        };
+        let tex = info.texture();
+        let sampler = tex.sampler();
+        let wrap = |m: gltf::texture::WrappingMode| match m {
+            gltf::texture::WrappingMode::ClampToEdge => Wrap::Clamp,
+            gltf::texture::WrappingMode::Repeat => Wrap::Repeat,
+            gltf::texture::WrappingMode::MirroredRepeat => Wrap::Mirror,
+        };
+        let wraps = [wrap(sampler.wrap_s()), wrap(sampler.wrap_t())];
+        let nearest = sampler.mag_filter() == Some(gltf::texture::MagFilter::Nearest);
+        let mean = match self.means.get(&key) {
+            Some(m) => *m,
+            None => {
+                let image = self.images.get(self.path, self.doc, self.buffers, tex.source().index())?;
+                let fetch = |i: usize| texel(image, i);
+                let texture = Texture { width: image.width, height: image.height, texel: &fetch };
+                let m = texture.mean_albedo((wraps[0], wraps[1]), uvs, tri.corners.iter().map(|c| c.area));
+                self.means.insert(key, m);
+                m
+            }
+        };
+        Ok((tex.source().index(), wraps, nearest, mean))
+    }
+
+    /// The base-colour texture as the render applies it: its texels times
+    /// one over its mean on diffuse reflection. A metal's base colour is
+    /// its specular colour, which keeps the mean (said).
+    #[allow(clippy::type_complexity)]
+    fn texture_use(
+        &mut self,
+        kept: Option<(usize, [Wrap; 2], bool, [f32; 3])>,
+        model: &ReflectanceModel,
+        pbr: &gltf::material::PbrMetallicRoughness<'_>,
+        name: &str,
+        notes: &mut Notes,
+    ) -> Result<Option<TextureUse>, SceneError> {
+        // The render applies the texels to diffuse reflection; a metal's
+        // base colour is its specular colour, which keeps the mean.
+        let texture_use = match (kept, model) {
+            (Some(_), ReflectanceModel::RoughConductor { .. }) => {
+                notes.add(format!(
+                    "material `{name}`: a metal's base-colour texture enters as its mean colour (no per-texel detail)"
+                ));
+                None
+            }
+            (Some((image, wraps, nearest, mean)), _) => {
+                self.keep_texture(image, wraps, nearest, notes)?.map(|texture| TextureUse {
+                    texture,
+                    set: tex_coord_set(pbr),
+                    tint: mean.map(|m| if m > 0.0 { 1.0 / m } else { 0.0 }),
+                })
+            }
+            (None, _) => None,
+        };
+        Ok(texture_use)
+    }
+}
+
+/// Notes what of material `m` (named `name`, base colour alpha `alpha`) is
+/// not mapped: transparency, and the textures whose factors are used.
+fn note_ignored(
+    m: &gltf::Material<'_>,
+    pbr: &gltf::material::PbrMetallicRoughness<'_>,
+    alpha: f32,
+    name: &str,
+    notes: &mut Notes,
+) {
+    if alpha < 1.0 || m.alpha_mode() != gltf::material::AlphaMode::Opaque {
+        notes.add(format!("material `{name}`: transparency is not supported; it is opaque"));
+    }
+    for (present, what) in [
+        (pbr.metallic_roughness_texture().is_some(), "metallicRoughnessTexture (its factors are used)"),
+        (m.normal_texture().is_some(), "normalTexture"),
+        (m.occlusion_texture().is_some(), "occlusionTexture"),
+        (m.emissive_texture().is_some(), "emissiveTexture (its factor is used)"),
+    ] {
+        if present {
+            notes.add(format!("material `{name}`: {what} is ignored"));
+        }
+    }
+}
+
+/// An anisotropic surface's grain: the anisotropy direction (the tangent
+/// turned by `rotation` toward the bitangent) averaged over `tri` by
+/// area; `None` without tangents or texture coordinates (said).
+fn grain_of(tri: &Triangles, rotation: f32, name: &str, notes: &mut Notes) -> Option<Vec3> {
+    let (s, c) = rotation.sin_cos();
+    let mut sum = Vec3::ZERO;
+    for k in &tri.corners {
+        sum += (k.tangent * c + k.bitangent * s) * k.area;
+    }
+    let dir = sum.normalize_or_zero();
+    if dir == Vec3::ZERO {
+        notes.add(format!(
+            "material `{name}`: anisotropic without TANGENT or TEXCOORD_0; each triangle's first edge is its grain"
+        ));
+        None
+    } else {
+        let spread =
+            tri.corners.iter().filter(|k| k.area > 0.0).any(|k| (k.tangent * c + k.bitangent * s).dot(dir) < 0.95);
+        if spread {
+            notes.add(format!(
+                "material `{name}`: the anisotropy direction varies over a surface; its mean direction is used"
+            ));
+        }
+        Some(dir)
     }
 }
 

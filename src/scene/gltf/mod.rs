@@ -19,12 +19,14 @@ mod animation;
 mod light;
 mod load;
 mod material;
-pub(super) mod triangles;
+mod triangles;
 
 use std::path::Path;
 
 use glam::{Mat4, Vec3};
 
+use super::error::error;
+use super::import::{Notes, unique_names};
 use super::motion::{Animation, CameraKey, Interpolation, Keyframe, Motion};
 use super::texture::Shading;
 use super::{BuildHints, Camera, Scene, SceneError, Surface};
@@ -60,55 +62,6 @@ const DEFAULT_FPS: f32 = 24.0;
 const MAX_SURFACES: usize = 1_000_000;
 /// Most triangles one file may make, over all instances.
 const MAX_TRIANGLES: usize = 50_000_000;
-
-/// An error at a field of an imported file (a JSON pointer for glTF; an
-/// object or material for OBJ): no line or column.
-pub(in crate::scene) fn error(file: &Path, pointer: impl Into<String>, message: impl Into<String>) -> SceneError {
-    SceneError {
-        file: file.into(),
-        line: 0,
-        column: 0,
-        field: pointer.into(),
-        message: message.into(),
-        unreadable: false,
-    }
-}
-
-/// What the importer could not map, each said once; after
-/// [`Notes::MAX`] different notes the rest are counted.
-#[derive(Default)]
-pub(super) struct Notes {
-    said: Vec<String>,
-    seen: std::collections::HashSet<String>,
-    more: usize,
-}
-
-impl Notes {
-    const MAX: usize = 50;
-
-    pub(super) fn into_vec(mut self) -> Vec<String> {
-        if self.more > 0 {
-            self.said.push(format!("… and {} more notes", self.more));
-        }
-        self.said
-    }
-
-    pub(super) fn add(&mut self, note: impl Into<String>) {
-        let note = note.into();
-        if self.seen.contains(&note) {
-            return;
-        }
-        if self.said.len() >= Self::MAX {
-            self.more += 1;
-            if self.seen.len() < 10 * Self::MAX {
-                self.seen.insert(note);
-            }
-            return;
-        }
-        self.seen.insert(note.clone());
-        self.said.push(note);
-    }
-}
 
 /// A node met walking the scene, with its place in the hierarchy.
 struct Placed<'a> {
@@ -242,6 +195,9 @@ fn node_name(node: &gltf::Node<'_>) -> String {
     node.name().map_or_else(|| format!("node{}", node.index()), str::to_string)
 }
 
+/// The scene of a parsed glTF file: its meshes and lamps as surfaces,
+/// its camera (or one framing the meshes) and animation; what cannot be
+/// mapped goes to `notes`.
 fn convert(
     path: &Path,
     doc: &gltf::Document,
@@ -262,13 +218,72 @@ fn convert(
     let anim = animation::Sampled::new(path, doc, buffers, options, notes)?;
     let worlds = anim.world_matrices(path, &parents, &nodes)?;
     let moving: Vec<bool> = worlds.iter().map(|w| w.iter().any(|m| *m != w[0])).collect();
+    let posed = Posed { nodes, worlds, moving };
 
-    // Meshes: one surface per (node instance, mesh primitive).
     let mut materials = material::Materials::new(path, doc, buffers, images);
+    let mut surfaces = mesh_surfaces(path, &posed, buffers, &mut materials, notes)?;
+    let mesh_bounds = crate::geometry::bounds_of(surfaces.iter().flat_map(|s| &s.primitives));
+    lamp_surfaces(path, &posed, options, mesh_bounds, &mut materials, notes, &mut surfaces)?;
+    unique_names(&mut surfaces);
+    if surfaces.is_empty() {
+        return Err(error(path, "/meshes", "the scene has no triangles to build"));
+    }
+
+    let camera = match camera_of(path, doc, &placed, &posed.worlds, options)? {
+        Some(c) => c,
+        None => {
+            notes.add("the file has no camera: one looks at the scene along -Z (give one with render --camera-*)");
+            (super::framing_camera(mesh_bounds, DEFAULT_WIDTH), Vec::new())
+        }
+    };
+    let name = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+    let animation = (anim.frames > 1).then_some(Animation { frames: anim.frames, fps: anim.fps });
+    let (materials, textures) = materials.into_materials();
+    Ok(Scene {
+        name,
+        materials,
+        surfaces,
+        camera: camera.0,
+        build: BuildHints::default(),
+        animation,
+        camera_keys: camera.1,
+        notes: Vec::new(),
+        textures,
+    })
+}
+
+/// The placed nodes with their world matrices over the frames: what the
+/// mesh and lamp steps of [`convert`] share.
+struct Posed<'a> {
+    /// Every node reachable from the scene, parents first ([`walk`]).
+    nodes: Vec<gltf::Node<'a>>,
+    /// Per node, its world matrix at each frame (one for a node that no
+    /// animation moves).
+    worlds: Vec<Vec<Mat4>>,
+    /// Per node, whether its world matrix changes over the frames.
+    moving: Vec<bool>,
+}
+
+impl Posed<'_> {
+    /// The motion of node `i` (keyed at every frame), if it moves.
+    fn motion(&self, path: &Path, i: usize) -> Result<Option<Motion>, SceneError> {
+        if self.moving[i] { Ok(Some(motion_of(path, &self.nodes[i], &self.worlds[i])?)) } else { Ok(None) }
+    }
+}
+
+/// Meshes: one surface per (node instance, mesh primitive), degenerate
+/// triangles left out (and counted in one note).
+fn mesh_surfaces(
+    path: &Path,
+    posed: &Posed<'_>,
+    buffers: &[gltf::buffer::Data],
+    materials: &mut material::Materials<'_>,
+    notes: &mut Notes,
+) -> Result<Vec<Surface>, SceneError> {
     let mut degenerate = (0usize, 0usize);
     let mut surfaces: Vec<Surface> = Vec::new();
     let mut triangle_count = 0usize;
-    for (i, node) in nodes.iter().enumerate() {
+    for (i, node) in posed.nodes.iter().enumerate() {
         if node.skin().is_some() {
             notes.add(format!(
                 "node `{}`: skinning is not supported; the mesh is used in its bind pose",
@@ -276,8 +291,8 @@ fn convert(
             ));
         }
         let Some(mesh) = node.mesh() else { continue };
-        let w0 = worlds[i][0];
-        let motion = if moving[i] { Some(motion_of(path, node, &worlds[i])?) } else { None };
+        let w0 = posed.worlds[i][0];
+        let motion = posed.motion(path, i)?;
         for (k, prim) in mesh.primitives().enumerate() {
             let at = format!("/meshes/{}/primitives/{k}", mesh.index());
             if prim.morph_targets().len() > 0 {
@@ -304,25 +319,7 @@ fn convert(
             let mut shading = shading_of(&tri, texture.as_ref());
             let mut primitives = tri.primitives;
             if prim.material().double_sided() && !tri.closed {
-                let back: Vec<Primitive> = primitives.iter().map(triangles::flipped).collect();
-                if !shading.is_empty() {
-                    let flipped: Vec<Shading> = primitives
-                        .iter()
-                        .zip(&back)
-                        .zip(&shading)
-                        .map(|((front, back), s)| {
-                            let [x, y, z] = front.own_frame();
-                            let world = s.normal.map(|n| -(x * n.x + y * n.y + z * n.z));
-                            Shading {
-                                uv: triangles::flipped_corners(front.kind, s.uv),
-                                normal: Shading::to_local(back, triangles::flipped_corners(front.kind, world)),
-                                ..*s
-                            }
-                        })
-                        .collect();
-                    shading.extend(flipped);
-                }
-                primitives.extend(back);
+                add_back_faces(&mut primitives, &mut shading);
             }
             let base = node_name(node);
             let name = if mesh.primitives().len() > 1 { format!("{base}#{k}") } else { base };
@@ -348,22 +345,58 @@ fn convert(
             degenerate.0, degenerate.1
         ));
     }
-    let mesh_bounds = crate::geometry::bounds_of(surfaces.iter().flat_map(|s| &s.primitives));
+    Ok(surfaces)
+}
 
-    // Lamps.
+/// A double-sided open mesh: each primitive also with its back as a front
+/// (surfaces are one-sided), and its shading (if any) flipped to match.
+fn add_back_faces(primitives: &mut Vec<Primitive>, shading: &mut Vec<Shading>) {
+    let back: Vec<Primitive> = primitives.iter().map(triangles::flipped).collect();
+    if !shading.is_empty() {
+        let flipped: Vec<Shading> = primitives
+            .iter()
+            .zip(&back)
+            .zip(shading.iter())
+            .map(|((front, back), s)| {
+                let [x, y, z] = front.own_frame();
+                let world = s.normal.map(|n| -(x * n.x + y * n.y + z * n.z));
+                Shading {
+                    uv: triangles::flipped_corners(front.kind, s.uv),
+                    normal: Shading::to_local(back, triangles::flipped_corners(front.kind, world)),
+                    ..*s
+                }
+            })
+            .collect();
+        shading.extend(flipped);
+    }
+    primitives.extend(back);
+}
+
+/// Lamps: each `KHR_lights_punctual` light as a small emitter of radius
+/// `options.light_radius` (default the meshes' bounding diagonal / 64),
+/// appended to `surfaces`.
+fn lamp_surfaces(
+    path: &Path,
+    posed: &Posed<'_>,
+    options: &GltfOptions,
+    mesh_bounds: (Vec3, Vec3),
+    materials: &mut material::Materials<'_>,
+    notes: &mut Notes,
+    surfaces: &mut Vec<Surface>,
+) -> Result<(), SceneError> {
     let radius = match options.light_radius {
         Some(r) => r,
         None if mesh_bounds.0.x <= mesh_bounds.1.x => (mesh_bounds.1 - mesh_bounds.0).length() / 64.0,
         None => 0.01,
     };
-    for (i, node) in nodes.iter().enumerate() {
+    for (i, node) in posed.nodes.iter().enumerate() {
         let Some(lamp) = node.light() else { continue };
         let at = format!("/extensions/KHR_lights_punctual/lights/{}", lamp.index());
-        let Some((primitives, emission)) = light::emitter(path, &at, &lamp, radius, worlds[i][0], notes)? else {
+        let Some((primitives, emission)) = light::emitter(path, &at, &lamp, radius, posed.worlds[i][0], notes)? else {
             continue;
         };
         let material = materials.lamp_material();
-        let motion = if moving[i] { Some(motion_of(path, node, &worlds[i])?) } else { None };
+        let motion = posed.motion(path, i)?;
         surfaces.push(Surface {
             name: format!("{}:{}", node_name(node), lamp.name().unwrap_or("light")),
             material,
@@ -376,32 +409,7 @@ fn convert(
             shading: Vec::new(),
         });
     }
-    unique_names(&mut surfaces);
-    if surfaces.is_empty() {
-        return Err(error(path, "/meshes", "the scene has no triangles to build"));
-    }
-
-    let camera = match camera_of(path, doc, &placed, &worlds, options)? {
-        Some(c) => c,
-        None => {
-            notes.add("the file has no camera: one looks at the scene along -Z (give one with render --camera-*)");
-            (super::framing_camera(mesh_bounds, DEFAULT_WIDTH), Vec::new())
-        }
-    };
-    let name = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
-    let animation = (anim.frames > 1).then_some(Animation { frames: anim.frames, fps: anim.fps });
-    let (materials, textures) = materials.into_materials();
-    Ok(Scene {
-        name,
-        materials,
-        surfaces,
-        camera: camera.0,
-        build: BuildHints::default(),
-        animation,
-        camera_keys: camera.1,
-        notes: Vec::new(),
-        textures,
-    })
+    Ok(())
 }
 
 /// Per primitive of `tri`, its shading detail: the mesh's vertex normals
@@ -437,24 +445,6 @@ fn shading_of(tri: &triangles::Triangles, texture: Option<&material::TextureUse>
 
 fn mesh_name(mesh: &gltf::Mesh<'_>) -> String {
     mesh.name().map_or_else(|| format!("mesh{}", mesh.index()), str::to_string)
-}
-
-/// Makes surface names unique (`name`, `name~2`, …): a file may reuse node
-/// names, and `--set NAME.FIELD` needs one surface per name.
-pub(super) fn unique_names(surfaces: &mut [Surface]) {
-    let mut taken: std::collections::HashSet<String> = std::collections::HashSet::new();
-    for s in surfaces.iter_mut() {
-        s.name = unique_name(&s.name, |c| taken.contains(c));
-        taken.insert(s.name.clone());
-    }
-}
-
-/// `name`, or the first of `name~2`, `name~3`, … that is not `taken`.
-pub(in crate::scene) fn unique_name(name: &str, taken: impl Fn(&str) -> bool) -> String {
-    if !taken(name) {
-        return name.to_string();
-    }
-    (2..).map(|k| format!("{name}~{k}")).find(|c| !taken(c)).expect("unbounded")
 }
 
 /// Keyframes moving a surface from its frame-0 world placement (where its

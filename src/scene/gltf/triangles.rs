@@ -12,9 +12,11 @@ use std::path::Path;
 use glam::{Mat4, Vec2, Vec3};
 use gltf::mesh::Mode;
 
-use super::{Notes, error};
 use crate::geometry::{Primitive, PrimitiveKind};
 use crate::scene::SceneError;
+use crate::scene::check::check_primitive;
+use crate::scene::error::error;
+use crate::scene::import::{Notes, merge_quads_indexed};
 
 /// One source triangle's shading frame and texture coordinates.
 #[derive(Clone, Copy)]
@@ -65,9 +67,6 @@ pub(super) fn read(
     world: Mat4,
     notes: &mut Notes,
 ) -> Result<Triangles, SceneError> {
-    use gltf::Semantic;
-    use gltf::accessor::{DataType::*, Dimensions};
-    let check = super::load::check_accessor;
     let reader = prim.reader(|b| buffers.get(b.index()).map(|d| &d.0[..]));
     let empty = || Triangles {
         primitives: Vec::new(),
@@ -86,23 +85,7 @@ pub(super) fn read(
             return Ok(empty());
         }
     }
-    if let Some(a) = prim.get(&Semantic::Positions) {
-        check(path, &a, &[F32], Dimensions::Vec3, "POSITION")?;
-    }
-    if let Some(a) = prim.indices() {
-        check(path, &a, &[U8, U16, U32], Dimensions::Scalar, "indices")?;
-    }
-    for set in 0..2 {
-        if let Some(a) = prim.get(&Semantic::TexCoords(set)) {
-            check(path, &a, &[F32, U8, U16], Dimensions::Vec2, "TEXCOORD")?;
-        }
-    }
-    if let Some(a) = prim.get(&Semantic::Tangents) {
-        check(path, &a, &[F32], Dimensions::Vec4, "TANGENT")?;
-    }
-    if let Some(a) = prim.get(&Semantic::Normals) {
-        check(path, &a, &[F32], Dimensions::Vec3, "NORMAL")?;
-    }
+    check_attributes(path, prim)?;
     let positions: Vec<Vec3> = reader
         .read_positions()
         .ok_or_else(|| error(path, format!("{at}/attributes/POSITION"), "the primitive has no readable positions"))?
@@ -119,18 +102,7 @@ pub(super) fn read(
             format!("index {bad} is out of range ({} vertices)", positions.len()),
         ));
     }
-    let tri: Vec<[u32; 3]> = match prim.mode() {
-        Mode::TriangleStrip => (0..indices.len().saturating_sub(2))
-            .map(|i| {
-                let o = i % 2;
-                [indices[i], indices[i + 1 + o], indices[i + 2 - o]]
-            })
-            .collect(),
-        Mode::TriangleFan => {
-            (1..indices.len().saturating_sub(1)).map(|i| [indices[i], indices[i + 1], indices[0]]).collect()
-        }
-        _ => indices.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect(),
-    };
+    let tri = triangle_indices(prim.mode(), &indices);
     let mirrored = world.determinant() < 0.0;
     let uv_sets: [Option<Vec<Vec2>>; 2] =
         [0, 1].map(|set| reader.read_tex_coords(set).map(|t| t.into_f32().map(Vec2::from).collect()));
@@ -152,30 +124,96 @@ pub(super) fn read(
         return Err(error(path, format!("{at}/attributes/TANGENT"), "not one tangent per vertex"));
     }
 
+    let (kept, degenerate) = kept_triangles(&positions, tri, mirrored);
+    let corners = corners_of(&positions, &kept, tangents.as_deref(), uv_sets[0].as_deref(), world);
+    let uvs = uv_sets.clone().map(|u| u.map(|uv| kept.iter().map(|t| t.map(|i| uv[i as usize])).collect()));
+    let closed = prim.material().double_sided() && is_closed(&positions, &kept);
+    let (primitives, vertices) = merge_quads_indexed(&positions, &kept);
+    Ok(Triangles { primitives, corners, uvs, vertices, vertex_uv: uv_sets, vertex_normal, closed, degenerate })
+}
+
+/// Checks the component types and shapes of `prim`'s accessors before any
+/// is read.
+fn check_attributes(path: &Path, prim: &gltf::Primitive<'_>) -> Result<(), SceneError> {
+    use gltf::Semantic;
+    use gltf::accessor::{DataType::*, Dimensions};
+    let check = super::load::check_accessor;
+    if let Some(a) = prim.get(&Semantic::Positions) {
+        check(path, &a, &[F32], Dimensions::Vec3, "POSITION")?;
+    }
+    if let Some(a) = prim.indices() {
+        check(path, &a, &[U8, U16, U32], Dimensions::Scalar, "indices")?;
+    }
+    for set in 0..2 {
+        if let Some(a) = prim.get(&Semantic::TexCoords(set)) {
+            check(path, &a, &[F32, U8, U16], Dimensions::Vec2, "TEXCOORD")?;
+        }
+    }
+    if let Some(a) = prim.get(&Semantic::Tangents) {
+        check(path, &a, &[F32], Dimensions::Vec4, "TANGENT")?;
+    }
+    if let Some(a) = prim.get(&Semantic::Normals) {
+        check(path, &a, &[F32], Dimensions::Vec3, "NORMAL")?;
+    }
+    Ok(())
+}
+
+/// The triangles of `indices` in `mode` (a list, strip or fan), as the
+/// file winds them.
+fn triangle_indices(mode: Mode, indices: &[u32]) -> Vec<[u32; 3]> {
+    match mode {
+        Mode::TriangleStrip => (0..indices.len().saturating_sub(2))
+            .map(|i| {
+                let o = i % 2;
+                [indices[i], indices[i + 1 + o], indices[i + 2 - o]]
+            })
+            .collect(),
+        Mode::TriangleFan => {
+            (1..indices.len().saturating_sub(1)).map(|i| [indices[i], indices[i + 1], indices[0]]).collect()
+        }
+        _ => indices.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect(),
+    }
+}
+
+/// The triangles of `tri` that pass [`check_primitive`] (re-wound when
+/// `mirrored`, so that they face front), and how many did not.
+fn kept_triangles(positions: &[Vec3], tri: Vec<[u32; 3]>, mirrored: bool) -> (Vec<[u32; 3]>, usize) {
     let mut kept: Vec<[u32; 3]> = Vec::with_capacity(tri.len());
     let mut degenerate = 0usize;
     for t in tri {
         let t = if mirrored { [t[0], t[2], t[1]] } else { t };
         let p = Primitive::triangle(positions[t[0] as usize], positions[t[1] as usize], positions[t[2] as usize]);
-        if crate::scene::parse::check_primitive(&p).is_ok() {
+        if check_primitive(&p).is_ok() {
             kept.push(t);
         } else {
             degenerate += 1;
         }
     }
+    (kept, degenerate)
+}
 
-    let corners = kept
-        .iter()
+/// Per triangle of `kept`, its area and tangent frame: from `TANGENT`s
+/// (placed by `world`), else from the +u direction of texture set 0,
+/// else none.
+fn corners_of(
+    positions: &[Vec3],
+    kept: &[[u32; 3]],
+    tangents: Option<&[[f32; 4]]>,
+    uv0: Option<&[Vec2]>,
+    world: Mat4,
+) -> Vec<Corner> {
+    let mirrored = world.determinant() < 0.0;
+    kept.iter()
         .map(|t| {
             let p = t.map(|i| positions[i as usize]);
             let normal = (p[1] - p[0]).cross(p[2] - p[0]);
             let area = normal.length() / 2.0;
             let n = normal.normalize_or_zero();
-            let (tangent, sign) = if let Some(tg) = &tangents {
+            let (tangent, sign) = if let Some(tg) = tangents {
                 let s: Vec3 = t.iter().map(|&i| Vec3::from_slice(&tg[i as usize][..3])).sum();
                 let w = tg[t[0] as usize][3];
                 (world.transform_vector3(s), if w < 0.0 { -1.0 } else { 1.0 })
-            } else if let Some(uv) = &uv_sets[0] {
+            } else if let Some(uv) = uv0 {
                 let q = t.map(|i| uv[i as usize]);
                 let (d1, d2) = (q[1] - q[0], q[2] - q[0]);
                 let det = d1.x * d2.y - d2.x * d1.y;
@@ -188,11 +226,7 @@ pub(super) fn read(
             let bitangent = if tangent == Vec3::ZERO { Vec3::ZERO } else { n.cross(tangent) * sign };
             Corner { area, tangent, bitangent }
         })
-        .collect();
-    let uvs = uv_sets.clone().map(|u| u.map(|uv| kept.iter().map(|t| t.map(|i| uv[i as usize])).collect()));
-    let closed = prim.material().double_sided() && is_closed(&positions, &kept);
-    let (primitives, vertices) = merge_quads_indexed(&positions, &kept);
-    Ok(Triangles { primitives, corners, uvs, vertices, vertex_uv: uv_sets, vertex_normal, closed, degenerate })
+        .collect()
 }
 
 /// Whether every edge of `tri` is shared by exactly two triangles, vertices
@@ -215,31 +249,6 @@ fn is_closed(pos: &[Vec3], tri: &[[u32; 3]]) -> bool {
     !tri.is_empty() && edges.values().all(|&n| n == 2)
 }
 
-/// Consecutive triangles `(a, b, c)`, `(c, d, a)` (in any rotation) that make
-/// a planar convex quad, as that quad; the rest as triangles.
-/// Also returns each primitive's corners as vertex indices (a triangle
-/// repeats its corner 2).
-pub(in crate::scene) fn merge_quads_indexed(pos: &[Vec3], tri: &[[u32; 3]]) -> (Vec<Primitive>, Vec<[u32; 4]>) {
-    let mut out = Vec::with_capacity(tri.len());
-    let mut corners = Vec::with_capacity(tri.len());
-    let mut i = 0;
-    while i < tri.len() {
-        if i + 1 < tri.len()
-            && let Some((q, c)) = quad_of(pos, tri[i], tri[i + 1])
-        {
-            out.push(q);
-            corners.push(c);
-            i += 2;
-            continue;
-        }
-        let t = tri[i].map(|k| pos[k as usize]);
-        out.push(Primitive::triangle(t[0], t[1], t[2]));
-        corners.push([tri[i][0], tri[i][1], tri[i][2], tri[i][2]]);
-        i += 1;
-    }
-    (out, corners)
-}
-
 /// The corners of `p` flipped by [`flipped`], in its order.
 pub(super) fn flipped_corners<T: Copy>(kind: PrimitiveKind, c: [T; 4]) -> [T; 4] {
     match kind {
@@ -248,52 +257,9 @@ pub(super) fn flipped_corners<T: Copy>(kind: PrimitiveKind, c: [T; 4]) -> [T; 4]
     }
 }
 
-fn quad_of(pos: &[Vec3], t1: [u32; 3], t2: [u32; 3]) -> Option<(Primitive, [u32; 4])> {
-    for r1 in 0..3 {
-        let (a, b, c) = (t1[r1], t1[(r1 + 1) % 3], t1[(r1 + 2) % 3]);
-        for r2 in 0..3 {
-            if t2[r2] == c && t2[(r2 + 2) % 3] == a {
-                let d = t2[(r2 + 1) % 3];
-                let q = Primitive::quad([a, b, c, d].map(|k| pos[k as usize]));
-                let size = (q.p[2] - q.p[0]).length().max((q.p[3] - q.p[1]).length());
-                let n = q.normal();
-                let off = (q.p[3] - q.p[0]).dot(n).abs().max((q.p[1] - q.p[0]).dot(n).abs());
-                if off <= 1e-6 * size && crate::scene::parse::check_primitive(&q).is_ok() {
-                    return Some((q, [a, b, c, d]));
-                }
-                return None;
-            }
-        }
-    }
-    None
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn triangle_pairs_become_quads_only_when_planar_and_convex() {
-        let pos = [Vec3::ZERO, Vec3::X, Vec3::new(1.0, 1.0, 0.0), Vec3::Y, Vec3::new(1.0, 1.0, 0.5)];
-        // (0,1,2),(0,2,3): the usual split; any rotation of either triangle.
-        for (t1, t2) in [([0, 1, 2], [0, 2, 3]), ([1, 2, 0], [2, 3, 0]), ([2, 0, 1], [3, 0, 2])] {
-            let (out, corners) = merge_quads_indexed(&pos, &[t1, t2]);
-            assert_eq!(out.len(), 1);
-            // The corners' vertices, in the quad's order.
-            assert_eq!(corners[0].map(|i| pos[i as usize]), out[0].p);
-            assert_eq!(out[0].kind, PrimitiveKind::Quad);
-            assert!((out[0].area() - 1.0).abs() < 1e-6);
-        }
-        // Not planar: the fourth corner is lifted.
-        let (out, corners) = merge_quads_indexed(&pos, &[[0, 1, 4], [0, 4, 3]]);
-        assert_eq!(out.len(), 2);
-        assert_eq!(corners, vec![[0, 1, 4, 4], [0, 4, 3, 3]]);
-        // Not sharing a reversed diagonal (opposite windings).
-        assert_eq!(merge_quads_indexed(&pos, &[[0, 1, 2], [0, 3, 2]]).0.len(), 2);
-        // Not convex: a dart.
-        let dart = [Vec3::ZERO, Vec3::new(2.0, 0.0, 0.0), Vec3::new(0.5, 0.5, 0.0), Vec3::new(0.0, 2.0, 0.0)];
-        assert_eq!(merge_quads_indexed(&dart, &[[0, 1, 2], [0, 2, 3]]).0.len(), 2);
-    }
 
     #[test]
     fn closed_means_every_edge_twice() {
