@@ -139,26 +139,24 @@ fn line_span(start: proc_macro2::Span, end: proc_macro2::Span) -> usize {
 /// length in lines: `(name, first line, lines)`.
 fn long_functions(file: &syn::File) -> Vec<(String, usize, usize)> {
     use syn::spanned::Spanned;
-    fn walk(items: &[syn::Item], out: &mut Vec<(String, usize, usize)>) {
-        for item in items {
+    type Found = Vec<(String, usize, usize)>;
+    fn record(out: &mut Found, sig: &syn::Signature, body: &syn::Block) {
+        out.push((
+            sig.ident.to_string(),
+            sig.span().start().line,
+            line_span(sig.fn_token.span, body.brace_token.span.close()),
+        ));
+    }
+    fn walk(items: &[syn::Item], out: &mut Found) {
+        for item in items.iter() {
             match item {
-                syn::Item::Fn(f) if !is_test(&f.attrs) => {
-                    out.push((
-                        f.sig.ident.to_string(),
-                        f.sig.span().start().line,
-                        line_span(f.sig.fn_token.span, f.block.brace_token.span.close()),
-                    ));
-                }
+                syn::Item::Fn(f) if !is_test(&f.attrs) => record(out, &f.sig, &f.block),
                 syn::Item::Impl(imp) if !is_test(&imp.attrs) => {
                     for it in &imp.items {
                         if let syn::ImplItem::Fn(f) = it
                             && !is_test(&f.attrs)
                         {
-                            out.push((
-                                f.sig.ident.to_string(),
-                                f.sig.span().start().line,
-                                line_span(f.sig.fn_token.span, f.block.brace_token.span.close()),
-                            ));
+                            record(out, &f.sig, &f.block);
                         }
                     }
                 }
@@ -167,11 +165,7 @@ fn long_functions(file: &syn::File) -> Vec<(String, usize, usize)> {
                         if let syn::TraitItem::Fn(f) = it
                             && let Some(block) = &f.default
                         {
-                            out.push((
-                                f.sig.ident.to_string(),
-                                f.sig.span().start().line,
-                                line_span(f.sig.fn_token.span, block.brace_token.span.close()),
-                            ));
+                            record(out, &f.sig, block);
                         }
                     }
                 }
