@@ -327,7 +327,7 @@ flicker less than 0.8 × the ray-space baseline.
 | closed sphere of 20 480 triangles (grouped, normals mixed within a patch): L = L_e/(1−ρ) on every patch, no buckets | `tests/mesh.rs` | worst patch 0.20% | 0.5% |
 | the Cornell floor as 6 272 small triangles against the floor as a quad (relative L2 between renders: direct, inet shading) | `tests/mesh.rs` | 0.72%, 0.98% | 1.2%, 2% |
 | buckets conserve energy (spread total = received total) | `src/distribute/buckets.rs` | < 10⁻⁶ relative | 10⁻⁶ |
-| ray-space 1/cos θ density bias | `src/bake/trace.rs` | within 3% of 1/cos θ | 3% |
+| ray-space 1/cos θ density bias | `src/bake/trace/layout.rs` | within 3% of 1/cos θ | 3% |
 | direction-set cells tile the sphere (4π), cell max/min | `src/geodesic` | 1.235 | 1.25 |
 
 ## Non-diffuse reflectance (issue #4)

@@ -17,7 +17,7 @@
 
 use rayon::prelude::*;
 
-use super::trace::Bundle;
+use super::bundle::Bundle;
 use crate::archive::layout::CHUNK_PATCHES;
 
 /// The CSR link-end table.

@@ -38,7 +38,7 @@ use std::sync::Mutex;
 use std::sync::atomic::{AtomicU64, Ordering};
 
 use super::BuildError;
-use super::trace::Bundle;
+use super::bundle::Bundle;
 use crate::archive::deltas::{Block, SpillFile};
 use crate::archive::layout::CHUNK_PATCHES;
 use crate::archive::{LinkEndSink, LinkEndSource};

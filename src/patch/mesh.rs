@@ -86,120 +86,172 @@ pub fn group_triangles(prims: &[Primitive], size: f32) -> TriangleGroups {
     if small.is_empty() {
         return TriangleGroups { order, group };
     }
-    // Corners welded by position; edges as sorted pairs of welded corners.
-    let mut weld: HashMap<[u32; 3], u32> = HashMap::new();
-    let corner = |p: Vec3, weld: &mut HashMap<[u32; 3], u32>| {
-        let n = weld.len() as u32;
-        *weld.entry(position_key(p)).or_insert(n)
-    };
-    let mut edges: Vec<(u64, u32)> = Vec::with_capacity(small.len() * 3);
-    for (t, &i) in small.iter().enumerate() {
-        let p = &prims[i as usize].p;
-        let c = [corner(p[0], &mut weld), corner(p[1], &mut weld), corner(p[2], &mut weld)];
-        for k in 0..3 {
-            let (a, b) = (c[k].min(c[(k + 1) % 3]), c[k].max(c[(k + 1) % 3]));
-            edges.push((((a as u64) << 32) | b as u64, t as u32));
-        }
-    }
-    edges.sort_unstable();
-    // Neighbours across shared edges, as compressed rows.
-    let mut pairs: Vec<(u32, u32)> = Vec::new();
-    for run in edges.chunk_by(|a, b| a.0 == b.0) {
-        for (x, &(_, a)) in run.iter().enumerate() {
-            for &(_, b) in &run[x + 1..] {
-                if a != b {
-                    pairs.push((a, b));
-                    pairs.push((b, a));
-                }
-            }
-        }
-    }
-    pairs.sort_unstable();
-    pairs.dedup();
-    let mut start = vec![0usize; small.len() + 1];
-    for &(a, _) in &pairs {
-        start[a as usize + 1] += 1;
-    }
-    for t in 0..small.len() {
-        start[t + 1] += start[t];
-    }
-    // Seeds along a Morton curve over the triangles' centres.
-    let centre: Vec<Vec3> = small.iter().map(|&i| prims[i as usize].p[..3].iter().sum::<Vec3>() / 3.0).collect();
-    let morton = super::order::morton_keys(&centre);
-    let mut seeds: Vec<u32> = (0..small.len() as u32).collect();
-    seeds.sort_by_key(|&t| (morton[t as usize], t));
-    let normal: Vec<Vec3> = small.iter().map(|&i| prims[i as usize].normal()).collect();
-    let area: Vec<f64> = small.iter().map(|&i| prims[i as usize].area() as f64).collect();
-    let (radius, most_area) = (GROUP_RADIUS * size, (size as f64) * (size as f64));
-    // Grow groups from the seeds.
-    let mut label = vec![u32::MAX; small.len()];
-    let mut members: Vec<Vec<u32>> = Vec::new();
-    let mut seed_normal: Vec<Vec3> = Vec::new();
-    let mut group_area: Vec<f64> = Vec::new();
-    let mut queue = std::collections::VecDeque::new();
-    for &seed in &seeds {
-        if label[seed as usize] != u32::MAX {
-            continue;
-        }
-        let g = members.len() as u32;
-        let (c0, n0) = (centre[seed as usize], normal[seed as usize]);
-        label[seed as usize] = g;
-        let mut taken = vec![seed];
-        let mut sum = area[seed as usize];
-        queue.clear();
-        queue.push_back(seed);
-        while let Some(t) = queue.pop_front() {
-            for &(_, u) in &pairs[start[t as usize]..start[t as usize + 1]] {
-                let u = u as usize;
-                let fits = label[u] == u32::MAX
-                    && normal[u].dot(n0) >= GROUP_COS
-                    && sum + area[u] <= most_area
-                    && prims[small[u] as usize].p[..3].iter().all(|&p| (p - c0).length() <= radius);
-                if fits {
-                    label[u] = g;
-                    sum += area[u];
-                    taken.push(u as u32);
-                    queue.push_back(u as u32);
-                }
-            }
-        }
-        members.push(taken);
-        seed_normal.push(n0);
-        group_area.push(sum);
-    }
-    // Growing leaves fragments between groups, too small to catch enough
-    // rays: each group under a quarter of the target joins the smallest
-    // neighbouring group whose first normal is within 45° of all of its
-    // triangles' (in group order, so the result is deterministic).
-    for g in 0..members.len() {
-        if members[g].is_empty() || group_area[g] >= 0.25 * most_area {
-            continue;
-        }
-        let mut best: Option<u32> = None;
-        for &t in &members[g] {
-            for &(_, u) in &pairs[start[t as usize]..start[t as usize + 1]] {
-                let h = label[u as usize];
-                let fits = h != g as u32
-                    && members[g].iter().all(|&x| normal[x as usize].dot(seed_normal[h as usize]) >= ADJACENT_COS);
-                if fits && best.is_none_or(|b| (group_area[h as usize], h) < (group_area[b as usize], b)) {
-                    best = Some(h);
-                }
-            }
-        }
-        if let Some(h) = best {
-            let moved = std::mem::take(&mut members[g]);
-            for &t in &moved {
-                label[t as usize] = h;
-            }
-            group_area[h as usize] += group_area[g];
-            members[h as usize].extend(moved);
-        }
-    }
-    for (g, m) in members.iter().filter(|m| !m.is_empty()).enumerate() {
+    let neighbours = EdgeNeighbours::of(prims, &small);
+    let mut groups = Growth::grow(prims, &small, &neighbours, size);
+    groups.merge_fragments(&neighbours);
+    for (g, m) in groups.members.iter().filter(|m| !m.is_empty()).enumerate() {
         order.extend(m.iter().map(|&t| small[t as usize]));
         group.extend(std::iter::repeat_n(g as u32, m.len()));
     }
     TriangleGroups { order, group }
+}
+
+/// The small triangles' neighbours across shared edges (corners at
+/// exactly the same points), as compressed rows: triangle `t`'s are
+/// `pairs[start[t]..start[t + 1]]`, each `(t, neighbour)`, ascending.
+struct EdgeNeighbours {
+    pairs: Vec<(u32, u32)>,
+    start: Vec<usize>,
+}
+
+impl EdgeNeighbours {
+    /// The neighbours of `small` (indices into `prims`), numbered as
+    /// positions in `small`.
+    fn of(prims: &[Primitive], small: &[u32]) -> Self {
+        // Corners welded by position; edges as sorted pairs of welded corners.
+        let mut weld: HashMap<[u32; 3], u32> = HashMap::new();
+        let corner = |p: Vec3, weld: &mut HashMap<[u32; 3], u32>| {
+            let n = weld.len() as u32;
+            *weld.entry(position_key(p)).or_insert(n)
+        };
+        let mut edges: Vec<(u64, u32)> = Vec::with_capacity(small.len() * 3);
+        for (t, &i) in small.iter().enumerate() {
+            let p = &prims[i as usize].p;
+            let c = [corner(p[0], &mut weld), corner(p[1], &mut weld), corner(p[2], &mut weld)];
+            for k in 0..3 {
+                let (a, b) = (c[k].min(c[(k + 1) % 3]), c[k].max(c[(k + 1) % 3]));
+                edges.push((((a as u64) << 32) | b as u64, t as u32));
+            }
+        }
+        edges.sort_unstable();
+        // Neighbours across shared edges, as compressed rows.
+        let mut pairs: Vec<(u32, u32)> = Vec::new();
+        for run in edges.chunk_by(|a, b| a.0 == b.0) {
+            for (x, &(_, a)) in run.iter().enumerate() {
+                for &(_, b) in &run[x + 1..] {
+                    if a != b {
+                        pairs.push((a, b));
+                        pairs.push((b, a));
+                    }
+                }
+            }
+        }
+        pairs.sort_unstable();
+        pairs.dedup();
+        let mut start = vec![0usize; small.len() + 1];
+        for &(a, _) in &pairs {
+            start[a as usize + 1] += 1;
+        }
+        for t in 0..small.len() {
+            start[t + 1] += start[t];
+        }
+        Self { pairs, start }
+    }
+
+    /// Triangle `t`'s neighbours, as `(t, neighbour)` pairs.
+    fn of_triangle(&self, t: u32) -> &[(u32, u32)] {
+        &self.pairs[self.start[t as usize]..self.start[t as usize + 1]]
+    }
+}
+
+/// Groups of the small triangles as they grow and merge: per triangle
+/// (a position in `small`) its group, per group its triangles, its first
+/// triangle's normal and its area.
+struct Growth {
+    label: Vec<u32>,
+    members: Vec<Vec<u32>>,
+    seed_normal: Vec<Vec3>,
+    group_area: Vec<f64>,
+    /// Per triangle, its unit normal.
+    normal: Vec<Vec3>,
+    /// The most area a group may have (`size²`).
+    most_area: f64,
+}
+
+impl Growth {
+    /// Groups grown from seeds along a Morton curve over the triangles'
+    /// centres: a neighbour joins while its corners lie within
+    /// [`GROUP_RADIUS`]` · size` of the seed's centre, its normal within
+    /// 30° of the seed's, and the group's area stays at most `size²`.
+    fn grow(prims: &[Primitive], small: &[u32], neighbours: &EdgeNeighbours, size: f32) -> Self {
+        // Seeds along a Morton curve over the triangles' centres.
+        let centre: Vec<Vec3> = small.iter().map(|&i| prims[i as usize].p[..3].iter().sum::<Vec3>() / 3.0).collect();
+        let morton = super::order::morton_keys(&centre);
+        let mut seeds: Vec<u32> = (0..small.len() as u32).collect();
+        seeds.sort_by_key(|&t| (morton[t as usize], t));
+        let normal: Vec<Vec3> = small.iter().map(|&i| prims[i as usize].normal()).collect();
+        let area: Vec<f64> = small.iter().map(|&i| prims[i as usize].area() as f64).collect();
+        let (radius, most_area) = (GROUP_RADIUS * size, (size as f64) * (size as f64));
+        // Grow groups from the seeds.
+        let mut label = vec![u32::MAX; small.len()];
+        let mut members: Vec<Vec<u32>> = Vec::new();
+        let mut seed_normal: Vec<Vec3> = Vec::new();
+        let mut group_area: Vec<f64> = Vec::new();
+        let mut queue = std::collections::VecDeque::new();
+        for &seed in &seeds {
+            if label[seed as usize] != u32::MAX {
+                continue;
+            }
+            let g = members.len() as u32;
+            let (c0, n0) = (centre[seed as usize], normal[seed as usize]);
+            label[seed as usize] = g;
+            let mut taken = vec![seed];
+            let mut sum = area[seed as usize];
+            queue.clear();
+            queue.push_back(seed);
+            while let Some(t) = queue.pop_front() {
+                for &(_, u) in neighbours.of_triangle(t) {
+                    let u = u as usize;
+                    let fits = label[u] == u32::MAX
+                        && normal[u].dot(n0) >= GROUP_COS
+                        && sum + area[u] <= most_area
+                        && prims[small[u] as usize].p[..3].iter().all(|&p| (p - c0).length() <= radius);
+                    if fits {
+                        label[u] = g;
+                        sum += area[u];
+                        taken.push(u as u32);
+                        queue.push_back(u as u32);
+                    }
+                }
+            }
+            members.push(taken);
+            seed_normal.push(n0);
+            group_area.push(sum);
+        }
+        Self { label, members, seed_normal, group_area, normal, most_area }
+    }
+
+    /// Growing leaves fragments between groups, too small to catch enough
+    /// rays: each group under a quarter of the target joins the smallest
+    /// neighbouring group whose first normal is within 45° of all of its
+    /// triangles' (in group order, so the result is deterministic).
+    fn merge_fragments(&mut self, neighbours: &EdgeNeighbours) {
+        let Self { label, members, seed_normal, group_area, normal, most_area } = self;
+        for g in 0..members.len() {
+            if members[g].is_empty() || group_area[g] >= 0.25 * *most_area {
+                continue;
+            }
+            let mut best: Option<u32> = None;
+            for &t in &members[g] {
+                for &(_, u) in neighbours.of_triangle(t) {
+                    let h = label[u as usize];
+                    let fits = h != g as u32
+                        && members[g].iter().all(|&x| normal[x as usize].dot(seed_normal[h as usize]) >= ADJACENT_COS);
+                    if fits && best.is_none_or(|b| (group_area[h as usize], h) < (group_area[b as usize], b)) {
+                        best = Some(h);
+                    }
+                }
+            }
+            if let Some(h) = best {
+                let moved = std::mem::take(&mut members[g]);
+                for &t in &moved {
+                    label[t as usize] = h;
+                }
+                group_area[h as usize] += group_area[g];
+                members[h as usize].extend(moved);
+            }
+        }
+    }
 }
 
 /// Area-weighted centre, unit normal and area of a group of triangles

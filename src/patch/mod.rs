@@ -235,6 +235,39 @@ fn touching(
     }
 }
 
+/// Each primitive's grid at patch size `size` (quads' cells numbered in
+/// `order`; a grouped triangle, per `triangle_group`, is a single cell),
+/// refused when a primitive would have more than [`MAX_GRID`] cells along
+/// an edge or the patches would be more than [`MAX_PATCHES`].
+fn checked_grids(
+    primitives: &[Primitive],
+    triangle_group: &[u32],
+    size: f32,
+    order: CellOrder,
+) -> Result<Vec<PatchGrid>, String> {
+    let grouped = |i: usize| triangle_group[i] != UNGROUPED;
+    let grids: Vec<PatchGrid> = primitives
+        .iter()
+        .enumerate()
+        .map(|(i, p)| match grouped(i) {
+            true => PatchGrid { kind: p.kind, n_u: 1, n_v: 1, order: CellOrder::Rows },
+            false => grid_for(p, size, order),
+        })
+        .collect();
+    // Per-axis cell counts saturate at u32::MAX; bound them before any u32 product.
+    if let Some(g) = grids.iter().find(|g| g.n_u > MAX_GRID || g.n_v > MAX_GRID) {
+        return Err(format!(
+            "patch size {size} m cuts a primitive into {}×{} cells, more than {MAX_GRID} along an edge",
+            g.n_u, g.n_v
+        ));
+    }
+    let total: u64 = grids.iter().enumerate().filter(|(i, _)| !grouped(*i)).map(|(_, g)| g.cell_count() as u64).sum();
+    if total > MAX_PATCHES {
+        return Err(format!("patch size {size} m gives {total} patches, more than the {MAX_PATCHES} supported"));
+    }
+    Ok(grids)
+}
+
 impl Patches {
     /// Cuts `primitives` into patches of about `size` metres. Adjacency
     /// crosses the edges between coplanar primitives with the same
@@ -257,112 +290,119 @@ impl Patches {
         size: f32,
         order: CellOrder,
     ) -> Result<Self, String> {
-        let grouped = |i: usize| triangle_group[i] != UNGROUPED;
-        let grids: Vec<PatchGrid> = primitives
-            .iter()
-            .enumerate()
-            .map(|(i, p)| match grouped(i) {
-                true => PatchGrid { kind: p.kind, n_u: 1, n_v: 1, order: CellOrder::Rows },
-                false => grid_for(p, size, order),
-            })
-            .collect();
-        // Per-axis cell counts saturate at u32::MAX; bound them before any u32 product.
-        if let Some(g) = grids.iter().find(|g| g.n_u > MAX_GRID || g.n_v > MAX_GRID) {
-            return Err(format!(
-                "patch size {size} m cuts a primitive into {}×{} cells, more than {MAX_GRID} along an edge",
-                g.n_u, g.n_v
-            ));
-        }
-        let total: u64 =
-            grids.iter().enumerate().filter(|(i, _)| !grouped(*i)).map(|(_, g)| g.cell_count() as u64).sum();
-        if total > MAX_PATCHES {
-            return Err(format!("patch size {size} m gives {total} patches, more than the {MAX_PATCHES} supported"));
-        }
+        let grids = checked_grids(primitives, triangle_group, size, order)?;
         let mut out = Patches::default();
-        let mut nb = Vec::new();
-        // Grouped triangles' corners, welded per `group_of`, numbered after the grids' vertices.
-        let mut point_vertex: std::collections::HashMap<[u32; 3], u32> = Default::default();
-        let mut mesh_position: Vec<[f32; 3]> = Vec::new();
         for (pi, (prim, grid)) in primitives.iter().zip(&grids).enumerate() {
-            if grouped(pi) {
-                let joins = pi > 0 && triangle_group[pi - 1] == triangle_group[pi] && group_of[pi - 1] == group_of[pi];
-                let role = if joins { PatchRole::Joins } else { PatchRole::Opens };
-                if role == PatchRole::Opens {
-                    // Shape filled in below, from all the group's triangles.
-                    out.centre.push([0.0; 3]);
-                    out.normal.push([0.0; 3]);
-                    out.area.push(0.0);
-                    out.primitive.push(pi as u32);
-                    out.corners.push([NO_VERTEX; 4]);
-                }
-                out.primitives.push(PrimitivePatches {
-                    grid: *grid,
-                    first_patch: out.area.len() as u32 - 1,
-                    first_vertex: out.mesh_triangles.len() as u32,
-                    role,
-                });
-                // Corners welded below, once the groups' normals are known.
-                out.mesh_triangles.push([NO_VERTEX; 3]);
-                continue;
-            }
-            let first_patch = out.area.len() as u32;
-            let first_vertex = out.vertex_position.len() as u32;
-            out.primitives.push(PrimitivePatches { grid: *grid, first_patch, first_vertex, role: PatchRole::Grid });
-            for v in 0..grid.vertex_count() {
-                out.vertex_position.push(prim.point(grid.vertex_uv(v)).to_array());
-            }
-            let normal = prim.normal().to_array();
-            for cell in 0..grid.cell_count() {
-                let local = grid.cell_corners(cell);
-                let uv: Vec<_> = local.iter().filter(|&&c| c != NO_VERTEX).map(|&c| grid.vertex_uv(c)).collect();
-                let pts: Vec<_> = uv.iter().map(|&t| prim.point(t)).collect();
-                let (area, centre) = if pts.len() == 4 {
-                    // Cells of a planar quad are planar quads with straight edges.
-                    let a = 0.5 * (pts[2] - pts[0]).cross(pts[3] - pts[1]).length();
-                    (a, prim.point((uv[0] + uv[2]) * 0.5))
-                } else {
-                    let a = 0.5 * (pts[1] - pts[0]).cross(pts[2] - pts[0]).length();
-                    (a, (pts[0] + pts[1] + pts[2]) / 3.0)
-                };
-                out.centre.push(centre.to_array());
-                out.normal.push(normal);
-                out.area.push(area);
-                out.primitive.push(pi as u32);
-                out.corners.push(local.map(|c| if c == NO_VERTEX { NO_VERTEX } else { first_vertex + c }));
+            if triangle_group[pi] != UNGROUPED {
+                out.push_grouped_triangle(pi, *grid, group_of, triangle_group);
+            } else {
+                out.push_grid(pi, prim, *grid);
             }
         }
+        out.shape_groups(primitives);
+        out.weld_mesh_corners(primitives, group_of);
+        out.link_adjacency(primitives, group_of);
+        Ok(out)
+    }
+
+    /// Adds grouped triangle `pi` (of grid `grid`, a single cell): a new
+    /// patch when it opens its group, none when it joins the previous
+    /// primitive's (the same `triangle_group` and `group_of`). The patch's
+    /// shape ([`Self::shape_groups`]) and the triangle's corners
+    /// ([`Self::weld_mesh_corners`]) are filled in once every triangle is
+    /// added.
+    fn push_grouped_triangle(&mut self, pi: usize, grid: PatchGrid, group_of: &[u32], triangle_group: &[u32]) {
+        let joins = pi > 0 && triangle_group[pi - 1] == triangle_group[pi] && group_of[pi - 1] == group_of[pi];
+        let role = if joins { PatchRole::Joins } else { PatchRole::Opens };
+        if role == PatchRole::Opens {
+            // Shape filled in below, from all the group's triangles.
+            self.centre.push([0.0; 3]);
+            self.normal.push([0.0; 3]);
+            self.area.push(0.0);
+            self.primitive.push(pi as u32);
+            self.corners.push([NO_VERTEX; 4]);
+        }
+        self.primitives.push(PrimitivePatches {
+            grid,
+            first_patch: self.area.len() as u32 - 1,
+            first_vertex: self.mesh_triangles.len() as u32,
+            role,
+        });
+        // Corners welded below, once the groups' normals are known.
+        self.mesh_triangles.push([NO_VERTEX; 3]);
+    }
+
+    /// Adds primitive `pi`'s own grid of patches: its vertices, and a patch
+    /// per cell with its centre, normal, area and corners.
+    fn push_grid(&mut self, pi: usize, prim: &Primitive, grid: PatchGrid) {
+        let first_patch = self.area.len() as u32;
+        let first_vertex = self.vertex_position.len() as u32;
+        self.primitives.push(PrimitivePatches { grid, first_patch, first_vertex, role: PatchRole::Grid });
+        for v in 0..grid.vertex_count() {
+            self.vertex_position.push(prim.point(grid.vertex_uv(v)).to_array());
+        }
+        let normal = prim.normal().to_array();
+        for cell in 0..grid.cell_count() {
+            let local = grid.cell_corners(cell);
+            let uv: Vec<_> = local.iter().filter(|&&c| c != NO_VERTEX).map(|&c| grid.vertex_uv(c)).collect();
+            let pts: Vec<_> = uv.iter().map(|&t| prim.point(t)).collect();
+            let (area, centre) = if pts.len() == 4 {
+                // Cells of a planar quad are planar quads with straight edges.
+                let a = 0.5 * (pts[2] - pts[0]).cross(pts[3] - pts[1]).length();
+                (a, prim.point((uv[0] + uv[2]) * 0.5))
+            } else {
+                let a = 0.5 * (pts[1] - pts[0]).cross(pts[2] - pts[0]).length();
+                (a, (pts[0] + pts[1] + pts[2]) / 3.0)
+            };
+            self.centre.push(centre.to_array());
+            self.normal.push(normal);
+            self.area.push(area);
+            self.primitive.push(pi as u32);
+            self.corners.push(local.map(|c| if c == NO_VERTEX { NO_VERTEX } else { first_vertex + c }));
+        }
+    }
+
+    /// Fills in each group's patch: the area-weighted centre, normal and
+    /// area of its triangles ([`mesh::group_shape`]).
+    fn shape_groups(&mut self, primitives: &[Primitive]) {
         let mut pi = 0;
         while pi < primitives.len() {
-            let pp = out.primitives[pi];
-            let end = pi + 1 + out.primitives[pi + 1..].iter().take_while(|q| q.role == PatchRole::Joins).count();
+            let pp = self.primitives[pi];
+            let end = pi + 1 + self.primitives[pi + 1..].iter().take_while(|q| q.role == PatchRole::Joins).count();
             if pp.role == PatchRole::Opens {
                 let (c, n, a) = mesh::group_shape(primitives[pi..end].iter().copied());
                 let p = pp.first_patch as usize;
-                (out.centre[p], out.normal[p], out.area[p]) = (c.to_array(), n.to_array(), a);
+                (self.centre[p], self.normal[p], self.area[p]) = (c.to_array(), n.to_array(), a);
             }
             pi = end;
         }
-        // Grouped triangles' corners: one vertex per point of a mesh and
-        // side of a crease, numbered after the grids' vertices. Triangles
-        // share a corner's vertex when their groups' normals are within
-        // 45° of the group that made it, so light is interpolated across
-        // the mesh but never round a fold (the two faces of an ear).
+    }
+
+    /// Grouped triangles' corners: one vertex per point of a mesh and
+    /// side of a crease, numbered after the grids' vertices. Triangles
+    /// share a corner's vertex when their groups' normals are within
+    /// 45° of the group that made it, so light is interpolated across
+    /// the mesh but never round a fold (the two faces of an ear).
+    fn weld_mesh_corners(&mut self, primitives: &[Primitive], group_of: &[u32]) {
+        // Grouped triangles' corners, welded per `group_of`, numbered after the grids' vertices.
+        let mut point_vertex: std::collections::HashMap<[u32; 3], u32> = Default::default();
+        let mut mesh_position: Vec<[f32; 3]> = Vec::new();
         // Per point, its first vertex; per vertex, the normal of the group
         // that made it and the next vertex at the same point (a chain, one
         // link per side of a crease). Points are welded within an
         // instance, whose grouped triangles are consecutive, so the map
         // holds one mesh at a time.
-        let grid_vertices = out.vertex_position.len() as u32;
+        let grid_vertices = self.vertex_position.len() as u32;
         let mut side_normal: Vec<Vec3> = Vec::new();
         let mut side_next: Vec<u32> = Vec::new();
         let mut instance = u32::MAX;
-        for (pi, pp) in out.primitives.iter().enumerate().filter(|(_, pp)| pp.grouped()) {
+        for (pi, pp) in self.primitives.iter().enumerate().filter(|(_, pp)| pp.grouped()) {
             if group_of[pi] != instance {
                 instance = group_of[pi];
                 point_vertex.clear();
             }
-            let n = Vec3::from(out.normal[pp.first_patch as usize]);
-            out.mesh_triangles[pp.first_vertex as usize] = [0, 1, 2].map(|k| {
+            let n = Vec3::from(self.normal[pp.first_patch as usize]);
+            self.mesh_triangles[pp.first_vertex as usize] = [0, 1, 2].map(|k| {
                 let p = primitives[pi].p[k];
                 let new = mesh_position.len() as u32;
                 let mut at = *point_vertex.entry(mesh::position_key(p)).or_insert(new);
@@ -381,34 +421,38 @@ impl Patches {
                 grid_vertices + new
             });
         }
-        out.vertex_position.extend_from_slice(&mesh_position);
-        // Adjacency: within each grid, across coplanar primitive edges, and
-        // across the edges groups share where they do not fold.
-        let mut lists: Vec<Vec<u32>> = Vec::with_capacity(out.len());
-        for pp in out.primitives.iter().filter(|pp| !pp.grouped()) {
+        self.vertex_position.extend_from_slice(&mesh_position);
+    }
+
+    /// Adjacency: within each grid, across coplanar primitive edges (of
+    /// one `group_of`), and across the edges groups share where they do
+    /// not fold; as CSR, each patch's neighbours ascending.
+    fn link_adjacency(&mut self, primitives: &[Primitive], group_of: &[u32]) {
+        let mut nb = Vec::new();
+        let mut lists: Vec<Vec<u32>> = Vec::with_capacity(self.len());
+        for pp in self.primitives.iter().filter(|pp| !pp.grouped()) {
             for cell in 0..pp.grid.cell_count() {
                 pp.grid.cell_neighbours(cell, &mut nb);
                 lists.resize(pp.first_patch as usize + cell as usize, Vec::new());
                 lists.push(nb.iter().map(|&c| pp.first_patch + c).collect());
             }
         }
-        lists.resize(out.len(), Vec::new());
-        for (a, b) in coplanar_neighbours(primitives, group_of, &out) {
+        lists.resize(self.len(), Vec::new());
+        for (a, b) in coplanar_neighbours(primitives, group_of, self) {
             lists[a as usize].push(b);
             lists[b as usize].push(a);
         }
-        for (a, b) in out.group_neighbours() {
+        for (a, b) in self.group_neighbours() {
             lists[a as usize].push(b);
             lists[b as usize].push(a);
         }
-        out.adjacency_offsets.push(0);
+        self.adjacency_offsets.push(0);
         for l in &mut lists {
             l.sort_unstable();
             l.dedup();
-            out.adjacency.extend_from_slice(l);
-            out.adjacency_offsets.push(out.adjacency.len() as u32);
+            self.adjacency.extend_from_slice(l);
+            self.adjacency_offsets.push(self.adjacency.len() as u32);
         }
-        Ok(out)
     }
 
     /// Pairs of groups whose triangles share an edge and whose normals

@@ -137,9 +137,30 @@ pub fn build(
             (s, peak)
         })
         .collect();
-    // Sparse symmetric pattern: keep (a, b) if either direction's factor is
-    // above the threshold relative to its row's peak (band 0 decides).
-    let rows: Vec<(Vec<u32>, Vec<f64>)> = (0..m)
+    let rows = sparse_rows(&eval, &c, &discrete, bands, threshold);
+    let (s, iterations) = symmetric_scaling(&rows, &c, &target, bands);
+    let rows = ScaledRows { up: &up, c: &c, rows: &rows, s: &s, target: &target, discrete: &discrete, bands };
+    let (offsets, outgoing, factors, mut stats) = rows.assemble(n);
+    stats.iterations = iterations;
+    (PrototypeTable { model, bands, offsets, outgoing, factors }, stats)
+}
+
+/// A row's kept entries: the columns (positions among the directions
+/// above the surface) and `bands` unscaled values of `f` each.
+type SparseRow = (Vec<u32>, Vec<f64>);
+
+/// Sparse symmetric pattern: keep (a, b) if either direction's factor is
+/// above `threshold` relative to its row's peak (band 0 decides); the
+/// kept entries' values of `eval` (`f(a, b)` per band), per row.
+fn sparse_rows(
+    eval: &(impl Fn(usize, usize, usize) -> f64 + Sync),
+    c: &[f64],
+    discrete: &[([f64; 3], f64)],
+    bands: usize,
+    threshold: f64,
+) -> Vec<SparseRow> {
+    let m = c.len();
+    (0..m)
         .into_par_iter()
         .map(|a| {
             let (mut cols, mut vals) = (Vec::new(), Vec::new());
@@ -159,8 +180,14 @@ pub fn build(
             }
             (cols, vals)
         })
-        .collect();
-    // Symmetric Sinkhorn scaling, per band.
+        .collect()
+}
+
+/// Symmetric Sinkhorn scaling, per band: the `s_i` that bring every row
+/// of `f'(i,o) = s_i·f(i,o)·s_o` to its `target` albedo (at most 200
+/// iterations), and the iterations run.
+fn symmetric_scaling(rows: &[SparseRow], c: &[f64], target: &[[f64; 3]], bands: usize) -> (Vec<[f64; 3]>, u32) {
+    let m = rows.len();
     let mut s = vec![[1.0f64; 3]; m];
     let row_sum = |s: &[[f64; 3]], a: usize, k: usize| -> f64 {
         let (cols, vals) = &rows[a];
@@ -188,64 +215,89 @@ pub fn build(
             break;
         }
     }
-    // Assemble, in whole-set direction ids.
-    let mut offsets = vec![0u32; n + 1];
-    let (mut outgoing, mut factors) = (Vec::new(), Vec::new());
-    let mut row_of = vec![usize::MAX; n];
-    for (a, &i) in up.iter().enumerate() {
-        row_of[i] = a;
-    }
-    let mut stats = TableStats { rows: m, iterations, ..Default::default() };
-    let mut err_sum = 0.0;
-    let mut err_rows = 0usize;
-    for i in 0..n {
-        if let Some(&a) = row_of.get(i).filter(|&&a| a != usize::MAX) {
-            let (cols, vals) = &rows[a];
-            let mut got = [0.0f64; 3];
-            let start = factors.len();
-            for (e, &b) in cols.iter().enumerate() {
-                outgoing.push(up[b as usize] as u32);
-                for k in 0..bands {
-                    let t = vals[e * bands + k] * s[a][k] * s[b as usize][k] * c[b as usize];
-                    got[k] += t as f32 as f64;
-                    factors.push(t as f32);
-                }
-            }
-            // Where no symmetric scaling exists (a lobe too sharp for the
-            // set: rows of one or two entries), the iteration settles with
-            // some rows above their albedo: scale those down, so that no row
-            // ever returns more than it receives (reciprocity yields there).
-            for k in 0..bands {
-                if got[k] > target[a][k] * (1.0 + 1e-6) && got[k] > 0.0 {
-                    let f = (target[a][k] / got[k]) as f32;
-                    for x in factors[start..].iter_mut().skip(k).step_by(bands) {
-                        *x *= f;
-                    }
-                    got[k] = factors[start..].iter().skip(k).step_by(bands).map(|&x| x as f64).sum();
-                    stats.clamped_rows += 1;
-                }
-            }
-            let kept: f64 = vals.iter().step_by(bands).zip(cols).map(|(f, &b)| f * c[b as usize]).sum();
-            if discrete[a].0[0] > 0.0 {
-                stats.dropped = stats.dropped.max(1.0 - kept / discrete[a].0[0]);
-            }
-            for k in 0..bands {
-                stats.max_albedo = stats.max_albedo.max(got[k]);
-                if target[a][k] > 1e-3 {
-                    let before = (discrete[a].0[k] - target[a][k]).abs() / target[a][k];
-                    stats.albedo_error_before = stats.albedo_error_before.max(before);
-                    stats.albedo_error_after =
-                        stats.albedo_error_after.max((got[k] - target[a][k]).abs() / target[a][k]);
-                    err_sum += before;
-                    err_rows += 1;
-                }
-            }
+    (s, iterations)
+}
+
+/// The sparse rows with their scaling, to assemble into the table: per
+/// row (a direction above the surface, `up[a]` in the whole set) its
+/// entries, scale `s`, quadrature weight `c`, continuous (`target`) and
+/// discrete albedo.
+struct ScaledRows<'a> {
+    up: &'a [usize],
+    c: &'a [f64],
+    rows: &'a [SparseRow],
+    s: &'a [[f64; 3]],
+    target: &'a [[f64; 3]],
+    discrete: &'a [([f64; 3], f64)],
+    bands: usize,
+}
+
+impl ScaledRows<'_> {
+    /// The table's offsets, outgoing directions and factors in whole-set
+    /// direction ids (`n` directions), and what they measured (all but the
+    /// iterations).
+    fn assemble(&self, n: usize) -> (Vec<u32>, Vec<u32>, Vec<f32>, TableStats) {
+        let Self { up, c, rows, s, target, discrete, bands } = *self;
+        let m = up.len();
+        // Assemble, in whole-set direction ids.
+        let mut offsets = vec![0u32; n + 1];
+        let (mut outgoing, mut factors) = (Vec::new(), Vec::new());
+        let mut row_of = vec![usize::MAX; n];
+        for (a, &i) in up.iter().enumerate() {
+            row_of[i] = a;
         }
-        offsets[i + 1] = outgoing.len() as u32;
+        let mut stats = TableStats { rows: m, ..Default::default() };
+        let mut err_sum = 0.0;
+        let mut err_rows = 0usize;
+        for i in 0..n {
+            if let Some(&a) = row_of.get(i).filter(|&&a| a != usize::MAX) {
+                let (cols, vals) = &rows[a];
+                let mut got = [0.0f64; 3];
+                let start = factors.len();
+                for (e, &b) in cols.iter().enumerate() {
+                    outgoing.push(up[b as usize] as u32);
+                    for k in 0..bands {
+                        let t = vals[e * bands + k] * s[a][k] * s[b as usize][k] * c[b as usize];
+                        got[k] += t as f32 as f64;
+                        factors.push(t as f32);
+                    }
+                }
+                // Where no symmetric scaling exists (a lobe too sharp for the
+                // set: rows of one or two entries), the iteration settles with
+                // some rows above their albedo: scale those down, so that no row
+                // ever returns more than it receives (reciprocity yields there).
+                for k in 0..bands {
+                    if got[k] > target[a][k] * (1.0 + 1e-6) && got[k] > 0.0 {
+                        let f = (target[a][k] / got[k]) as f32;
+                        for x in factors[start..].iter_mut().skip(k).step_by(bands) {
+                            *x *= f;
+                        }
+                        got[k] = factors[start..].iter().skip(k).step_by(bands).map(|&x| x as f64).sum();
+                        stats.clamped_rows += 1;
+                    }
+                }
+                let kept: f64 = vals.iter().step_by(bands).zip(cols).map(|(f, &b)| f * c[b as usize]).sum();
+                if discrete[a].0[0] > 0.0 {
+                    stats.dropped = stats.dropped.max(1.0 - kept / discrete[a].0[0]);
+                }
+                for k in 0..bands {
+                    stats.max_albedo = stats.max_albedo.max(got[k]);
+                    if target[a][k] > 1e-3 {
+                        let before = (discrete[a].0[k] - target[a][k]).abs() / target[a][k];
+                        stats.albedo_error_before = stats.albedo_error_before.max(before);
+                        stats.albedo_error_after =
+                            stats.albedo_error_after.max((got[k] - target[a][k]).abs() / target[a][k]);
+                        err_sum += before;
+                        err_rows += 1;
+                    }
+                }
+            }
+            offsets[i + 1] = outgoing.len() as u32;
+        }
+        stats.entries = outgoing.len();
+        stats.albedo_error_before_mean = if err_rows > 0 { err_sum / err_rows as f64 } else { 0.0 };
+        (offsets, outgoing, factors, stats)
     }
-    stats.entries = outgoing.len();
-    stats.albedo_error_before_mean = if err_rows > 0 { err_sum / err_rows as f64 } else { 0.0 };
-    (PrototypeTable { model, bands, offsets, outgoing, factors }, stats)
 }
 
 #[cfg(test)]
