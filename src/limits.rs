@@ -39,3 +39,69 @@ pub fn camera_is_usable(position: [f32; 3], look_at: [f32; 3], up: [f32; 3]) -> 
     // squares underflow in f32 and its direction is NaN (found by fuzzing).
     len(&f) >= 1e-6 && len(&cross) >= 1e-6 * len(&f)
 }
+
+/// Largest scene-side file read whole (a TOML scene or camera file, an OBJ,
+/// an MTL, a texture, a glTF file, its buffers and images), in bytes.
+pub const MAX_INPUT_FILE: u64 = 8 << 30;
+
+/// Opens `path` for reading if it is a regular file of at most `max_len`
+/// bytes, and returns it with its length; anything else (a FIFO, a
+/// character or block device such as `/dev/zero`, a directory, a socket)
+/// is refused without blocking and without reading: the file is checked
+/// with `stat` before it is opened, opened non-blocking (a FIFO put in
+/// its place in between does not hang the open) and checked again. One
+/// rule for every path a user gives (scene files, meshes, textures,
+/// camera files, archives, images), so that none can hang a run or grow
+/// a read without bound. The error says what the file is; callers name it.
+pub fn open_regular(path: &std::path::Path, max_len: u64) -> std::io::Result<(std::fs::File, u64)> {
+    use std::os::unix::fs::OpenOptionsExt;
+    let refuse = |meta: &std::fs::Metadata| -> std::io::Result<u64> {
+        use std::os::unix::fs::FileTypeExt;
+        let t = meta.file_type();
+        let kind = if t.is_file() {
+            if meta.len() > max_len {
+                return Err(std::io::Error::other(format!(
+                    "is {} bytes, more than the {max_len} read at most",
+                    meta.len()
+                )));
+            }
+            return Ok(meta.len());
+        } else if t.is_dir() {
+            "a directory"
+        } else if t.is_fifo() {
+            "a FIFO (named pipe)"
+        } else if t.is_char_device() {
+            "a character device"
+        } else if t.is_block_device() {
+            "a block device"
+        } else if t.is_socket() {
+            "a socket"
+        } else {
+            "not a file"
+        };
+        Err(std::io::Error::other(format!("is {kind}, not a regular file")))
+    };
+    refuse(&std::fs::metadata(path)?)?;
+    let file = std::fs::OpenOptions::new().read(true).custom_flags(libc::O_NONBLOCK).open(path)?;
+    let len = refuse(&file.metadata()?)?;
+    Ok((file, len))
+}
+
+/// Reads the whole of `path` through [`open_regular`]: at most `max_len`
+/// bytes, even if the file grows while it is read.
+pub fn read_regular(path: &std::path::Path, max_len: u64) -> std::io::Result<Vec<u8>> {
+    use std::io::Read;
+    let (file, len) = open_regular(path, max_len)?;
+    let mut bytes = Vec::with_capacity(len as usize);
+    file.take(max_len.saturating_add(1)).read_to_end(&mut bytes)?;
+    if bytes.len() as u64 > max_len {
+        return Err(std::io::Error::other(format!("grew past the {max_len} bytes read at most while read")));
+    }
+    Ok(bytes)
+}
+
+/// [`read_regular`] as UTF-8 text (an `InvalidData` error when it is not).
+pub fn read_regular_text(path: &std::path::Path, max_len: u64) -> std::io::Result<String> {
+    String::from_utf8(read_regular(path, max_len)?)
+        .map_err(|_| std::io::Error::new(std::io::ErrorKind::InvalidData, "stream did not contain valid UTF-8"))
+}

@@ -67,12 +67,13 @@ fn missing_file_is_an_error_naming_it() {
     // A glTF file that is not there: named at the field that names it.
     let e = Scene::from_toml("[gltf]\nfile = 'gone.gltf'\n", &dir.path().join("g.toml"), dir.path()).unwrap_err();
     assert!(e.field == "gltf.file" && e.line == 2 && e.unreadable && e.message.contains("gone.gltf"), "{e}");
-    // An OBJ path that names a directory says so.
+    // An OBJ path that names a directory says so: an I/O error (exit 5),
+    // as for every special file (tests/special_files.rs).
     std::fs::create_dir(dir.path().join("meshes")).unwrap();
     let text = format!("{HEAD}[[surface]]\nname = 's'\nmaterial = 'w'\nmesh = 'meshes'\n");
     let e = Scene::from_toml(&text, &dir.path().join("s.toml"), dir.path()).unwrap_err();
     assert_eq!((e.line, e.field.as_str()), (14, "surface[0].mesh"), "{e}");
-    assert!(e.message.contains("is a directory, not an OBJ file"), "{e}");
+    assert!(e.message.contains("is a directory, not a regular file") && e.unreadable, "{e}");
     // Found by fuzzing: a normal index whose ×3 overflows inside tobj.
     let obj = std::fs::read(
         std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/tobj_normal_index_overflow.obj"),

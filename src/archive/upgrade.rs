@@ -71,7 +71,7 @@ pub fn same_file(a: &Path, b: &Path) -> bool {
 /// version, a damaged one, or one whose result does not validate.
 pub fn upgrade(input: &Path, output: &Path) -> Result<Upgraded, ArchiveError> {
     let io_in = |e: std::io::Error| ArchiveError::Io { path: input.into(), source: e };
-    let file = File::open(input).map_err(io_in)?;
+    let (file, _) = crate::limits::open_regular(input, u64::MAX).map_err(io_in)?;
     let (header, _) = read_structure_of(&file, input, Some(&[]))?;
     let version = header.version_write;
     let io_out = |e: std::io::Error| ArchiveError::Io { path: output.into(), source: e };

@@ -75,7 +75,9 @@ pub fn opened<T>(path: &Path, result: Result<T, illumnet::archive::ArchiveError>
 /// Whether `path` starts with the archive magic (§3).
 pub fn is_archive(path: &Path) -> bool {
     let mut head = [0u8; 8];
-    std::fs::File::open(path).and_then(|mut f| std::io::Read::read_exact(&mut f, &mut head)).is_ok()
+    illumnet::limits::open_regular(path, u64::MAX)
+        .and_then(|(mut f, _)| std::io::Read::read_exact(&mut f, &mut head))
+        .is_ok()
         && head == archive::layout::MAGIC
 }
 
@@ -84,7 +86,9 @@ pub fn is_archive(path: &Path) -> bool {
 /// comment or a `key =` line).
 pub fn looks_like_scene(path: &Path) -> bool {
     let mut head = [0u8; 256];
-    let n = std::fs::File::open(path).and_then(|mut f| std::io::Read::read(&mut f, &mut head)).unwrap_or(0);
+    let n = illumnet::limits::open_regular(path, u64::MAX)
+        .and_then(|(mut f, _)| std::io::Read::read(&mut f, &mut head))
+        .unwrap_or(0);
     let head = &head[..n];
     if head.starts_with(&archive::layout::MAGIC) {
         return false;

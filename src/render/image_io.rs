@@ -150,7 +150,17 @@ pub fn write_png_with(
 
 /// Reads an OpenEXR file as linear RGB (for comparisons with references).
 pub fn read_exr(path: &Path) -> Result<Image, String> {
-    let img = image::open(path).map_err(|e| format!("{}: {e}", path.display()))?.into_rgb32f();
+    // A regular file only, bounded (`limits::open_regular`): a FIFO or a
+    // device given as an image is refused, never waited on or read
+    // without end.
+    let bytes = crate::limits::read_regular(path, crate::limits::MAX_INPUT_FILE)
+        .map_err(|e| format!("{}: cannot read: {e}", path.display()))?;
+    let img = image::ImageReader::new(std::io::Cursor::new(bytes))
+        .with_guessed_format()
+        .map_err(|e| format!("{}: {e}", path.display()))?
+        .decode()
+        .map_err(|e| format!("{}: {e}", path.display()))?
+        .into_rgb32f();
     let (width, height) = img.dimensions();
     let pixels = img.into_raw().chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
     Ok(Image { width, height, pixels })

@@ -216,7 +216,7 @@ impl CameraPath {
         if gltf::is_gltf_path(path) {
             return gltf::import_camera(path, &GltfOptions::default());
         }
-        let text = std::fs::read_to_string(path).map_err(|e| SceneError::io(path, e))?;
+        let text = read_text(path)?;
         parse::parse_camera(&text, path, path.parent().unwrap_or(Path::new(".")))
     }
 
@@ -224,6 +224,13 @@ impl CameraPath {
     pub fn at(&self, frame: u32) -> Camera {
         camera_at(&self.camera, &self.keys, frame)
     }
+}
+
+/// The text of the scene or camera file at `path`, read by
+/// [`crate::limits::read_regular_text`]'s rule: a regular file of at most
+/// [`crate::limits::MAX_INPUT_FILE`] bytes, else an I/O error naming it.
+fn read_text(path: &Path) -> Result<String, SceneError> {
+    crate::limits::read_regular_text(path, crate::limits::MAX_INPUT_FILE).map_err(|e| SceneError::io(path, e))
 }
 
 /// Build settings given in the scene file; `None` means "use the default".
@@ -280,7 +287,7 @@ impl Scene {
         if obj::is_obj_path(path) {
             return obj::import(path);
         }
-        let text = std::fs::read_to_string(path).map_err(|e| SceneError::io(path, e))?;
+        let text = read_text(path)?;
         let name = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
         parse::parse(&text, path, path.parent().unwrap_or(Path::new(".")), name)
     }

@@ -55,15 +55,44 @@ pub fn mtl_model(kd: [f32; 3], ks: [f32; 3], ns: f32) -> (ReflectanceModel, bool
     )
 }
 
+/// An OBJ file's models and its materials (an error when its MTL could not be read).
+pub(super) type ObjFile = (Vec<tobj::Model>, Result<Vec<tobj::Material>, tobj::LoadError>);
+
+/// The OBJ at `path` as `tobj` reads it, with the MTL files it names
+/// (a result, since a missing MTL file is not an error), every file read
+/// through [`crate::limits::read_regular`]: the OBJ or an MTL that is not a
+/// regular file of at most [`crate::limits::MAX_INPUT_FILE`] bytes (a FIFO,
+/// `/dev/zero`, a directory) is an I/O error naming it (exit 5), never a
+/// hang or a read without end. Shared by OBJ scenes and `mesh` surfaces.
+pub(super) fn load_obj_file(path: &Path) -> Result<ObjFile, SceneError> {
+    let bytes =
+        crate::limits::read_regular(path, crate::limits::MAX_INPUT_FILE).map_err(|e| SceneError::io(path, e))?;
+    let dir = path.parent().unwrap_or(Path::new("."));
+    let refused: std::cell::RefCell<Option<SceneError>> = Default::default();
+    let opts = tobj::LoadOptions { triangulate: true, single_index: true, ..Default::default() };
+    let loaded = tobj::load_obj_buf(&mut &bytes[..], &opts, |mtl_path| {
+        let full = dir.join(mtl_path);
+        match crate::limits::read_regular(&full, crate::limits::MAX_INPUT_FILE) {
+            Ok(text) => tobj::load_mtl_buf(&mut &text[..]),
+            Err(e) => {
+                // A file that is there but cannot be read (not a regular
+                // file, too large) is refused; a missing one is said.
+                if std::fs::metadata(&full).is_ok() {
+                    refused.borrow_mut().get_or_insert_with(|| SceneError::io(&full, e));
+                }
+                Err(tobj::LoadError::OpenFileFailed)
+            }
+        }
+    });
+    if let Some(e) = refused.into_inner() {
+        return Err(e);
+    }
+    loaded.map_err(|e| error(path, "", format!("cannot load OBJ: {e}")))
+}
+
 /// Reads the OBJ at `path` and the MTL files it names.
 pub(super) fn import(path: &Path) -> Result<Scene, SceneError> {
-    match std::fs::metadata(path) {
-        Err(e) => return Err(SceneError::io(path, e)),
-        Ok(m) if m.is_dir() => return Err(error(path, "", "is a directory, not an OBJ file")),
-        Ok(_) => {}
-    }
-    let opts = tobj::LoadOptions { triangulate: true, single_index: true, ..Default::default() };
-    let (models, mtl) = tobj::load_obj(path, &opts).map_err(|e| error(path, "", format!("cannot load OBJ: {e}")))?;
+    let (models, mtl) = load_obj_file(path)?;
     let mut notes = Notes::default();
     let mtl = match mtl {
         Ok(m) => m,
@@ -104,6 +133,18 @@ pub(super) fn import(path: &Path) -> Result<Scene, SceneError> {
         notes: notes.into_vec(),
         textures: materials.textures,
     })
+}
+
+/// The image at `path` (PNG, EXR, GIF, by its bytes), read through
+/// [`crate::limits::read_regular`]; failing, the error and whether it is
+/// an I/O failure (`true`) rather than a bad image.
+fn read_image(path: &Path) -> Result<image::DynamicImage, (String, bool)> {
+    let bytes = crate::limits::read_regular(path, crate::limits::MAX_INPUT_FILE).map_err(|e| (e.to_string(), true))?;
+    image::ImageReader::new(std::io::Cursor::new(bytes))
+        .with_guessed_format()
+        .map_err(|e| (e.to_string(), true))?
+        .decode()
+        .map_err(|e| (e.to_string(), false))
 }
 
 /// The surface of the `k`-th OBJ object (`model`): its non-degenerate
@@ -357,8 +398,9 @@ impl<'a> MtlMaterials<'a> {
             notes.add(format!("{field}: no texture coordinates for map_Kd; its Kd alone is used"));
             return Ok(None);
         }
-        let image = image::open(self.dir.join(file)).map_err(|e| {
-            error(self.path, format!("material `{}`.map_Kd", src.name), format!("cannot read `{file}`: {e}"))
+        let image = read_image(&self.dir.join(file)).map_err(|(e, unreadable)| SceneError {
+            unreadable,
+            ..error(self.path, format!("material `{}`.map_Kd", src.name), format!("cannot read `{file}`: {e}"))
         })?;
         let rgb = image.to_rgb8();
         let lut: Vec<f32> = (0..256).map(|v| srgb_to_linear(v as f32 / 255.0)).collect();

@@ -68,7 +68,7 @@ impl Archive {
     /// Maps and validates the archive at `path`.
     pub fn open(path: &Path) -> Result<Self, ArchiveError> {
         let io = |e: std::io::Error| ArchiveError::Io { path: path.into(), source: e };
-        let file = std::fs::File::open(path).map_err(io)?;
+        let (file, _) = crate::limits::open_regular(path, u64::MAX).map_err(io)?;
         let len = file.metadata().map_err(io)?.len();
         if len < layout::HEADER_SIZE as u64 {
             return Err(bad(format!(
@@ -93,7 +93,7 @@ impl Archive {
     /// columns read once, in chunks, without mapping the file.
     pub fn open_streamed(path: &Path, window_ends: usize) -> Result<Self, ArchiveError> {
         let io = |e: std::io::Error| ArchiveError::Io { path: path.into(), source: e };
-        let file = std::fs::File::open(path).map_err(io)?;
+        let (file, _) = crate::limits::open_regular(path, u64::MAX).map_err(io)?;
         let (header, entries) = read_structure(&file, path)?;
         let mut words = Vec::new();
         let mut spans = Vec::new();
@@ -179,7 +179,7 @@ impl Archive {
     /// the other sections: enough to plan how to open it.
     pub fn summary(path: &Path) -> Result<ArchiveSummary, ArchiveError> {
         let io = |e: std::io::Error| ArchiveError::Io { path: path.into(), source: e };
-        let file = std::fs::File::open(path).map_err(io)?;
+        let (file, _) = crate::limits::open_regular(path, u64::MAX).map_err(io)?;
         let (header, entries) = read_structure(&file, path)?;
         let record = |t: Tag, size: usize| -> Result<Vec<u8>, ArchiveError> {
             let e = entries

@@ -15,7 +15,7 @@ use crate::scene::error::error;
 /// Most elements one accessor may hold (2²⁴ vertices, indices or keys).
 pub(super) const MAX_ACCESSOR: usize = 1 << 24;
 /// Largest file (the glTF itself, a buffer or an image) read, in bytes.
-const MAX_FILE: u64 = 8 << 30;
+const MAX_FILE: u64 = crate::limits::MAX_INPUT_FILE;
 /// Largest decoded texture, in pixels (an 8192² image).
 const MAX_TEXTURE_PIXELS: u64 = 1 << 26;
 
@@ -33,17 +33,15 @@ pub(super) struct Images {
     decoded: HashMap<usize, gltf::image::Data>,
 }
 
-/// Reads a regular file of at most [`MAX_FILE`] bytes.
+/// Reads a regular file of at most [`MAX_FILE`] bytes
+/// ([`crate::limits::read_regular`]: anything else is refused without
+/// blocking); failing, an I/O error naming the file and where `named_by`
+/// names it.
 fn read_file(path: &Path, named_by: &Path, at: &str) -> Result<Vec<u8>, SceneError> {
-    let meta =
-        std::fs::metadata(path).map_err(|e| error(named_by, at, format!("cannot read `{}`: {e}", path.display())))?;
-    if !meta.is_file() {
-        return Err(error(named_by, at, format!("`{}` is not a regular file", path.display())));
-    }
-    if meta.len() > MAX_FILE {
-        return Err(error(named_by, at, format!("`{}` is larger than {} GiB", path.display(), MAX_FILE >> 30)));
-    }
-    std::fs::read(path).map_err(|e| error(named_by, at, format!("cannot read `{}`: {e}", path.display())))
+    crate::limits::read_regular(path, MAX_FILE).map_err(|e| SceneError {
+        unreadable: true,
+        ..error(named_by, at, format!("cannot read `{}`: {e}", path.display()))
+    })
 }
 
 /// `%XX` escapes decoded; `None` for a bad escape or bytes that are not UTF-8.

@@ -123,12 +123,9 @@ pub fn import_camera_if_any(path: &Path, options: &GltfOptions) -> Result<Option
     })
 }
 
+/// The glTF file at `path`, read and checked (a regular file only: see
+/// `load`).
 fn open(path: &Path) -> Result<load::Loaded, SceneError> {
-    match std::fs::metadata(path) {
-        Err(e) => return Err(SceneError::io(path, e)),
-        Ok(m) if m.is_dir() => return Err(error(path, "", "is a directory, not a glTF file")),
-        Ok(_) => {}
-    }
     load::Loaded::open(path)
 }
 

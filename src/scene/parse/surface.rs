@@ -105,10 +105,10 @@ fn primitives_of(
         let path = base_dir.join(m.get_ref());
         // (A file that is not there is an I/O failure, still named at
         // its field.)
-        prims.extend(load_obj(&path).map_err(|msg| SceneError {
-            unreadable: std::fs::metadata(&path).is_err(),
-            ..cx.err(m.span(), field("mesh"), msg)
-        })?);
+        prims.extend(
+            load_obj(&path)
+                .map_err(|(msg, unreadable)| SceneError { unreadable, ..cx.err(m.span(), field("mesh"), msg) })?,
+        );
     }
     if let Some(t) = &s.transform {
         let m = transform_matrix(t.get_ref()).map_err(|msg| cx.err(t.span(), field("transform"), msg))?;
@@ -219,34 +219,28 @@ fn transform_matrix(t: &RawTransform) -> Result<(Mat3, Vec3), String> {
 
 /// The triangles of the OBJ file at `path` (a `mesh` surface): positions
 /// only, materials ignored.
-fn load_obj(path: &Path) -> Result<Vec<Primitive>, String> {
-    let opts = tobj::LoadOptions { triangulate: true, single_index: true, ..Default::default() };
-    match std::fs::metadata(path) {
-        Err(e) => {
-            return Err(format!(
-                "cannot read OBJ `{}` (a mesh path is taken from the scene file's folder): {e}",
-                path.display()
-            ));
-        }
-        Ok(m) if m.is_dir() => return Err(format!("`{}` is a directory, not an OBJ file", path.display())),
-        Ok(_) => {}
-    }
-    let (models, _) = tobj::load_obj(path, &opts).map_err(|e| format!("cannot load OBJ `{}`: {e}", path.display()))?;
+fn load_obj(path: &Path) -> Result<Vec<Primitive>, (String, bool)> {
+    let (models, _) = crate::scene::obj::load_obj_file(path).map_err(|e| {
+        let what = if e.file == path { "OBJ".to_string() } else { format!("OBJ `{}`: its MTL", path.display()) };
+        let hint =
+            if e.unreadable && e.file == path { " (a mesh path is taken from the scene file's folder)" } else { "" };
+        (format!("cannot read {what} `{}`{hint}: {}", e.file.display(), e.message), e.unreadable)
+    })?;
     let mut out = Vec::new();
     for m in models {
         let pos = &m.mesh.positions;
-        let vert = |i: u32| -> Result<Vec3, String> {
+        let vert = |i: u32| -> Result<Vec3, (String, bool)> {
             let i = i as usize * 3;
             pos.get(i..i + 3)
                 .map(|p| Vec3::new(p[0], p[1], p[2]))
-                .ok_or_else(|| format!("OBJ `{}`: face index out of range", path.display()))
+                .ok_or_else(|| (format!("OBJ `{}`: face index out of range", path.display()), false))
         };
         for f in m.mesh.indices.chunks_exact(3) {
             out.push(Primitive::triangle(vert(f[0])?, vert(f[1])?, vert(f[2])?));
         }
     }
     if out.is_empty() {
-        return Err(format!("OBJ `{}` has no faces", path.display()));
+        return Err((format!("OBJ `{}` has no faces", path.display()), false));
     }
     Ok(out)
 }
