@@ -627,8 +627,8 @@ pub(super) fn parse(text: &str, file: &Path, base_dir: &Path, name: String) -> R
             build.patch_size = Some(*p.get_ref());
         }
         if let Some(r) = &b.ray_spacing {
-            if !(r.get_ref().is_finite() && *r.get_ref() > 0.0) {
-                return Err(cx.err(r.span(), "build.ray_spacing", "must be a positive length in metres"));
+            if !(r.get_ref().is_finite() && *r.get_ref() >= crate::limits::MIN_RAY_SPACING) {
+                return Err(cx.err(r.span(), "build.ray_spacing", "must be a length of at least 1e-6 metres"));
             }
             build.ray_spacing = Some(*r.get_ref());
         }
@@ -734,7 +734,7 @@ pub(super) fn parse(text: &str, file: &Path, base_dir: &Path, name: String) -> R
             "broad_specular" => {
                 let kd = unit_rgb(&m.reflectance, "reflectance", "a reflectance")?;
                 let ks = unit_rgb(&m.specular, "specular", "a specular colour")?;
-                if (0..3).any(|c| kd[c] + ks[c] > 1.0) {
+                if !crate::limits::conserves_energy(kd, ks) {
                     return Err(cx.err(
                         m.specular.as_ref().map_or(m.kind.span(), |s| s.span()),
                         field("specular"),
