@@ -762,3 +762,38 @@ fn set_emission_beyond_the_scene_readers_bound_is_refused_naming_the_option() {
     let out = render("lamp.emission=1e9,1e9,1e9");
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
 }
+
+/// Issue 42, §1: a glossy patch with a single ray in one direction pair
+/// and none in the others (`NDHC`): refused at open, or finite light.
+/// Reproduces the probe's case (NaN and 5e35 at patch 0); not fixed yet.
+#[test]
+#[ignore = "issue 42 §1, glossy single ray: reproduced, no rule yet (a build's NDHC sums to its PHIT)"]
+fn a_glossy_patch_with_one_ray_in_one_pair_gives_finite_light_or_is_refused() {
+    let c = contents(&format!("{ROOM}{GLOSSY}"));
+    let r = c.reflectance.as_ref().unwrap();
+    let half = c.directions.len() / 2;
+    let mut outcomes = Vec::new();
+    for k in [0, r.patches.len() / 2, r.patches.len() - 1] {
+        let q = r.patches[k].patch as usize;
+        let sum: u64 = r.hits[k * half..(k + 1) * half].iter().map(|&h| h as u64).sum();
+        eprintln!("patch {q}: PHIT {}, NDHC sum {sum}", c.patch_hits[q]);
+        for pair in [0, half / 3, half - 1] {
+            let mut x = c.clone();
+            let xr = x.reflectance.as_mut().unwrap();
+            xr.hits[k * half..(k + 1) * half].fill(0);
+            xr.hits[k * half + pair] = 1;
+            if !xr.back_hits.is_empty() {
+                xr.back_hits[k * half..(k + 1) * half].fill(0);
+            }
+            let bytes = archive::write_to_vec(&x).unwrap();
+            match outcome(&bytes) {
+                Ok(Outcome::Stopped(e @ DistributeError::NotFinite { .. })) => {
+                    panic!("patch {q}, pair {pair}: opened, then {e}")
+                }
+                Ok(o) => outcomes.push(format!("{o:?}").chars().take(60).collect::<String>()),
+                Err(e) => panic!("patch {q}, pair {pair}: {e}"),
+            }
+        }
+    }
+    eprintln!("{outcomes:#?}");
+}
