@@ -13,9 +13,32 @@ pub const MAX_BUCKET: u32 = 4;
 /// 2·10⁷): bounds every power the distribution sums, so that it stays finite.
 pub const MAX_RADIANCE: f32 = 1e9;
 
+/// How far `k_d + k_s` may exceed 1 in a band (rounding of f32 sums:
+/// glTF's and OBJ's conversions land a few ulps above 1).
+pub const REFLECTANCE_SLACK: f32 = 1e-6;
+
+/// Whether a material with diffuse reflectance `kd` and specular colour
+/// `ks` conserves energy: `k_d + k_s ≤ 1 +` [`REFLECTANCE_SLACK`] in every
+/// band. The one rule of the scene reader, `render --set` and the archive
+/// reader, so that what one accepts the others do too (issue 42, §8).
+pub fn conserves_energy(kd: [f32; 3], ks: [f32; 3]) -> bool {
+    (0..3).all(|c| kd[c] + ks[c] <= 1.0 + REFLECTANCE_SLACK)
+}
+
 /// Largest patch area (m²; a square 10 000 km on a side): with
 /// [`MAX_RADIANCE`], a patch's emitted power stays far inside f32.
 pub const MAX_PATCH_AREA: f32 = 1e14;
+
+/// Smallest non-zero patch area (m²; the scene reader's smallest
+/// primitive, 10⁻¹² of a 1 mm square): the distribution divides by a
+/// patch's area, and 1/(π·A) of a denormal area is infinite (issue 42, §1).
+pub const MIN_PATCH_AREA: f32 = 1e-18;
+
+/// Smallest ray spacing (m): a patch's expected hits are at most
+/// A·N/δ² (§7), so A·H/PEXP, the least area the distribution divides by,
+/// is at least H·δ²/N; a tiny δ lifts that bound until any exposure
+/// passes (a spacing of 10⁻²⁰ made infinite light, issue 42, §1).
+pub const MIN_RAY_SPACING: f32 = 1e-6;
 
 /// Largest coordinate magnitude (m) of a camera, primitive corner or
 /// vertex: ray arithmetic with it stays finite in f32.

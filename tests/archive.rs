@@ -149,8 +149,11 @@ fn absurd_resolutions_are_errors_not_overflows() {
     let build_with = |hints: BuildHints| bake::build(&scene, &BuildSettings::resolve(&scene, hints), &NoProgress);
     let err = build_with(BuildHints { patch_size: Some(1e-6), ..Default::default() }).unwrap_err();
     assert!(err.contains("cells"), "{err}");
-    let err = build_with(BuildHints { ray_spacing: Some(1e-9), ..Default::default() }).unwrap_err();
+    let err = build_with(BuildHints { ray_spacing: Some(2e-6), ..Default::default() }).unwrap_err();
     assert!(err.contains("rays"), "{err}");
+    // Below the least ray spacing an archive may hold (§7, issue 42).
+    let err = build_with(BuildHints { ray_spacing: Some(1e-9), ..Default::default() }).unwrap_err();
+    assert!(err.contains("ray spacing must be a length of at least 1e-6 m"), "{err}");
 }
 
 #[test]

@@ -296,3 +296,31 @@ fn the_cli_says_to_upgrade_and_upgrades() {
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     assert!(dir.path().join("f_3.png").exists());
 }
+
+/// Issue 42, §8: a file that claims version 12 over a version-9 layout
+/// was "nothing to do" in place (exit 0) though it does not open; now
+/// refused as corrupt (exit 4), the file left as it was.
+#[test]
+fn an_in_place_upgrade_of_a_current_version_that_does_not_open_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("claims_12.inet");
+    let mut bytes =
+        std::fs::read(Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/v9/v9_moving_box.inet")).unwrap();
+    let mut h: layout::HeaderRecord = bytemuck::pod_read_unaligned(&bytes[..layout::HEADER_SIZE]);
+    (h.version_write, h.version_read) = (12, layout::VERSION_READ);
+    bytes[..layout::HEADER_SIZE].copy_from_slice(bytemuck::bytes_of(&h));
+    illumnet::archive::reseal(&mut bytes);
+    std::fs::write(&path, &bytes).unwrap();
+    let err = upgrade::upgrade(&path, &path).unwrap_err();
+    assert!(matches!(err, ArchiveError::Corrupt(_)), "{err}");
+    let text = err.to_string();
+    assert!(text.contains("claims_12.inet") && text.contains("does not validate"), "{text}");
+    assert_eq!(std::fs::read(&path).unwrap(), bytes, "left as it was");
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_illumnet"))
+        .args(["upgrade", path.to_str().unwrap()])
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout).into_owned() + &String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(4), "{text}");
+    assert!(!text.contains("nothing to do"), "{text}");
+}

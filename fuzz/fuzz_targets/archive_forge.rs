@@ -5,9 +5,15 @@
 //! fuzzer explores values behind the checksums: byte 0 picks the seed;
 //! then per patch 1 byte section (mod the section count; bit 7: its
 //! table entry instead), 4 bytes offset (mod the length), 1 byte length
-//! (1..=8) and that many bytes written there.
+//! (1..=8) and that many bytes written there; or, when the length byte's
+//! bit 7 is set, the first 4 of those bytes an f32 factor that scales
+//! every f32 of the section from the offset on (products and sums of
+//! fields: every solid angle doubled, every area denormal; issue 42).
 //!
-//! Must hold: no panic; every solution handed out and every pixel finite.
+//! Must hold: no panic; every solution handed out and every pixel
+//! finite; and an archive that opens distributes to finite light
+//! (format-spec/archive.md §7): the distribution may refuse a frame, but
+//! never with a non-finite result.
 #![no_main]
 
 use std::sync::OnceLock;
@@ -15,7 +21,7 @@ use std::sync::OnceLock;
 use illumnet::archive::layout::{self, HeaderRecord, SectionEntry};
 use illumnet::archive::{self, Archive};
 use illumnet::bake::{self, BuildSettings};
-use illumnet::distribute::{DistributeOptions, Distributor, Lighting};
+use illumnet::distribute::{DistributeError, DistributeOptions, Distributor, Lighting};
 use illumnet::progress::NoProgress;
 use illumnet::render::{self, RenderOptions, Renderer};
 use illumnet::scene::{BuildHints, Scene};
@@ -57,6 +63,7 @@ fuzz_target!(|data: &[u8]| {
     while script.len() >= 6 {
         let (sel, offset, len) = (script[0], u32::from_le_bytes(script[1..5].try_into().unwrap()), script[5]);
         script = &script[6..];
+        let scale = len & 0x80 != 0;
         let len = (len as usize % 8 + 1).min(script.len());
         let (value, rest) = script.split_at(len);
         script = rest;
@@ -69,6 +76,15 @@ fuzz_target!(|data: &[u8]| {
             continue;
         }
         let at = start + offset as usize % span;
+        if scale && value.len() >= 4 && sel & 0x80 == 0 {
+            let factor = f32::from_le_bytes(value[..4].try_into().unwrap());
+            let from = start + (at - start) / 4 * 4;
+            for w in bytes[from..start + span / 4 * 4].chunks_exact_mut(4) {
+                let x = f32::from_le_bytes(w.try_into().unwrap()) * factor;
+                w.copy_from_slice(&x.to_le_bytes());
+            }
+            continue;
+        }
         let n = value.len().min(start + span - at);
         bytes[at..at + n].copy_from_slice(&value[..n]);
     }
@@ -76,11 +92,21 @@ fuzz_target!(|data: &[u8]| {
     let Ok(a) = Archive::from_bytes(&bytes) else { return };
     let v = a.view();
     let opts = DistributeOptions { max_iterations: 6, ..Default::default() };
-    let Ok(d) = Distributor::new(&v, &opts, &Lighting::from_view(&v)) else { return };
+    // The invariant of §7: refused, maybe, but never non-finite.
+    let finite_or_refused = |e: DistributeError| {
+        assert!(!matches!(e, DistributeError::NotFinite { .. }), "an archive that opened made non-finite light: {e}");
+    };
+    let d = match Distributor::new(&v, &opts, &Lighting::from_view(&v)) {
+        Ok(d) => d,
+        Err(e) => return finite_or_refused(e),
+    };
     let small = (v.camera.width as u64 * v.camera.height as u64) <= 64 * 64;
     let mut renderer = small.then(|| Renderer::new(&v, RenderOptions { samples_per_axis: 1, ..Default::default() }));
     for f in 0..v.sequence.map_or(1, |s| s.frames().min(3)) {
-        let Ok(s) = d.frame(f, None, &NoProgress) else { return };
+        let s = match d.frame(f, None, &NoProgress) {
+            Ok(s) => s,
+            Err(e) => return finite_or_refused(e),
+        };
         assert!(s.radiance.iter().flatten().all(|c| c.is_finite()), "a non-finite radiance was handed out");
         if let Some(renderer) = &mut renderer {
             let light = render::DirectLight::new(&v, &s, 1);

@@ -13,7 +13,7 @@ use bytemuck::cast_slice_mut;
 use rayon::prelude::*;
 
 use super::ArchiveError;
-use super::layout::{DeltaIndexRecord, DeltaRecord};
+use super::layout::{self, DeltaIndexRecord, DeltaRecord};
 
 /// zstd level of delta blocks: level 1 compresses sorted delta records
 /// about as well as level 3, in less time.
@@ -354,6 +354,14 @@ fn decode_columns(bytes: &[u8], out: &mut [DeltaRecord]) {
     }
 }
 
+/// The most delta records `stored` bytes of a frame can hold (§5.13):
+/// [`layout::MAX_ZSTD_EXPANSION`] times as many bytes, of a block
+/// record's size (the smallest of the formats'). A `DIDX` count above it
+/// is one the file cannot hold (issue 42, §5).
+pub fn most_records(stored: u64) -> u64 {
+    stored.saturating_mul(layout::MAX_ZSTD_EXPANSION) / BLOCK_RECORD_BYTES as u64
+}
+
 /// Decompresses a frame's stored bytes, a sequence of zstd frames, into
 /// `count` records. The frames' declared content sizes are checked against
 /// `count` before anything is allocated; blocks decompress in parallel.
@@ -373,7 +381,7 @@ pub(crate) fn decode(stored: &[u8], count: u64, frame: u32, columns: bool) -> Re
         // No zstd frame expands by more than 2¹⁵ (a 4-byte RLE block holds
         // at most 128 KiB): a larger declared size is a forged header, and
         // would be allocated before anything is decompressed.
-        if n.saturating_mul(size) > (len as u64).saturating_mul(1 << 16) {
+        if n.saturating_mul(size) > (len as u64).saturating_mul(layout::MAX_ZSTD_EXPANSION) {
             return Err(bad(frame, "a zstd frame declares more than it could hold".into()));
         }
         records = records

@@ -52,6 +52,12 @@ pub const LARGE_SECTION: u64 = 64 * 1024;
 /// Widest bucket a valid archive may record (§5.1, `max_bucket`).
 pub const MAX_BUCKET: u32 = crate::limits::MAX_BUCKET;
 
+/// The most a zstd frame expands its stored bytes (a 4-byte RLE block
+/// holds at most 128 KiB, so no frame passes 2¹⁵): a section or frame
+/// declaring more is forged, and its declared length would be planned or
+/// allocated before anything is decompressed (issue 42, §5).
+pub const MAX_ZSTD_EXPANSION: u64 = 1 << 16;
+
 /// Section compression codes (§4).
 pub mod compression {
     /// Stored as is; readable zero-copy.

@@ -103,16 +103,14 @@ pub fn upgrade(input: &Path, output: &Path) -> Result<Upgraded, ArchiveError> {
                 tmp_file.write_all(&buf[..n]).map_err(io_out)?;
             }
             tmp_file.sync_all().map_err(io_out)?;
-            Archive::open_streamed(tmp_path.as_ref(), 1 << 18).map_err(|e| match e {
-                ArchiveError::Corrupt(m) => ArchiveError::corrupt(format!(
-                    "{} does not validate, so nothing was written to {}: {m}",
-                    input.display(),
-                    output.display()
-                )),
-                other => other,
-            })?;
+            validates(tmp_path.as_ref(), input, output)?;
             tmp_path.persist(output).map_err(|e| io_out(e.error))?;
             folder.keep();
+        } else {
+            // In place, "nothing to do" only for a file that opens: a
+            // header's version says nothing of the layout after it (a
+            // version-9 layout under version 12 was "current", issue 42).
+            validates(input, input, output)?;
         }
         let len = header.file_length;
         return Ok(Upgraded {
@@ -178,6 +176,19 @@ pub fn upgrade(input: &Path, output: &Path) -> Result<Upgraded, ArchiveError> {
         escapes,
         already_current: false,
         version_before: version,
+    })
+}
+
+/// Checks that `path` (`input` or a copy of it) opens as a render would
+/// open it, its error saying that nothing was written to `output`.
+fn validates(path: &Path, input: &Path, output: &Path) -> Result<(), ArchiveError> {
+    Archive::open_streamed(path, 1 << 18).map(drop).map_err(|e| match e {
+        ArchiveError::Corrupt(m) => ArchiveError::corrupt(format!(
+            "{} does not validate, so nothing was written to {}: {m}",
+            input.display(),
+            output.display()
+        )),
+        other => other,
     })
 }
 

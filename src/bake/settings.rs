@@ -121,8 +121,12 @@ impl BuildSettings {
         if !(self.patch_size.is_finite() && self.patch_size > 0.0) {
             return Err(format!("patch size must be a positive length, got {}", self.patch_size));
         }
-        if !(self.ray_spacing.is_finite() && self.ray_spacing > 0.0) {
-            return Err(format!("ray spacing must be a positive length, got {}", self.ray_spacing));
+        if !(self.ray_spacing.is_finite() && self.ray_spacing >= crate::limits::MIN_RAY_SPACING) {
+            return Err(format!(
+                "ray spacing must be a length of at least {:e} m, got {}",
+                crate::limits::MIN_RAY_SPACING,
+                self.ray_spacing
+            ));
         }
         if !(1..=crate::geodesic::MAX_FREQUENCY).contains(&self.frequency) {
             return Err(format!("frequency must be in 1..={}, got {}", crate::geodesic::MAX_FREQUENCY, self.frequency));

@@ -85,7 +85,9 @@ fn check_counts(v: &InetView<'_>, meta: &ArchiveMeta) -> Result<(), ArchiveError
     count("LOFF", v.link_offsets.len(), p + 1)?;
     count("META surface names", meta.surface_names.len(), v.surfaces.len())?;
     count("META material names", meta.material_names.len(), v.materials.len())?;
-    check(b.ray_spacing_m.is_finite() && b.ray_spacing_m > 0.0, || "BILD: ray spacing must be positive".into())?;
+    check(b.ray_spacing_m.is_finite() && b.ray_spacing_m >= crate::limits::MIN_RAY_SPACING, || {
+        format!("BILD: ray spacing {:e} m below {:e} m", b.ray_spacing_m, crate::limits::MIN_RAY_SPACING)
+    })?;
     Ok(())
 }
 
@@ -112,9 +114,8 @@ fn check_materials(v: &InetView<'_>) -> Result<(), ArchiveError> {
         check(m.params[..6].iter().all(|r| (0.0..=1.0).contains(r)), || {
             format!("MATL[{i}]: reflectance outside [0, 1]")
         })?;
-        check((0..3).all(|c| m.params[c] + m.params[3 + c] <= 1.0 + 1e-6), || {
-            format!("MATL[{i}]: reflectance + specular above 1")
-        })?;
+        let (kd, ks) = ([m.params[0], m.params[1], m.params[2]], [m.params[3], m.params[4], m.params[5]]);
+        check(crate::limits::conserves_energy(kd, ks), || format!("MATL[{i}]: reflectance + specular above 1"))?;
     }
     Ok(())
 }

@@ -7,7 +7,7 @@ use super::views::InetView;
 use super::{check, csr, finite, within};
 use crate::archive::ArchiveError;
 use crate::archive::layout;
-use crate::limits::MAX_PATCH_AREA;
+use crate::limits::{MAX_PATCH_AREA, MIN_PATCH_AREA};
 
 /// Whether the primitives' patch blocks tile the patches `0..P` (§5.5):
 /// blocks in primitive order are checked by where the last ended, with no
@@ -153,18 +153,31 @@ pub(super) fn check_primitives(v: &InetView<'_>, version_read: u32) -> Result<()
     Ok(())
 }
 
-/// `DIRS`: finite unit vectors with a solid angle, neighbours in range.
+/// The whole sphere's solid angle (sr).
+const SPHERE: f32 = 4.0 * std::f32::consts::PI;
+
+/// `DIRS`: finite unit vectors with a solid angle, neighbours in range,
+/// the solid angles summing to 4π.
 pub(super) fn check_directions(v: &InetView<'_>) -> Result<(), ArchiveError> {
     let nd = v.build.direction_count as usize;
     for (i, d) in v.directions.iter().enumerate() {
         check(finite(&d.direction), || format!("DIRS[{i}]: non-finite"))?;
         let len2: f32 = d.direction.iter().map(|x| x * x).sum();
         check((len2 - 1.0).abs() < 1e-3, || format!("DIRS[{i}]: not a unit vector"))?;
-        check(d.solid_angle_sr.is_finite() && d.solid_angle_sr > 1e-9, || format!("DIRS[{i}]: bad solid angle"))?;
+        check(d.solid_angle_sr.is_finite() && d.solid_angle_sr > 1e-9 && d.solid_angle_sr <= SPHERE, || {
+            format!("DIRS[{i}]: solid angle {:e} sr outside (1e-9, 4π]", d.solid_angle_sr)
+        })?;
         check(d.neighbours.iter().all(|&n| n == u32::MAX || (n as usize) < nd), || {
             format!("DIRS[{i}]: neighbour out of range")
         })?;
     }
+    // They tile the sphere: the gather weighs light by them, so a set
+    // summing far from 4π scales every bounce (3e38 each made infinite
+    // light, issue 42, §1).
+    let sum: f64 = v.directions.iter().map(|d| d.solid_angle_sr as f64).sum();
+    check((sum - SPHERE as f64).abs() <= 1e-3 * SPHERE as f64, || {
+        format!("DIRS: solid angles sum to {sum} sr, not 4π")
+    })?;
     Ok(())
 }
 
@@ -189,14 +202,21 @@ pub(super) fn check_patches(v: &InetView<'_>) -> Result<(), ArchiveError> {
         check(v.patch_area[i] <= MAX_PATCH_AREA, || {
             format!("PARE[{i}]: area {} m² above {MAX_PATCH_AREA:e}", v.patch_area[i])
         })?;
+        // The distribution divides by the area: 0 (no light) or at least
+        // the least a scene's primitive has.
+        check(v.patch_area[i] == 0.0 || v.patch_area[i] >= MIN_PATCH_AREA, || {
+            format!("PARE[{i}]: area {:e} m² neither 0 nor at least {MIN_PATCH_AREA:e}", v.patch_area[i])
+        })?;
         // PEXP = A·Σ_d max(0, n·d)·Ω_d/Ω̄/δ² ≤ A·N/δ² (the ray-space
         // baseline's is below it too): so A·H/PEXP ≥ H·δ²/N, the least
-        // area the distribution divides by.
+        // area the distribution divides by. Relative slack only: an
+        // absolute one let a denormal area carry 10⁻³ expected hits and
+        // divide by nearly nothing (issue 42, §1).
         let most = v.patch_area[i] as f64 * nd as f64 / (b.ray_spacing_m as f64).powi(2);
         check(
             v.patch_expected_hits[i].is_finite()
                 && v.patch_expected_hits[i] >= 0.0
-                && v.patch_expected_hits[i] as f64 <= most * (1.0 + 1e-3) + 1e-3,
+                && v.patch_expected_hits[i] as f64 <= most * (1.0 + 1e-3),
             || {
                 format!(
                     "PEXP[{i}]: {} expected hits, more than area {} m² can have ({most:.3e})",

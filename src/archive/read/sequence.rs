@@ -5,7 +5,7 @@
 
 use super::views::{InetView, SequenceView};
 use super::{camera_geometry, check, count};
-use crate::archive::ArchiveError;
+use crate::archive::{ArchiveError, deltas};
 use crate::limits::MAX_RADIANCE;
 
 /// Frames and rate, instances contiguous over every primitive, a camera
@@ -53,6 +53,17 @@ pub(super) fn check_sequence(v: &InetView<'_>, s: &SequenceView<'_>) -> Result<(
             ix.count <= u32::MAX as u64 && (ix.count == 0) == (ix.stored_length == 0) && (f > 0 || ix.count == 0),
             || format!("DIDX[{f}]: bad count"),
         )?;
+        check_delta_count(f, ix.count, ix.stored_length)?;
     }
     Ok(())
+}
+
+/// `DIDX[f]`: a count its `stored` bytes can hold
+/// ([`deltas::most_records`]); shared by open and
+/// [`crate::archive::Archive::summary`], so that a render plans memory
+/// only from counts the file can hold (issue 42, §5).
+pub(super) fn check_delta_count(f: usize, count: u64, stored: u64) -> Result<(), ArchiveError> {
+    check(count <= deltas::most_records(stored), || {
+        format!("DIDX[{f}]: {count} records, more than its {stored} stored bytes can hold")
+    })
 }

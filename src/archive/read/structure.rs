@@ -250,6 +250,12 @@ fn check_entries(
                     e.length, e.stored_length
                 )));
             }
+            compression::ZSTD if e.length > e.stored_length.saturating_mul(layout::MAX_ZSTD_EXPANSION) => {
+                return Err(bad(format!(
+                    "section {name}: length {} is more than its {} stored bytes can hold",
+                    e.length, e.stored_length
+                )));
+            }
             compression::NONE | compression::ZSTD => {}
             c => return Err(bad(format!("section {name}: unknown compression code {c}"))),
         }

@@ -7,6 +7,7 @@ use anyhow::Result;
 use clap::Args;
 use illumnet::archive::{self, Archive};
 use illumnet::distribute;
+use illumnet::limits::MAX_RADIANCE;
 
 use crate::cli::exit::{InputContext, bail_input};
 
@@ -56,8 +57,10 @@ pub fn relight(lighting: &mut distribute::Lighting, archive: &Archive, sets: &[S
                 let s = surface.input(|| {
                     format!("--set `{set}`: no surface named `{name}` (surfaces: {})", meta.surface_names.join(", "))
                 })?;
-                if rgb.iter().any(|&x| x < 0.0) {
-                    bail_input!("--set `{set}`: emission must be non-negative");
+                // The scene reader's bound (and the archive's, §7): a larger
+                // radiance would be accepted here and blamed on the archive.
+                if rgb.iter().any(|&x| !(0.0..=MAX_RADIANCE).contains(&x)) {
+                    bail_input!("--set `{set}`: emission must be in [0, {MAX_RADIANCE:e}]");
                 }
                 lighting.emission[s] = rgb;
                 lighting.emission_fixed[s] = true;
@@ -95,7 +98,7 @@ pub fn relight(lighting: &mut distribute::Lighting, archive: &Archive, sets: &[S
         }
     }
     for (s, name) in meta.surface_names.iter().enumerate() {
-        if (0..3).any(|c| lighting.reflectance[s][c] + lighting.specular[s][c] > 1.0) {
+        if !illumnet::limits::conserves_energy(lighting.reflectance[s], lighting.specular[s]) {
             bail_input!(
                 "surface `{name}`: reflectance + specular exceeds 1 in some band (the surface would create energy)"
             );

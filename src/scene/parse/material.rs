@@ -68,7 +68,7 @@ fn model_of(cx: &Ctx<'_>, i: usize, m: &RawMaterial) -> Result<ReflectanceModel,
         "broad_specular" => {
             let kd = unit_rgb(&m.reflectance, "reflectance", "a reflectance")?;
             let ks = unit_rgb(&m.specular, "specular", "a specular colour")?;
-            if (0..3).any(|c| kd[c] + ks[c] > 1.0) {
+            if !crate::limits::conserves_energy(kd, ks) {
                 return Err(cx.err(
                     m.specular.as_ref().map_or(m.kind.span(), |s| s.span()),
                     field("specular"),

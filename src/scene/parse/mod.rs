@@ -98,8 +98,8 @@ fn build_hints(cx: &Ctx<'_>, raw: &Option<Spanned<RawBuild>>) -> Result<BuildHin
             build.patch_size = Some(*p.get_ref());
         }
         if let Some(r) = &b.ray_spacing {
-            if !(r.get_ref().is_finite() && *r.get_ref() > 0.0) {
-                return Err(cx.err(r.span(), "build.ray_spacing", "must be a positive length in metres"));
+            if !(r.get_ref().is_finite() && *r.get_ref() >= crate::limits::MIN_RAY_SPACING) {
+                return Err(cx.err(r.span(), "build.ray_spacing", "must be a length of at least 1e-6 metres"));
             }
             build.ray_spacing = Some(*r.get_ref());
         }
