@@ -10,6 +10,7 @@
 //! | 5 | I/O: a file could not be read or written |
 //! | 6 | the job does not fit the memory budget (said before work starts) |
 //! | 7 | the result is not finite, or did not converge (without `--allow-unconverged`) |
+//! | 8 | `frames check`: some frames are missing, partial, stale or foreign |
 //! | 101 | internal error (a panic: a bug, please report it) |
 //!
 //! Errors carry their kind as a typed source in the `anyhow` chain
@@ -37,6 +38,8 @@ pub const BUDGET: u8 = 6;
 
 /// The result is refused: not finite, or not converged.
 pub const RESULT: u8 = 7;
+/// `frames check` found frames that are not complete.
+pub const FRAMES_INCOMPLETE: u8 = 8;
 
 /// Error kinds that are a message: the type says which exit code.
 macro_rules! message_errors {
@@ -66,6 +69,9 @@ message_errors! {
     BadInput;
     /// A file the CLI could not read or write (image encoders report strings).
     IoFailure;
+    /// `frames check` found frames missing, partial, stale or foreign
+    /// (listed before it).
+    FramesIncomplete;
 }
 
 /// `Err(BadInput(format!(…)))` from the enclosing function.
@@ -114,6 +120,7 @@ pub fn kind(code: u8) -> &'static str {
         IO => "io",
         BUDGET => "memory_budget",
         RESULT => "result_refused",
+        FRAMES_INCOMPLETE => "frames_incomplete",
         _ => "failure",
     }
 }
@@ -144,6 +151,9 @@ pub fn code(err: &anyhow::Error) -> u8 {
         }
         if cause.is::<ResultRefused>() {
             return RESULT;
+        }
+        if cause.is::<FramesIncomplete>() {
+            return FRAMES_INCOMPLETE;
         }
         if cause.is::<BudgetError>() {
             return BUDGET;

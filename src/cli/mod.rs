@@ -8,6 +8,7 @@ mod common;
 mod compare;
 mod demo;
 mod exit;
+mod frames;
 mod inspect;
 mod progress_bar;
 mod render;
@@ -61,6 +62,9 @@ enum Command {
     Upgrade(upgrade::UpgradeCommand),
     /// Build and render the embedded Cornell box.
     Demo(demo::DemoCommand),
+    /// Frames of a render farm: `frames check` reports which are complete,
+    /// missing, partial, stale or foreign (exit 8 unless all complete).
+    Frames(frames::FramesCommand),
 }
 
 /// A closed stdout (`illumnet inspect ARCHIVE | head`) ends the program
@@ -134,6 +138,7 @@ pub fn main() -> ExitCode {
         Command::Compare(command) => compare::run(command),
         Command::Upgrade(command) => upgrade::run(command),
         Command::Demo(command) => demo::run(command, &progress),
+        Command::Frames(command) => frames::run(command),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -148,6 +148,40 @@ pub fn write_png_with(
     })
 }
 
+/// The text an image written by [`write_png_with`] or [`write_exr_with`]
+/// records (chosen by the extension: `.exr` or else PNG), after decoding
+/// the whole image: a truncated or damaged file is an error, so what a
+/// killed writer or a full disk left is never taken for a finished frame.
+pub fn read_metadata(path: &Path) -> Result<Vec<(String, String)>, String> {
+    let is_exr = path.extension().is_some_and(|e| e.eq_ignore_ascii_case("exr"));
+    if is_exr {
+        read_exr(path)?;
+        let meta = exr::meta::MetaData::read_from_file(path, false).map_err(|e| format!("{}: {e}", path.display()))?;
+        let header = meta.headers.first().ok_or_else(|| format!("{}: no header", path.display()))?;
+        let mut text = Vec::new();
+        for (k, v) in &header.own_attributes.other {
+            if let exr::prelude::AttributeValue::Text(v) = v {
+                text.push((k.to_string(), v.to_string()));
+            }
+        }
+        return Ok(text);
+    }
+    let file = std::fs::File::open(path).map_err(|e| format!("{}: {e}", path.display()))?;
+    let err = |e: &dyn std::fmt::Display| format!("{}: {e}", path.display());
+    let mut reader = png::Decoder::new(std::io::BufReader::new(file)).read_info().map_err(|e| err(&e))?;
+    let mut buf = vec![0; reader.output_buffer_size().ok_or_else(|| err(&"image too large"))?];
+    reader.next_frame(&mut buf).map_err(|e| err(&e))?;
+    // Text after the image data is read with the end of the file.
+    reader.finish().map_err(|e| err(&e))?;
+    let info = reader.info();
+    let mut text: Vec<(String, String)> =
+        info.uncompressed_latin1_text.iter().map(|t| (t.keyword.clone(), t.text.clone())).collect();
+    for t in &info.utf8_text {
+        text.push((t.keyword.clone(), t.get_text().map_err(|e| err(&e))?));
+    }
+    Ok(text)
+}
+
 /// Reads an OpenEXR file as linear RGB (for comparisons with references).
 pub fn read_exr(path: &Path) -> Result<Image, String> {
     // A regular file only, bounded (`limits::open_regular`): a FIFO or a

@@ -27,6 +27,11 @@ const LINK_COLUMNS: [Tag; 4] = [tag::LINK_OTHER, tag::LINK_COUNT, tag::LINK_DIRE
 pub struct ArchiveSummary {
     /// Total file size in bytes.
     pub file_length: u64,
+    /// The header's `table_checksum`: XXH3-64 of the section table, whose
+    /// entries hold every section's checksum, so a cheap identity of the
+    /// whole contents (frames a render writes record it, and a farm's
+    /// `--skip-done` and `frames check` compare it).
+    pub table_checksum: u64,
     /// The section table.
     pub sections: Vec<SectionEntry>,
     /// `BILD`, checked against its section checksum.
@@ -42,6 +47,12 @@ pub struct ArchiveSummary {
 }
 
 impl ArchiveSummary {
+    /// The archive's identity as frames record it: `xxh3:` and the
+    /// section table's checksum in 16 hex digits.
+    pub fn identity(&self) -> String {
+        format!("xxh3:{:016x}", self.table_checksum)
+    }
+
     /// Stored bytes of the sections with tag `t` (0 when absent).
     pub fn section_bytes(&self, t: Tag) -> u64 {
         self.sections.iter().filter(|e| e.tag == t).map(|e| e.stored_length).sum()
@@ -215,6 +226,7 @@ impl Archive {
         }
         Ok(ArchiveSummary {
             file_length: header.file_length,
+            table_checksum: header.table_checksum,
             sections: entries,
             build,
             camera,

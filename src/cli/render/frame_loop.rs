@@ -12,11 +12,12 @@ use illumnet::progress::Progress;
 use illumnet::render;
 
 use crate::cli::exit::ResultRefused;
+use crate::cli::frames::{FrameState, frame_state};
 
 use super::RenderSetup;
 use super::balance::{print_balance, refuse_unconverged, warn_if_dark};
 use super::options::Shading;
-use super::outputs::{RenderedFrame, write_frame};
+use super::outputs::{RenderedFrame, frame_files, metadata, write_frame};
 use super::summary::Totals;
 
 /// Renders every frame of `setup.frames` with `renderer`, adding to
@@ -33,9 +34,22 @@ pub fn render_frames(
     let keep_images = setup.extras.gif.is_some() || setup.extras.contact_sheet.is_some();
     let mut images = Vec::new();
     let mut warned_dark = false;
+    let mut skips = SkipCounts::default();
     for f in setup.frames.range.clone() {
         let t1 = Instant::now();
         let af = setup.frames.archive_frame(f);
+        if setup.cameras.given() {
+            renderer.set_camera(None);
+            let base = renderer.camera(af);
+            renderer.set_camera(Some(setup.cameras.at(base, f)?));
+        }
+        let camera = renderer.camera(af);
+        if setup.extras.skip_done && skips.done(setup, f, &camera)? {
+            // The next frame rendered starts cold: its warm start is gone.
+            previous = None;
+            totals.skipped += 1;
+            continue;
+        }
         // A walkthrough of a still archive solves the light once.
         let reuse = setup.frames.still_walk && previous.is_some();
         let solution = match previous.take() {
@@ -45,12 +59,6 @@ pub fn render_frames(
                 setup.distributor.frame(af, start, progress)?
             }
         };
-        if setup.cameras.given() {
-            renderer.set_camera(None);
-            let base = renderer.camera(af);
-            renderer.set_camera(Some(setup.cameras.at(base, f)?));
-        }
-        let camera = renderer.camera(af);
         totals.size = (camera.width, camera.height);
         if reuse {
             println!("frame {f}: the camera moved, the light is frame 0's: 0 iterations");
@@ -86,7 +94,55 @@ pub fn render_frames(
             images.push(image);
         }
     }
+    if setup.extras.skip_done {
+        skips.print();
+    }
     Ok(images)
+}
+
+/// What `--skip-done` found of the frames' files.
+#[derive(Default)]
+struct SkipCounts {
+    skipped: u32,
+    missing: u32,
+    partial: u32,
+    stale: u32,
+    foreign: u32,
+}
+
+impl SkipCounts {
+    /// Whether frame `f` (seen through `camera`) is done: every file it
+    /// writes complete and recording what this render would (else its
+    /// state is counted and said).
+    fn done(&mut self, setup: &RenderSetup<'_>, f: u32, camera: &CameraRecord) -> Result<bool> {
+        let expected = metadata(setup, f, setup.frames.archive_frame(f), camera);
+        let (state, _) = frame_state(&frame_files(setup, f)?, &setup.archive_id, f, Some(&expected));
+        match &state {
+            FrameState::Complete => self.skipped += 1,
+            FrameState::Missing(_) => self.missing += 1,
+            FrameState::Partial(..) => self.partial += 1,
+            FrameState::Stale(..) => self.stale += 1,
+            FrameState::Foreign(..) => self.foreign += 1,
+        }
+        if let FrameState::Partial(p, why) | FrameState::Stale(p, why) | FrameState::Foreign(p, why) = &state {
+            println!("frame {f}: rendering again: {} is {}: {why}", p.display(), state.name());
+        }
+        Ok(state == FrameState::Complete)
+    }
+
+    /// The summary line: frames skipped, redone (by why) and new.
+    fn print(&self) {
+        let redone = self.partial + self.stale + self.foreign;
+        println!(
+            "skip-done: {} frame{} complete and skipped, {redone} redone ({} partial, {} stale, {} foreign), {} missing rendered",
+            self.skipped,
+            if self.skipped == 1 { "" } else { "s" },
+            self.partial,
+            self.stale,
+            self.foreign,
+            self.missing
+        );
+    }
 }
 
 /// Archive frame `af` shaded as `camera` sees it: with `--shading direct`

@@ -138,8 +138,16 @@ fn frame_path(pattern: &Path, frame: u32) -> Option<std::path::PathBuf> {
 }
 
 /// Parses a frame range of a sequence of `total` frames: `A..B` (B
-/// excluded), `A..=B`, `A..` (to the end), `..B`, or a single frame `A`.
+/// excluded), `A..=B`, `A..` (to the end), `..B`, a single frame `A`, or
+/// `auto/K`: this array task's share ([`task_share`], [`array_task`]).
 pub fn parse_frames(text: &str, total: u32) -> Result<std::ops::Range<u32>> {
+    if let Some(k) = text.strip_prefix("auto/") {
+        let k: u32 = k.trim().parse().ok().filter(|&k| k > 0).input(|| {
+            format!("--frames `{text}`: expected auto/K with K ≥ 1 the number of tasks sharing the frames")
+        })?;
+        let task = array_task(|name| std::env::var(name).ok())?;
+        return task_share(total, task, k);
+    }
     let parse = |t: &str| {
         t.trim()
             .parse::<u32>()
@@ -164,4 +172,69 @@ pub fn parse_frames(text: &str, total: u32) -> Result<std::ops::Range<u32>> {
         bail_input!("--frames `{text}` is empty (the archive has frames 0..{total})");
     }
     Ok(a..b)
+}
+
+/// This array task's index: `SLURM_ARRAY_TASK_ID` less
+/// `SLURM_ARRAY_TASK_MIN` (an array `--array=1-4` has tasks 0 to 3), or
+/// else `JOB_COMPLETION_INDEX` (Kubernetes Indexed Jobs); `var` reads the
+/// environment.
+pub fn array_task(var: impl Fn(&str) -> Option<String>) -> Result<u32> {
+    let number = |name: &str| -> Result<Option<u32>> {
+        match var(name) {
+            None => Ok(None),
+            Some(v) => v.trim().parse().map(Some).input(|| format!("{name}=`{v}` is not a task index")),
+        }
+    };
+    if let Some(id) = number("SLURM_ARRAY_TASK_ID")? {
+        let min = number("SLURM_ARRAY_TASK_MIN")?.unwrap_or(0);
+        return id.checked_sub(min).input(|| format!("SLURM_ARRAY_TASK_ID={id} is below SLURM_ARRAY_TASK_MIN={min}"));
+    }
+    match number("JOB_COMPLETION_INDEX")? {
+        Some(index) => Ok(index),
+        None => bail_input!(
+            "--frames auto/K takes this task's share from SLURM_ARRAY_TASK_ID (a Slurm job array) or \
+             JOB_COMPLETION_INDEX (a Kubernetes Indexed Job), and neither is set: give the frames as A..B"
+        ),
+    }
+}
+
+/// Task `task`'s share of `total` frames split into `k` contiguous shares
+/// whose sizes differ by at most one: frames `task·total/k` to
+/// `(task+1)·total/k` (empty when there are more tasks than frames).
+pub fn task_share(total: u32, task: u32, k: u32) -> Result<std::ops::Range<u32>> {
+    if task >= k {
+        bail_input!("--frames auto/{k}: this task's index {task} is not below {k}, the number of shares");
+    }
+    let bound = |i: u32| (u64::from(i) * u64::from(total) / u64::from(k)) as u32;
+    Ok(bound(task)..bound(task + 1))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Shares cover every frame once, contiguous, sizes within one.
+    #[test]
+    fn task_shares_cover_the_frames_once() {
+        let shares: Vec<_> = (0..3).map(|t| task_share(8, t, 3).unwrap()).collect();
+        assert_eq!(shares, vec![0..2, 2..5, 5..8]);
+        assert_eq!(task_share(2, 3, 4).unwrap(), 1..1);
+        let e = task_share(8, 3, 3).unwrap_err().to_string();
+        assert_eq!(e, "--frames auto/3: this task's index 3 is not below 3, the number of shares");
+    }
+
+    /// The task index comes from Slurm (offset by the array's first
+    /// index) or Kubernetes, and neither is an error that says so.
+    #[test]
+    fn the_array_task_comes_from_slurm_or_kubernetes() {
+        let env = |pairs: &'static [(&'static str, &'static str)]| {
+            move |name: &str| pairs.iter().find(|(k, _)| *k == name).map(|(_, v)| v.to_string())
+        };
+        assert_eq!(array_task(env(&[("SLURM_ARRAY_TASK_ID", "5"), ("SLURM_ARRAY_TASK_MIN", "3")])).unwrap(), 2);
+        assert_eq!(array_task(env(&[("JOB_COMPLETION_INDEX", "1")])).unwrap(), 1);
+        let e = array_task(env(&[])).unwrap_err().to_string();
+        assert!(e.contains("neither is set"), "{e}");
+        let e = array_task(env(&[("SLURM_ARRAY_TASK_ID", "x")])).unwrap_err().to_string();
+        assert_eq!(e, "SLURM_ARRAY_TASK_ID=`x` is not a task index");
+    }
 }

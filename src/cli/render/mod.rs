@@ -11,7 +11,7 @@
 mod balance;
 mod explain;
 mod frame_loop;
-mod frame_plan;
+pub(crate) mod frame_plan;
 mod open;
 mod options;
 mod outputs;
@@ -48,9 +48,18 @@ pub struct RenderCommand {
     exr: Option<PathBuf>,
     /// Frames of a sequence archive to render: `A..B` (B excluded),
     /// `A..=B`, `A..` (to the end), `..B` or one frame `N`; default all.
-    /// Several frames need a frame number pattern, e.g. out/frame_%04d.png.
+    /// `auto/K`: this task's share of K contiguous near-equal shares, the
+    /// task from SLURM_ARRAY_TASK_ID (less SLURM_ARRAY_TASK_MIN) or
+    /// JOB_COMPLETION_INDEX (Kubernetes Indexed Jobs). Several frames
+    /// need a frame number pattern, e.g. out/frame_%04d.png.
     #[arg(long, value_name = "A..B")]
     frames: Option<String>,
+    /// Skip frames whose files are complete and match this render (this
+    /// archive, frame, camera and settings); render again those missing,
+    /// partial (truncated, undecodable) or stale (another archive, other
+    /// settings). The frame after a skipped one starts cold.
+    #[arg(long)]
+    skip_done: bool,
     /// Also write the rendered frames as a looping animated GIF preview.
     #[arg(long, value_name = "PREVIEW.gif")]
     gif: Option<PathBuf>,
@@ -76,6 +85,7 @@ pub fn run(command: RenderCommand, progress: &dyn Progress) -> Result<()> {
         output,
         exr,
         frames,
+        skip_done,
         gif,
         contact_sheet,
         render: mut settings,
@@ -91,6 +101,7 @@ pub fn run(command: RenderCommand, progress: &dyn Progress) -> Result<()> {
         false_colour: explain.false_color,
         reference: explain.reference.as_deref(),
         error_scale: explain.error_scale,
+        skip_done,
     };
     RenderCameras::new(&camera).and_then(|cameras| {
         render(&archive, &output, exr.as_deref(), frames.as_deref(), settings, &cameras, &relight.set, extras, progress)
@@ -106,6 +117,9 @@ pub struct Extras<'a> {
     pub false_colour: Option<FalseColour>,
     pub reference: Option<&'a Path>,
     pub error_scale: f32,
+    /// `--skip-done`: frames whose files are complete and match are not
+    /// rendered again.
+    pub skip_done: bool,
 }
 
 /// What every frame of one render shares: what was asked (options,
@@ -114,6 +128,9 @@ pub struct Extras<'a> {
 pub struct RenderSetup<'a> {
     /// The archive's path (recorded in the images).
     pub path: &'a Path,
+    /// The archive's identity (its section table's checksum), recorded in
+    /// the images.
+    pub archive_id: String,
     /// The PNG to write (a frame number pattern for several frames).
     pub png: &'a Path,
     /// The EXR to write, if asked (a pattern as `png`).
@@ -156,6 +173,11 @@ pub fn render(
     let t = Instant::now();
     let summary = opened(path, Archive::summary(path))?;
     let frame_plan = frame_plan::plan_frames(&summary, cameras, frames, reference.as_ref())?;
+    if frame_plan.range.is_empty() {
+        // `--frames auto/K` with more tasks than frames.
+        println!("no frames to render: {} has none for this task", frames.unwrap_or_default());
+        return Ok(());
+    }
     let (width, height) = frame_plan.largest;
     let job = plan::RenderJob {
         width,
@@ -188,6 +210,7 @@ pub fn render(
     let mut renderer = render::Renderer::new(&view, render_opts).with_cache_budget(memory.cache_bytes);
     let setup = RenderSetup {
         path,
+        archive_id: summary.identity(),
         png,
         exr,
         args: &args,

@@ -174,8 +174,12 @@ pub fn check_render_args(args: &RenderArgs) -> Result<()> {
 }
 
 /// Refuses outputs that cannot be written as asked: `--layers` without
-/// what it needs, and a file named for another format than its option's.
+/// what it needs, previews of all frames with `--skip-done` (which
+/// renders some), and a file named for another format than its option's.
 pub fn check_outputs(png: &Path, exr: Option<&Path>, args: &RenderArgs, extras: &Extras<'_>) -> Result<()> {
+    if extras.skip_done && (extras.gif.is_some() || extras.contact_sheet.is_some()) {
+        bail_input!("--skip-done renders only some frames: --gif and --contact-sheet need them all");
+    }
     let direct_shading = args.shading == Shading::Direct;
     if args.layers && (exr.is_none() || !direct_shading) {
         bail_input!("--layers writes EXR layers of direct and indirect light: it needs --exr and --shading direct");

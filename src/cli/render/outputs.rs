@@ -27,15 +27,19 @@ pub struct RenderedFrame<'f> {
     pub direct: Option<&'f render::Image>,
 }
 
-/// What made a frame's image, recorded in it: the software, the archive
-/// and frame, the camera and the settings (and `--set` changes).
-fn metadata(setup: &RenderSetup<'_>, frame: &RenderedFrame<'_>) -> Vec<(String, String)> {
-    let (args, camera) = (setup.args, frame.camera);
-    let (f, af) = (frame.number, frame.archive_frame);
+/// What made output frame `f` (showing archive frame `af` through
+/// `camera`), recorded in each of its files: the software, the archive
+/// (its path and its identity), the frame, the camera, the settings, how
+/// its light started (`cold` or `warm`), `--set` changes and the
+/// false-colour picture asked. `--skip-done` and `frames check` compare it
+/// (all but the path) with what a render would record.
+pub fn metadata(setup: &RenderSetup<'_>, f: u32, af: u32, camera: &CameraRecord) -> Vec<(String, String)> {
+    let args = setup.args;
     let (gather_rays, edge_samples) = (setup.gather_rays, setup.edge_samples);
     let mut metadata = vec![
         ("Software".to_string(), format!("illumnet {}", env!("CARGO_PKG_VERSION"))),
         ("illumnet.archive".to_string(), setup.path.display().to_string()),
+        ("illumnet.archive-id".to_string(), setup.archive_id.clone()),
         (
             "illumnet.frame".to_string(),
             format!("{f}{}", if af != f { format!(" (archive frame {af})") } else { String::new() }),
@@ -66,9 +70,13 @@ fn metadata(setup: &RenderSetup<'_>, frame: &RenderedFrame<'_>) -> Vec<(String, 
             )
             .to_lowercase(),
         ),
+        ("illumnet.start".to_string(), if args.cold { "cold" } else { "warm" }.to_string()),
     ];
     if !setup.sets.is_empty() {
         metadata.push(("illumnet.set".to_string(), setup.sets.join(" ")));
+    }
+    if let Some(what) = setup.extras.false_colour {
+        metadata.push(("illumnet.false-color".to_string(), format!("{what:?}").to_lowercase()));
     }
     metadata
 }
@@ -79,7 +87,7 @@ fn metadata(setup: &RenderSetup<'_>, frame: &RenderedFrame<'_>) -> Vec<(String, 
 pub fn write_frame(setup: &RenderSetup<'_>, renderer: &render::Renderer<'_>, frame: &RenderedFrame<'_>) -> Result<()> {
     let (args, png, extras) = (setup.args, setup.png, setup.extras);
     let (f, af, image, solution) = (frame.number, frame.archive_frame, frame.image, frame.solution);
-    let metadata = metadata(setup, frame);
+    let metadata = metadata(setup, f, af, frame.camera);
     match extras.false_colour {
         None => image_io::write_png_with(
             image,
@@ -91,10 +99,8 @@ pub fn write_frame(setup: &RenderSetup<'_>, renderer: &render::Renderer<'_>, fra
         .map_err(IoFailure)?,
         Some(what) => {
             let picture = explain(setup.view, renderer, af, what, solution, image, setup.reference, extras)?;
-            let mut m = metadata.clone();
-            m.push(("illumnet.false-color".to_string(), format!("{what:?}").to_lowercase()));
-            image_io::write_png_with(&picture, &setup.frames.out_path(png, f)?, 1.0, image_io::ToneMap::Clamp, &m)
-                .map_err(IoFailure)?;
+            let path = setup.frames.out_path(png, f)?;
+            image_io::write_png_with(&picture, &path, 1.0, image_io::ToneMap::Clamp, &metadata).map_err(IoFailure)?;
         }
     }
     if let Some(exr) = setup.exr {
@@ -105,11 +111,26 @@ pub fn write_frame(setup: &RenderSetup<'_>, renderer: &render::Renderer<'_>, fra
                 pixels: image.pixels.iter().zip(&direct.pixels).map(|(t, d)| [0, 1, 2].map(|c| t[c] - d[c])).collect(),
                 ..*direct
             };
-            image_io::write_exr(direct, &path.with_extension("direct.exr")).map_err(IoFailure)?;
-            image_io::write_exr(&indirect, &path.with_extension("indirect.exr")).map_err(IoFailure)?;
+            image_io::write_exr_with(direct, &path.with_extension("direct.exr"), &metadata).map_err(IoFailure)?;
+            image_io::write_exr_with(&indirect, &path.with_extension("indirect.exr"), &metadata).map_err(IoFailure)?;
         }
     }
     Ok(())
+}
+
+/// Every file output frame `f` writes: its PNG, and with `--exr` its EXR
+/// (and with `--layers` its direct and indirect light).
+pub fn frame_files(setup: &RenderSetup<'_>, f: u32) -> Result<Vec<std::path::PathBuf>> {
+    let mut files = vec![setup.frames.out_path(setup.png, f)?];
+    if let Some(exr) = setup.exr {
+        let path = setup.frames.out_path(exr, f)?;
+        if setup.args.layers {
+            files.push(path.with_extension("direct.exr"));
+            files.push(path.with_extension("indirect.exr"));
+        }
+        files.push(path);
+    }
+    Ok(files)
 }
 
 /// Writes the previews of all frames `images`: the animated GIF

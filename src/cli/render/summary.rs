@@ -21,6 +21,8 @@ pub struct Totals {
     pub ends_gathered: f64,
     /// Seconds shading images.
     pub render_s: f64,
+    /// Frames `--skip-done` found done and did not render.
+    pub skipped: u32,
 }
 
 impl Totals {
@@ -32,14 +34,14 @@ impl Totals {
 
 /// Prints the render's summary line.
 pub fn print_summary(setup: &RenderSetup<'_>, totals: &Totals, t_open: f64, t_setup: f64) {
-    let range = &setup.frames.range;
+    let rendered = setup.frames.range.len() - totals.skipped as usize;
     let (exr, size, gather_rays) = (setup.exr, totals.size, setup.gather_rays);
     let (t_dist, t_delta) = (totals.distribution_s, totals.delta_s);
     let direct_shading = setup.args.shading == Shading::Direct;
     println!(
         "rendered {} frame{} to {}{}: {}×{}, open {:.3} s, setup {:.3} s, delta apply {:.3} s, distribution {:.3} s ({} iterations, {:.0} M link ends/s; gather {:.0} M ends/s), render {:.3} s{}{}",
-        range.len(),
-        if range.len() == 1 { "" } else { "s" },
+        rendered,
+        if rendered == 1 { "" } else { "s" },
         setup.png.display(),
         exr.map(|e| format!(" and {}", e.display())).unwrap_or_default(),
         size.0,
