@@ -151,6 +151,11 @@ impl OutputDir {
         Ok(made)
     }
 
+    /// Whether no folder was made (the output's folder existed).
+    pub fn is_empty(&self) -> bool {
+        self.made.is_empty()
+    }
+
     /// The write succeeded: the folders stay.
     pub fn keep(mut self) {
         self.made.clear();

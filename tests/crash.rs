@@ -230,3 +230,75 @@ fn a_really_full_filesystem_is_one_clear_error_that_leaves_nothing_behind() {
     assert!(stderr.contains("cannot write") && stderr.contains("x.exr"), "{stderr}");
     assert!(stderr.contains("cannot spill link ends"), "{stderr}");
 }
+
+/// Runs illumnet with `args` under a file-size limit of `limit` bytes,
+/// which stands for a disk that fills up (the CLI ignores SIGXFSZ, so a
+/// write past it fails with EFBIG).
+fn illumnet_with_file_limit(args: &[&str], limit: u64) -> std::process::Output {
+    use std::os::unix::process::CommandExt;
+    let mut c = Command::new(env!("CARGO_BIN_EXE_illumnet"));
+    c.args(args).env_remove("ILLUMNET_TEST_STOP_AT");
+    // SAFETY: setrlimit is async-signal-safe; nothing else runs in the child.
+    unsafe {
+        c.pre_exec(move || {
+            let limit = libc::rlimit { rlim_cur: limit, rlim_max: limit };
+            if libc::setrlimit(libc::RLIMIT_FSIZE, &limit) != 0 {
+                return Err(std::io::Error::last_os_error());
+            }
+            Ok(())
+        });
+    }
+    c.output().unwrap()
+}
+
+#[test]
+fn a_chart_that_does_not_fit_leaves_no_truncated_png_and_no_folder() {
+    // Issue 42, class 6: a full disk left a truncated PNG under its final
+    // name. The charts are ~20 kB each: 4 kB lets none be written.
+    let dir = tempfile::tempdir().unwrap();
+    let archive = dir.path().join("box.inet");
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/cornell_box.toml");
+    let args = ["build", "-q", scene.to_str().unwrap(), "-o", archive.to_str().unwrap(), "--frequency", "4"];
+    let built = illumnet(&args, None);
+    assert!(built.status.success(), "{}", String::from_utf8_lossy(&built.stderr));
+    let charts = dir.path().join("charts");
+    let o = illumnet_with_file_limit(
+        &["inspect", archive.to_str().unwrap(), "--histograms", "--charts", charts.to_str().unwrap()],
+        4096,
+    );
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(5), "{err}");
+    assert_eq!(err.matches("File too large").count(), 1, "{err}");
+    assert!(err.contains("cannot write") && err.contains(".png"), "{err}");
+    // No chart under its final name, no temporary, and the folder it made is gone.
+    assert!(!charts.exists(), "{:?}", std::fs::read_dir(&charts).map(|d| d.count()));
+    // Into a folder that exists: it stays, with nothing in it.
+    std::fs::create_dir(&charts).unwrap();
+    let o = illumnet_with_file_limit(
+        &["inspect", archive.to_str().unwrap(), "--histograms", "--charts", charts.to_str().unwrap()],
+        4096,
+    );
+    assert_eq!(o.status.code(), Some(5), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(std::fs::read_dir(&charts).unwrap().count(), 0);
+}
+
+#[test]
+fn a_demo_that_does_not_fit_leaves_no_folder() {
+    // Issue 42, class 6: `demo -o` on a full disk left the folder it made.
+    // Its archive (~1.6 MB at --frequency 4) does not fit in 512 kB.
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("new/demo");
+    let args = ["demo", "-q", "-o", out.to_str().unwrap(), "--frequency", "4", "--quality", "draft"];
+    let o = illumnet_with_file_limit(&args, 512 << 10);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(5), "{err}");
+    assert_eq!(err.matches("File too large").count(), 1, "{err}");
+    assert!(!dir.path().join("new").exists(), "demo left the folder it made");
+    // A folder that existed is left, as it was.
+    std::fs::create_dir_all(&out).unwrap();
+    std::fs::write(out.join("mine.txt"), b"x").unwrap();
+    let o = illumnet_with_file_limit(&args, 512 << 10);
+    assert_eq!(o.status.code(), Some(5), "{}", String::from_utf8_lossy(&o.stderr));
+    let left: Vec<_> = std::fs::read_dir(&out).unwrap().map(|e| e.unwrap().file_name()).collect();
+    assert_eq!(left, ["mine.txt"]);
+}
