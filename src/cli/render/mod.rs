@@ -114,6 +114,9 @@ pub struct Extras<'a> {
 pub struct RenderSetup<'a> {
     /// The archive's path (recorded in the images).
     pub path: &'a Path,
+    /// The archive, checked unchanged on disk after each frame's
+    /// distribution and before each output is written.
+    pub archive: &'a Archive,
     /// The PNG to write (a frame number pattern for several frames).
     pub png: &'a Path,
     /// The EXR to write, if asked (a pattern as `png`).
@@ -188,6 +191,7 @@ pub fn render(
     let mut renderer = render::Renderer::new(&view, render_opts).with_cache_budget(memory.cache_bytes);
     let setup = RenderSetup {
         path,
+        archive: &archive,
         png,
         exr,
         args: &args,
@@ -203,6 +207,7 @@ pub fn render(
     };
     let mut totals = Totals::starting_at((summary.camera.width, summary.camera.height));
     let images = frame_loop::render_frames(&setup, &mut renderer, &mut totals, progress)?;
+    archive.check_unchanged()?;
     outputs::write_previews(&setup, &images)?;
     print_summary(&setup, &totals, t_open, t_setup);
     Ok(())
