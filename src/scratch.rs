@@ -151,6 +151,11 @@ impl OutputDir {
         Ok(made)
     }
 
+    /// Whether no folder was made (the output's folder existed).
+    pub fn is_empty(&self) -> bool {
+        self.made.is_empty()
+    }
+
     /// The write succeeded: the folders stay.
     pub fn keep(mut self) {
         self.made.clear();
@@ -230,6 +235,23 @@ pub fn stop_point(stage: &str) {
             libc::raise(libc::SIGKILL);
         }
         std::process::abort();
+    }
+}
+
+/// Test-only: when the environment variable `ILLUMNET_TEST_PAUSE_AT`
+/// names `stage`, the process stops itself (SIGSTOP) here, once, so that
+/// a test can change what it works on at a known point (truncate its
+/// archive) and continue it (SIGCONT). Does nothing otherwise.
+pub fn pause_point(stage: &str) {
+    static PAUSE_AT: std::sync::OnceLock<Option<String>> = std::sync::OnceLock::new();
+    static PAUSED: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+    let at = PAUSE_AT.get_or_init(|| std::env::var("ILLUMNET_TEST_PAUSE_AT").ok());
+    if at.as_deref() == Some(stage) && !PAUSED.swap(true, std::sync::atomic::Ordering::Relaxed) {
+        #[cfg(unix)]
+        // SAFETY: raise(2) with a valid signal number has no preconditions.
+        unsafe {
+            libc::raise(libc::SIGSTOP);
+        }
     }
 }
 

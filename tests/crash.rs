@@ -230,3 +230,144 @@ fn a_really_full_filesystem_is_one_clear_error_that_leaves_nothing_behind() {
     assert!(stderr.contains("cannot write") && stderr.contains("x.exr"), "{stderr}");
     assert!(stderr.contains("cannot spill link ends"), "{stderr}");
 }
+
+/// Runs illumnet with `args` under a file-size limit of `limit` bytes,
+/// which stands for a disk that fills up (the CLI ignores SIGXFSZ, so a
+/// write past it fails with EFBIG).
+fn illumnet_with_file_limit(args: &[&str], limit: u64) -> std::process::Output {
+    use std::os::unix::process::CommandExt;
+    let mut c = Command::new(env!("CARGO_BIN_EXE_illumnet"));
+    c.args(args).env_remove("ILLUMNET_TEST_STOP_AT");
+    // SAFETY: setrlimit is async-signal-safe; nothing else runs in the child.
+    unsafe {
+        c.pre_exec(move || {
+            let limit = libc::rlimit { rlim_cur: limit, rlim_max: limit };
+            if libc::setrlimit(libc::RLIMIT_FSIZE, &limit) != 0 {
+                return Err(std::io::Error::last_os_error());
+            }
+            Ok(())
+        });
+    }
+    c.output().unwrap()
+}
+
+#[test]
+fn a_chart_that_does_not_fit_leaves_no_truncated_png_and_no_folder() {
+    // Issue 42, class 6: a full disk left a truncated PNG under its final
+    // name. The charts are ~20 kB each: 4 kB lets none be written.
+    let dir = tempfile::tempdir().unwrap();
+    let archive = dir.path().join("box.inet");
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/cornell_box.toml");
+    let args = ["build", "-q", scene.to_str().unwrap(), "-o", archive.to_str().unwrap(), "--frequency", "4"];
+    let built = illumnet(&args, None);
+    assert!(built.status.success(), "{}", String::from_utf8_lossy(&built.stderr));
+    let charts = dir.path().join("charts");
+    let o = illumnet_with_file_limit(
+        &["inspect", archive.to_str().unwrap(), "--histograms", "--charts", charts.to_str().unwrap()],
+        4096,
+    );
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(5), "{err}");
+    assert_eq!(err.matches("File too large").count(), 1, "{err}");
+    assert!(err.contains("cannot write") && err.contains(".png"), "{err}");
+    // No chart under its final name, no temporary, and the folder it made is gone.
+    assert!(!charts.exists(), "{:?}", std::fs::read_dir(&charts).map(|d| d.count()));
+    // Into a folder that exists: it stays, with nothing in it.
+    std::fs::create_dir(&charts).unwrap();
+    let o = illumnet_with_file_limit(
+        &["inspect", archive.to_str().unwrap(), "--histograms", "--charts", charts.to_str().unwrap()],
+        4096,
+    );
+    assert_eq!(o.status.code(), Some(5), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(std::fs::read_dir(&charts).unwrap().count(), 0);
+}
+
+#[test]
+fn a_demo_that_does_not_fit_leaves_no_folder() {
+    // Issue 42, class 6: `demo -o` on a full disk left the folder it made.
+    // Its archive (~1.6 MB at --frequency 4) does not fit in 512 kB.
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("new/demo");
+    let args = ["demo", "-q", "-o", out.to_str().unwrap(), "--frequency", "4", "--quality", "draft"];
+    let o = illumnet_with_file_limit(&args, 512 << 10);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(5), "{err}");
+    assert_eq!(err.matches("File too large").count(), 1, "{err}");
+    assert!(!dir.path().join("new").exists(), "demo left the folder it made");
+    // A folder that existed is left, as it was.
+    std::fs::create_dir_all(&out).unwrap();
+    std::fs::write(out.join("mine.txt"), b"x").unwrap();
+    let o = illumnet_with_file_limit(&args, 512 << 10);
+    assert_eq!(o.status.code(), Some(5), "{}", String::from_utf8_lossy(&o.stderr));
+    let left: Vec<_> = std::fs::read_dir(&out).unwrap().map(|e| e.unwrap().file_name()).collect();
+    assert_eq!(left, ["mine.txt"]);
+}
+
+/// A mapped render (`--size 32x32 --samples 1`) of `archive`, stopped at
+/// `stage` (`scratch::pause_point`), `change`d there, then continued.
+fn render_changed_at(archive: &Path, stage: &str, change: impl FnOnce(&Path)) -> (Option<i32>, String) {
+    let png = archive.with_extension("png");
+    let child = Command::new(env!("CARGO_BIN_EXE_illumnet"))
+        .args(["render", "-q", archive.to_str().unwrap(), "-o", png.to_str().unwrap()])
+        .args(["--size", "32x32", "--samples", "1"])
+        .env_remove("ILLUMNET_TEST_STOP_AT")
+        .env("ILLUMNET_TEST_PAUSE_AT", stage)
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let pid = child.id() as libc::pid_t;
+    let mut status = 0;
+    // SAFETY: waits for our own child to stop; it stays a child (reaped below).
+    let waited = unsafe { libc::waitpid(pid, &mut status, libc::WUNTRACED) };
+    assert!(waited == pid && libc::WIFSTOPPED(status), "the render did not stop at {stage}: {status:#x}");
+    change(archive);
+    // SAFETY: continues our own stopped child.
+    unsafe { libc::kill(pid, libc::SIGCONT) };
+    let o = child.wait_with_output().unwrap();
+    let code = o.status.code();
+    assert_eq!(png.exists(), code == Some(0), "{stage}: an image written, or none, against its exit code");
+    let _ = std::fs::remove_file(&png);
+    (code, String::from_utf8_lossy(&o.stderr).into_owned())
+}
+
+#[test]
+fn a_mapped_archive_cut_short_or_rewritten_under_a_render_is_an_error_not_a_crash() {
+    // Issue 42, class 2: SIGBUS (exit 135) for a file truncated under the
+    // mapping, exit 0 for one rewritten in place.
+    let dir = tempfile::tempdir().unwrap();
+    let archive = dir.path().join("box.inet");
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/cornell_box.toml");
+    let args = ["build", "-q", scene.to_str().unwrap(), "-o", archive.to_str().unwrap(), "--frequency", "4"];
+    let built = illumnet(&args, None);
+    assert!(built.status.success(), "{}", String::from_utf8_lossy(&built.stderr));
+    let bytes = std::fs::read(&archive).unwrap();
+    let cut = |p: &Path| std::fs::OpenOptions::new().write(true).open(p).unwrap().set_len(4096).unwrap();
+    // Cut short before the distribution reads the link ends: the fault
+    // in the mapping is exit 5, with the SIGBUS handler's message.
+    let (code, err) = render_changed_at(&archive, "distribute", cut);
+    assert_eq!(code, Some(5), "{err}");
+    assert!(err.contains("box.inet: the archive was cut short while it was mapped"), "{err}");
+    // Cut short after the light is solved (no page read since faults):
+    // the fingerprint's "ended early", exit 5.
+    std::fs::write(&archive, &bytes).unwrap();
+    let (code, err) = render_changed_at(&archive, "write", cut);
+    assert_eq!(code, Some(5), "{err}");
+    assert!(err.contains("box.inet: the file ended early (truncated while in use?)"), "{err}");
+    // Rewritten in place, the same length (here the same bytes): exit 4.
+    std::fs::write(&archive, &bytes).unwrap();
+    let (code, err) = render_changed_at(&archive, "write", |p| {
+        use std::io::Write;
+        std::fs::OpenOptions::new().write(true).open(p).unwrap().write_all(&bytes).unwrap();
+    });
+    assert_eq!(code, Some(4), "{err}");
+    assert!(err.contains("box.inet: the file changed on disk while in use (was the archive rewritten?)"), "{err}");
+    // Replaced by a rename (how illumnet writes archives): not a change.
+    std::fs::write(&archive, &bytes).unwrap();
+    let (code, err) = render_changed_at(&archive, "write", |p| {
+        let other = p.with_extension("new");
+        std::fs::write(&other, &bytes).unwrap();
+        std::fs::rename(&other, p).unwrap();
+    });
+    assert_eq!(code, Some(0), "{err}");
+}

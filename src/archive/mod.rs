@@ -22,6 +22,7 @@ mod ends;
 mod invariants;
 pub mod layout;
 mod links;
+pub mod mapped;
 pub mod presence;
 mod read;
 mod stream;

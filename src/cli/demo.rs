@@ -8,6 +8,7 @@ use anyhow::{Context, Result};
 use clap::Args;
 use illumnet::progress::Progress;
 use illumnet::scene::Scene;
+use illumnet::scratch::OutputDir;
 
 use super::build::{BuildArgs, build_scene};
 use super::camera::RenderCameras;
@@ -44,22 +45,36 @@ pub fn demo(dir: &Path, build_args: BuildArgs, render_args: RenderArgs, progress
         bail_input!("-o {}: demo writes its archive and images into a folder, and this is a file", dir.display());
     }
     check_render_args(&render_args)?;
-    std::fs::create_dir_all(dir).with_context(|| format!("cannot create the folder {}", dir.display()))?;
-    let scene = Scene::cornell_box();
     let archive = dir.join("cornell_box.inet");
-    build_scene(&scene, &archive, &build_args, progress)?;
+    let (png, exr) = (dir.join("cornell_box.png"), dir.join("cornell_box.exr"));
+    // The folder and its missing parents, made now: when demo fails (a
+    // full disk), what it wrote into a folder it made goes, and the folder.
+    let folder = OutputDir::make(&archive).with_context(|| format!("cannot create the folder {}", dir.display()))?;
+    let made = !folder.is_empty();
+    let result = build_and_render(&archive, &png, &exr, build_args, render_args, progress);
+    match result {
+        Ok(()) => folder.keep(),
+        Err(_) if made => {
+            for f in [&archive, &png, &exr] {
+                let _ = std::fs::remove_file(f);
+            }
+        }
+        Err(_) => {}
+    }
+    result
+}
+
+fn build_and_render(
+    archive: &Path,
+    png: &Path,
+    exr: &Path,
+    build_args: BuildArgs,
+    render_args: RenderArgs,
+    progress: &dyn Progress,
+) -> Result<()> {
+    build_scene(&Scene::cornell_box(), archive, &build_args, progress)?;
     // The render's summary reports its own peak, not the build's.
     crate::return_freed_memory();
     illumnet::memory::reset_peak_resident();
-    render(
-        &archive,
-        &dir.join("cornell_box.png"),
-        Some(&dir.join("cornell_box.exr")),
-        None,
-        render_args,
-        &RenderCameras::default(),
-        &[],
-        Extras::default(),
-        progress,
-    )
+    render(archive, png, Some(exr), None, render_args, &RenderCameras::default(), &[], Extras::default(), progress)
 }

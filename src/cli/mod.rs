@@ -94,6 +94,50 @@ fn file_size_limit_is_an_error() {
     }
 }
 
+/// A mapped archive cut short under the process (another program
+/// truncating it in place) makes the next read of a page past its new end
+/// fault with SIGBUS: inside a mapping recorded by `archive::mapped`, the
+/// handler says so and exits 5, as the streamed reader's "ended early"
+/// does; any other SIGBUS keeps its default action (a crash, with a core).
+fn mapped_archive_cut_short_is_an_error() {
+    #[cfg(target_os = "linux")]
+    // SAFETY: the handler is async-signal-safe (atomic loads, write(2),
+    // _exit(2), signal(2)); installed first thing, before other threads.
+    unsafe {
+        let mut action: libc::sigaction = std::mem::zeroed();
+        action.sa_sigaction = on_sigbus as *const () as usize;
+        action.sa_flags = libc::SA_SIGINFO;
+        libc::sigemptyset(&mut action.sa_mask);
+        libc::sigaction(libc::SIGBUS, &action, std::ptr::null_mut());
+    }
+}
+
+#[cfg(target_os = "linux")]
+extern "C" fn on_sigbus(_: libc::c_int, info: *mut libc::siginfo_t, _: *mut libc::c_void) {
+    let mut path = [0u8; 256];
+    // SAFETY: `info` is the kernel's, valid for a SA_SIGINFO handler.
+    let addr = unsafe { (*info).si_addr() } as usize;
+    let Some(n) = illumnet::archive::mapped::fault_in(addr, &mut path) else {
+        // Not ours: the default action, taken when the faulting access
+        // runs again on return.
+        // SAFETY: signal(2) is async-signal-safe.
+        unsafe { libc::signal(libc::SIGBUS, libc::SIG_DFL) };
+        return;
+    };
+    let parts: [&[u8]; 3] = [
+        b"illumnet: error: ",
+        &path[..n],
+        b": the archive was cut short while it was mapped: it changed on disk under the render (truncated while in use?)\n",
+    ];
+    for part in parts {
+        // SAFETY: write(2) and _exit(2) are async-signal-safe; a short
+        // write loses part of the message, nothing else.
+        unsafe { libc::write(2, part.as_ptr().cast(), part.len()) };
+    }
+    // SAFETY: as above.
+    unsafe { libc::_exit(5) }
+}
+
 /// `e` and its causes, `: `-separated, leaving out a cause the message
 /// already ends with (library errors such as `ArchiveError::Io` print
 /// their source and also return it as `source()`).
@@ -116,6 +160,7 @@ fn report(e: &anyhow::Error) -> String {
 /// code of their kind (`exit.rs`, README).
 pub fn main() -> ExitCode {
     file_size_limit_is_an_error();
+    mapped_archive_cut_short_is_an_error();
     quiet_on_broken_pipe();
     let cli = Cli::parse();
     if let Some(n) = cli.threads

@@ -18,6 +18,7 @@
 //!   sections (`shading`); a sequence's animation sections (`sequence`).
 
 mod contents;
+mod fingerprint;
 mod geometry;
 mod link_ends;
 mod open;
@@ -42,8 +43,9 @@ pub use views::{DeltaBytes, InetView, ReflectanceView, SequenceView, ShadingView
 
 /// Where an opened archive's bytes are.
 enum Storage {
-    /// The file, mapped read-only.
-    Mapped(memmap2::Mmap),
+    /// The file, mapped read-only, its range recorded for the CLI's
+    /// SIGBUS handler (`archive::mapped`).
+    Mapped(memmap2::Mmap, #[allow(dead_code, reason = "held for its Drop")] super::mapped::Recorded),
     /// `u64` words keep owned bytes 8-byte aligned, as mapped pages are.
     Owned(Vec<u64>, usize),
     /// Every section but the link-end columns, copied out of the file
@@ -57,7 +59,7 @@ impl Storage {
     /// checked to lie in the file).
     fn section(&self, offset: u64, len: u64) -> &[u8] {
         match self {
-            Storage::Mapped(m) => &m[offset as usize..(offset + len) as usize],
+            Storage::Mapped(m, _) => &m[offset as usize..(offset + len) as usize],
             Storage::Owned(words, _) => &bytemuck::cast_slice(words)[offset as usize..(offset + len) as usize],
             Storage::Sparse { words, spans } => {
                 let at = spans.iter().find(|s| s.0 == offset).map_or(usize::MAX, |s| s.1);
@@ -78,6 +80,8 @@ pub struct Archive {
     stream: Option<LinkStream>,
     /// A streamed sequence's `DELT`, left on disk and read a frame at a time.
     deltas_on_disk: Option<OnDisk>,
+    /// The file opened and its fingerprint then (none for bytes in memory).
+    source: Option<fingerprint::Source>,
 }
 
 /// A section left on disk: read in pieces with `pread` (never mapped, so a
@@ -90,6 +94,16 @@ pub struct OnDisk {
 }
 
 impl Archive {
+    /// `Ok` when the archive's file is as it was when opened (its length,
+    /// times, inode and device: `fstat`, no read); else the error a render
+    /// stops with: "ended early" (exit 5) for a shorter file, "changed on
+    /// disk" (exit 4) for one rewritten in place. A render calls it after
+    /// each frame's distribution and before writing each output, mapped or
+    /// streamed alike: a mapped file's bytes can change under it unseen.
+    pub fn check_unchanged(&self) -> Result<(), ArchiveError> {
+        self.source.as_ref().map_or(Ok(()), fingerprint::Source::check)
+    }
+
     /// The link-end stream, when the archive was opened with
     /// [`Self::open_streamed`].
     pub fn link_stream(&self) -> Option<&LinkStream> {
@@ -100,7 +114,7 @@ impl Archive {
     /// archive (a mapped one holds none; its pages are the kernel's).
     pub fn held_bytes(&self) -> usize {
         match &self.storage {
-            Storage::Mapped(_) => 0,
+            Storage::Mapped(..) => 0,
             Storage::Owned(words, _) | Storage::Sparse { words, .. } => {
                 words.len() * 8 + self.stream.as_ref().map_or(0, LinkStream::held_bytes)
             }

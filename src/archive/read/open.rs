@@ -95,7 +95,12 @@ impl Archive {
         // place, so this does not happen with files illumnet writes.
         #[allow(unsafe_code)]
         let map = unsafe { memmap2::Mmap::map(&file) }.map_err(io)?;
-        Self::from_storage(Storage::Mapped(map))
+        // Taken before validation reads a byte: a change from here on is seen.
+        let source = super::fingerprint::Source::new(file, path)?;
+        let recorded = super::super::mapped::record(map.as_ptr(), map.len(), path);
+        let mut archive = Self::from_storage(Storage::Mapped(map, recorded))?;
+        archive.source = Some(source);
+        Ok(archive)
     }
 
     /// Opens the archive at `path` with its link ends streamed from disk
@@ -106,6 +111,7 @@ impl Archive {
     pub fn open_streamed(path: &Path, window_ends: usize) -> Result<Self, ArchiveError> {
         let io = |e: std::io::Error| ArchiveError::Io { path: path.into(), source: e };
         let (file, _) = crate::limits::open_regular(path, u64::MAX).map_err(io)?;
+        let source = super::fingerprint::Source::new(file.try_clone().map_err(io)?, path)?;
         let (header, entries) = read_structure(&file, path)?;
         let mut words = Vec::new();
         let mut spans = Vec::new();
@@ -143,6 +149,7 @@ impl Archive {
             meta: ArchiveMeta::default(),
             stream: None,
             deltas_on_disk,
+            source: Some(source),
         };
         archive.meta = archive.read_meta()?;
         let b: BuildRecord = *archive.one(tag::BUILD)?;
@@ -245,13 +252,20 @@ impl Archive {
 
     fn from_storage(storage: Storage) -> Result<Self, ArchiveError> {
         let bytes = match &storage {
-            Storage::Mapped(m) => &m[..],
+            Storage::Mapped(m, _) => &m[..],
             Storage::Owned(words, len) => &bytemuck::cast_slice(words)[..*len],
             Storage::Sparse { .. } => unreachable!("sparse storage is made by open_streamed"),
         };
         let (header, entries) = validate_structure(bytes)?;
-        let mut archive =
-            Self { storage, header, entries, meta: ArchiveMeta::default(), stream: None, deltas_on_disk: None };
+        let mut archive = Self {
+            storage,
+            header,
+            entries,
+            meta: ArchiveMeta::default(),
+            stream: None,
+            deltas_on_disk: None,
+            source: None,
+        };
         archive.meta = archive.read_meta()?;
         validate_contents(&archive.view_unchecked()?, &archive.meta, archive.header.version_read)?;
         Ok(archive)

@@ -33,7 +33,10 @@ pub struct Chart<'a> {
 
 /// Writes `DIR/KEY.png` for every chart; returns the paths written.
 pub fn write_charts(dir: &Path, charts: &[Chart<'_>]) -> Result<Vec<std::path::PathBuf>> {
-    std::fs::create_dir_all(dir).map_err(|e| IoFailure(format!("cannot create {}: {e}", dir.display())))?;
+    // The folder, made if missing: removed again when nothing could be
+    // written into it (a full disk), kept once a chart is in it.
+    let folder = illumnet::scratch::OutputDir::make(&dir.join("chart.png"))
+        .map_err(|e| IoFailure(format!("cannot create {}: {e}", dir.display())))?;
     // Registering twice is harmless; a bad font would be a build defect.
     let _ = plotters::style::register_font("sans-serif", FontStyle::Normal, FONT);
     let mut written = Vec::new();
@@ -43,10 +46,30 @@ pub fn write_charts(dir: &Path, charts: &[Chart<'_>]) -> Result<Vec<std::path::P
         draw(c, &mut buf).map_err(|e| anyhow::anyhow!("drawing chart {}: {e}", c.key))?;
         let image = image::RgbImage::from_raw(w, h, buf).expect("buffer of the chart's size");
         let path = dir.join(format!("{}.png", c.key));
-        image.save(&path).map_err(|e| IoFailure(format!("cannot write {}: {e}", path.display())))?;
+        save_png(&image, &path).map_err(|e| IoFailure(format!("cannot write {}: {e}", path.display())))?;
         written.push(path);
     }
+    folder.keep();
     Ok(written)
+}
+
+/// Writes `image` as a PNG at `path` through a temporary file renamed into
+/// place when complete (`scratch`), so that a full disk leaves no
+/// truncated chart under its final name.
+fn save_png(image: &image::RgbImage, path: &Path) -> std::io::Result<()> {
+    use std::io::Write;
+    let _ = illumnet::scratch::remove_stale(path);
+    let mut tmp = illumnet::scratch::temp_file(path)?;
+    {
+        let mut w = std::io::BufWriter::new(tmp.as_file_mut());
+        image.write_to(&mut w, image::ImageFormat::Png).map_err(|e| match e {
+            image::ImageError::IoError(e) => e,
+            e => std::io::Error::other(e),
+        })?;
+        w.flush()?;
+    }
+    tmp.persist(path).map_err(|e| e.error)?;
+    Ok(())
 }
 
 fn draw(c: &Chart<'_>, buf: &mut [u8]) -> Result<(), Box<dyn std::error::Error>> {

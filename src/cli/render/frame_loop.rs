@@ -56,7 +56,12 @@ pub fn render_frames(
             Some(p) if reuse => p,
             p => {
                 let start = if args.cold { None } else { p.as_ref() };
-                setup.distributor.frame(af, start, progress)?
+                illumnet::scratch::pause_point("distribute");
+                let solution = setup.distributor.frame(af, start, progress)?;
+                // Light from a file cut short or rewritten under the pass
+                // is refused (a mapped one's bytes change unseen).
+                setup.archive.check_unchanged()?;
+                solution
             }
         };
         totals.size = (camera.width, camera.height);
@@ -88,6 +93,8 @@ pub fn render_frames(
             image: &image,
             direct: direct.as_ref(),
         };
+        illumnet::scratch::pause_point("write");
+        setup.archive.check_unchanged()?;
         write_frame(setup, renderer, &frame)?;
         previous = Some(solution);
         if keep_images {

@@ -131,6 +131,9 @@ pub struct RenderSetup<'a> {
     /// The archive's identity (its section table's checksum), recorded in
     /// the images.
     pub archive_id: String,
+    /// The archive, checked unchanged on disk after each frame's
+    /// distribution and before each output is written.
+    pub archive: &'a Archive,
     /// The PNG to write (a frame number pattern for several frames).
     pub png: &'a Path,
     /// The EXR to write, if asked (a pattern as `png`).
@@ -211,6 +214,7 @@ pub fn render(
     let setup = RenderSetup {
         path,
         archive_id: summary.identity(),
+        archive: &archive,
         png,
         exr,
         args: &args,
@@ -226,6 +230,7 @@ pub fn render(
     };
     let mut totals = Totals::starting_at((summary.camera.width, summary.camera.height));
     let images = frame_loop::render_frames(&setup, &mut renderer, &mut totals, progress)?;
+    archive.check_unchanged()?;
     outputs::write_previews(&setup, &images)?;
     print_summary(&setup, &totals, t_open, t_setup);
     Ok(())
