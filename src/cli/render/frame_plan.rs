@@ -218,7 +218,9 @@ mod tests {
     fn task_shares_cover_the_frames_once() {
         let shares: Vec<_> = (0..3).map(|t| task_share(8, t, 3).unwrap()).collect();
         assert_eq!(shares, vec![0..2, 2..5, 5..8]);
-        assert_eq!(task_share(2, 3, 4).unwrap(), 1..1);
+        // More tasks than frames: some shares are empty, none overlap.
+        let shares: Vec<_> = (0..4).map(|t| task_share(2, t, 4).unwrap()).collect();
+        assert_eq!(shares, vec![0..0, 0..1, 1..1, 1..2]);
         let e = task_share(8, 3, 3).unwrap_err().to_string();
         assert_eq!(e, "--frames auto/3: this task's index 3 is not below 3, the number of shares");
     }
