@@ -32,7 +32,7 @@
 //! built at a coarse setting, stored in memory, opened and solved:
 //!
 //! ```
-//! use illumnet::{archive, build, distribute, progress::NoProgress, scene};
+//! use illumnet::{archive, bake, distribute, progress::NoProgress, scene};
 //! // A coarse Cornell box: build, store, open, distribute.
 //! let scene = scene::Scene::cornell_box();
 //! let hints = scene::BuildHints { frequency: Some(4), patch_size: Some(0.1), ..Default::default() };
@@ -52,7 +52,7 @@
 //! use glam::Vec3;
 //! use illumnet::geometry::Primitive;
 //! use illumnet::scene::{BuildHints, Camera, Material, ReflectanceModel, Scene, Surface};
-//! use illumnet::{archive, build, distribute, progress::NoProgress, render};
+//! use illumnet::{archive, bake, distribute, progress::NoProgress, render};
 //!
 //! # fn main() -> Result<(), Box<dyn std::error::Error>> {
 //! // A quad's normal is (p1 − p0) × (p2 − p0): the floor faces up, the lamp down.
