@@ -51,6 +51,27 @@ fn alive(pid: u32) -> bool {
     !proc.is_dir() || proc.join(pid.to_string()).exists()
 }
 
+/// Writes `output` whole or not at all: `write` fills a temporary file
+/// next to it (after removing what killed writers left, `remove_stale`),
+/// which is flushed and renamed over `output` only when `write` succeeds,
+/// so a full disk or a crash never leaves a truncated file under the final
+/// name. The one temporary-file-and-rename path every output takes.
+pub fn write_atomic(
+    output: &Path,
+    write: impl FnOnce(&mut io::BufWriter<&mut File>) -> io::Result<()>,
+) -> io::Result<()> {
+    use io::Write;
+    let _ = remove_stale(output);
+    let mut tmp = temp_file(output)?;
+    {
+        let mut w = io::BufWriter::new(tmp.as_file_mut());
+        write(&mut w)?;
+        w.flush()?;
+    }
+    tmp.persist(output).map_err(|e| e.error)?;
+    Ok(())
+}
+
 /// A temporary file for `output`, in its directory, locked while it lives
 /// and removed when dropped unless persisted (renamed over `output`).
 pub fn temp_file(output: &Path) -> io::Result<tempfile::NamedTempFile> {

@@ -59,24 +59,18 @@ fn save_atomic(
     let err = |e: &dyn std::fmt::Display| format!("cannot write {}: {e}", path.display());
     // `-o out/frame_%04d.png` into a directory that does not exist yet.
     std::fs::create_dir_all(dir).map_err(|e| format!("cannot create directory {}: {e}", dir.display()))?;
-    let _ = crate::scratch::remove_stale(path);
-    let mut tmp = crate::scratch::temp_file(path).map_err(|e| err(&e))?;
-    {
-        let mut w = BufWriter::new(tmp.as_file_mut());
+    crate::scratch::write_atomic(path, |w| {
         // The encoders' own wording hides the cause ("Format error decoding
         // OpenExr" for a full disk): report the innermost error.
-        write(&mut w).map_err(|e| {
+        write(w).map_err(|e| {
             let mut cause: &dyn std::error::Error = e.as_ref();
             while let Some(inner) = cause.source() {
                 cause = inner;
             }
-            err(&cause)
-        })?;
-        use std::io::Write;
-        w.flush().map_err(|e| err(&e))?;
-    }
-    tmp.persist(path).map_err(|e| err(&e.error))?;
-    Ok(())
+            std::io::Error::other(cause.to_string())
+        })
+    })
+    .map_err(|e| err(&e))
 }
 
 /// Writes linear radiance as a 32-bit float RGB OpenEXR file.

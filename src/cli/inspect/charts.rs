@@ -57,19 +57,12 @@ pub fn write_charts(dir: &Path, charts: &[Chart<'_>]) -> Result<Vec<std::path::P
 /// place when complete (`scratch`), so that a full disk leaves no
 /// truncated chart under its final name.
 fn save_png(image: &image::RgbImage, path: &Path) -> std::io::Result<()> {
-    use std::io::Write;
-    let _ = illumnet::scratch::remove_stale(path);
-    let mut tmp = illumnet::scratch::temp_file(path)?;
-    {
-        let mut w = std::io::BufWriter::new(tmp.as_file_mut());
-        image.write_to(&mut w, image::ImageFormat::Png).map_err(|e| match e {
+    illumnet::scratch::write_atomic(path, |w| {
+        image.write_to(w, image::ImageFormat::Png).map_err(|e| match e {
             image::ImageError::IoError(e) => e,
             e => std::io::Error::other(e),
-        })?;
-        w.flush()?;
-    }
-    tmp.persist(path).map_err(|e| e.error)?;
-    Ok(())
+        })
+    })
 }
 
 fn draw(c: &Chart<'_>, buf: &mut [u8]) -> Result<(), Box<dyn std::error::Error>> {
