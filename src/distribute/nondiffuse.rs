@@ -24,8 +24,12 @@
 //! direction `i` is scaled on entry by
 //! `c_i = a_i / Σ_o n_o·T(map[i]→map[o])/w_map[o]` (`w_p = cos θ_p Ω_p`),
 //! the row's albedo over what its outgoing radiance would carry on this
-//! patch's actual rays. The scale depends on the patch and the direction
-//! only, never on the light, so the step is linear (warm starts, which send
+//! patch's actual rays. One exception bounds it: when the patch has fewer
+//! rays than one in the direction of the row's peak (`T/w` largest), `c_i`
+//! is held at `a_i / max_p T/w`, so no ray and no radiance exceeds what
+//! arrived and the missing rays' share is lost (a small glossy patch whose
+//! rays miss its lobe; a forged `NDHC`). The scale depends on the patch and
+//! the direction only, never on the light, so the step is linear (warm starts, which send
 //! a guess and then signed corrections, rely on that; a per-step
 //! normalisation by the reflected light's own shape was not, and broke them).
 //!
@@ -473,32 +477,45 @@ fn incoming_scales(
         let (t, orient) = (rec.prototype as usize, rec.orientation as usize);
         let bands = r.prototypes[t].bands as usize;
         let (map, inv) = (r.map(orient), &inverse[orient * n..(orient + 1) * n]);
-        // g[p][b] = n_o / w_p of patch b for the actual o = inv[p] (0 behind).
+        // g[p][b] = n_o / w_p of patch b for the actual o = inv[p] (0 behind);
+        // h[p][b] = 1 / w_p for a direction in front of patch b (0 behind).
+        let front = |b: usize, p: usize| b < len && rays[(first + b) * n + inv[p] as usize] >= 0.0;
         let g: Vec<[f32; BATCH]> = (0..n)
             .map(|p| {
                 let o = inv[p] as usize;
-                std::array::from_fn(|b| if b < len { rays[(first + b) * n + o].max(0.0) * inv_weight[p] } else { 0.0 })
+                std::array::from_fn(|b| if front(b, p) { rays[(first + b) * n + o] * inv_weight[p] } else { 0.0 })
             })
             .collect();
+        let h: Vec<[f32; BATCH]> =
+            (0..n).map(|p| std::array::from_fn(|b| if front(b, p) { inv_weight[p] } else { 0.0 })).collect();
         for i in 0..n {
             if (0..len).all(|b| rays[(first + b) * n + i] < 0.0) {
                 continue; // light never arrives from behind
             }
             let (outs, f) = r.row(t, map[i] as usize);
             let a = albedo[t][map[i] as usize];
-            let mut sent = [[0.0f32; BATCH]; 3];
+            // `peak`: the largest radiance factor T/w over the directions in
+            // front. One ray there would carry all `a`; with fewer rays than
+            // that (`sent < peak`), the scale is held at `a / peak` so that no
+            // ray and no radiance the eye sees exceeds what arrived, and
+            // light the missing rays would have carried is lost. Every
+            // direction with a ray has `sent ≥ peak` unless the peak's own
+            // direction has none: a patch whose rays miss its lobe, which a
+            // small glossy patch can meet and a forged `NDHC` can force.
+            let (mut sent, mut peak) = ([[0.0f32; BATCH]; 3], [[0.0f32; BATCH]; 3]);
             for (e, &p) in outs.iter().enumerate() {
-                let gp = &g[p as usize];
+                let (gp, hp) = (&g[p as usize], &h[p as usize]);
                 for c in 0..bands {
                     let fe = f[e * bands + c];
                     for b in 0..BATCH {
                         sent[c][b] += fe * gp[b];
+                        peak[c][b] = peak[c][b].max(fe * hp[b]);
                     }
                 }
             }
             for b in 0..len {
                 for (c, x) in out[(b * n + i) * bands_out..][..bands_out].iter_mut().enumerate() {
-                    let s = sent[c.min(bands - 1)][b];
+                    let s = sent[c.min(bands - 1)][b].max(peak[c.min(bands - 1)][b]);
                     *x = if s > 0.0 { a[c] / s } else { 0.0 };
                 }
             }
