@@ -256,3 +256,54 @@ fn a_scene_of_many_primitives_is_refused_before_its_patches_are_cut() {
     eprintln!("{out}");
     assert!(peak(&out) <= (256 << 20) + UNCOUNTED, "{out}");
 }
+
+#[test]
+fn under_an_address_space_limit_without_a_budget_jobs_are_refused_or_run_never_abort() {
+    // `ulimit -v` bounds the address space, which counts what residency
+    // does not (mapped files whole, the allocators' reservations): the
+    // default budget takes it into account, so the Cornell box's build
+    // (~290 MiB resident unbudgeted) and render either run, spilling or
+    // streaming as they must, or are refused before work (exit 6). Before,
+    // the build aborted in the allocator (exit 134) below ~650 MB and the
+    // thread pool panicked (exit 101) near 150 MB. Measured in release:
+    // refused up to 200 MB, built from 220 MB (budget 31 MiB) on.
+    let dir = tempfile::tempdir().unwrap();
+    let scene = concat!(env!("CARGO_MANIFEST_DIR"), "/scenes/cornell_box.toml");
+    let archive = dir.path().join("box.inet");
+    let image = dir.path().join("box.png");
+    let (a, i) = (archive.to_str().unwrap(), image.to_str().unwrap());
+    ok(&["build", scene, "-q", "-o", a]);
+    let limited = |kib: u64, args: &[&str]| {
+        let out = Command::new("sh")
+            .arg("-c")
+            .arg(format!("ulimit -v {kib} && exec \"$0\" \"$@\""))
+            .arg(env!("CARGO_BIN_EXE_illumnet"))
+            .args(args)
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr).to_string();
+        (out.status.code(), stderr)
+    };
+    let rebuilt = dir.path().join("again.inet");
+    let mut codes = Vec::new();
+    for kib in [100_000, 160_000, 300_000, 600_000] {
+        for args in [&["build", scene, "-q", "-o", rebuilt.to_str().unwrap()][..], &["render", a, "-q", "-o", i]] {
+            let (code, stderr) = limited(kib, args);
+            eprintln!("ulimit -v {kib} {}: exit {code:?}", args[0]);
+            assert!(code == Some(0) || code == Some(6), "ulimit -v {kib} {args:?}: exit {code:?}\n{stderr}");
+            if code == Some(6) {
+                assert!(stderr.contains("ulimit -v"), "the refusal names the limit: {stderr}");
+            }
+            codes.push(code);
+        }
+    }
+    assert_eq!(&codes[..2], [Some(6), Some(6)], "100 MB holds neither");
+    assert_eq!(&codes[6..], [Some(0), Some(0)], "600 MB holds both");
+    if codes[6] == Some(0) {
+        assert_eq!(
+            std::fs::read(&rebuilt).unwrap(),
+            std::fs::read(&archive).unwrap(),
+            "the same bytes under the limit"
+        );
+    }
+}

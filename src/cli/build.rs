@@ -10,7 +10,7 @@ use clap::Args;
 use illumnet::archive::{self, Archive};
 use illumnet::bake::{self, BuildSettings};
 use illumnet::geodesic::DirectionSetKind;
-use illumnet::memory::{self, Bytes, MemoryBudget};
+use illumnet::memory::{self, BudgetSource, Bytes, MemoryBudget};
 use illumnet::progress::Progress;
 use illumnet::scene::{BuildHints, GltfOptions, Scene};
 
@@ -285,6 +285,10 @@ pub fn build_scene(scene: &Scene, output: &Path, args: &BuildArgs, progress: &dy
     let (seq, mut spilled) = match bake::build_sequence_bounded(scene, &settings, &bound, progress) {
         Ok(x) => x,
         Err(bake::BuildError::Failed(m)) => return Err(BadInput(m).into()),
+        // Says where a default budget came from (`ulimit -v`, the cgroup).
+        Err(e @ bake::BuildError::OverBudget { .. }) if budget.source != BudgetSource::Given => {
+            return Err(anyhow::Error::new(e).context(format!("the memory budget is {budget}")));
+        }
         Err(e) => return Err(e.into()),
     };
     for w in &seq.warnings {

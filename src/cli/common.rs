@@ -18,7 +18,8 @@ use super::exit::bail_input;
 #[derive(Args, Clone, Default)]
 pub struct BudgetArgs {
     /// Resident memory to stay within, e.g. 512M or 4G (powers of 1024;
-    /// default: 75% of the cgroup memory limit, else of physical memory).
+    /// default: 75% of physical memory or of the cgroup's limit, and at most
+    /// half the address space `ulimit -v` leaves).
     /// A build spills links that would not fit as sorted runs to a scratch
     /// directory next to the output and merges them into the archive (the
     /// same bytes); a render streams the link ends of an archive that does

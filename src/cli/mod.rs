@@ -162,12 +162,25 @@ pub fn main() -> ExitCode {
     file_size_limit_is_an_error();
     mapped_archive_cut_short_is_an_error();
     quiet_on_broken_pipe();
+    illumnet::memory::fit_allocators_to_address_space();
     let cli = Cli::parse();
-    if let Some(n) = cli.threads
-        && let Err(e) = rayon::ThreadPoolBuilder::new().num_threads(n).build_global()
-    {
-        eprintln!("illumnet: error: cannot start {n} threads: {e}");
-        return ExitCode::FAILURE;
+    // Started here, not at the first parallel loop, so that a machine or
+    // `ulimit -v` that cannot give the threads their stacks is an error.
+    if let Err(e) = rayon::ThreadPoolBuilder::new().num_threads(cli.threads.unwrap_or(0)).build_global() {
+        let n = cli.threads.map_or("the worker".to_string(), |n| n.to_string());
+        return match illumnet::memory::address_space_limit() {
+            Some(limit) => {
+                let limit = illumnet::memory::Bytes(limit);
+                eprintln!(
+                    "illumnet: error: cannot start {n} threads under the address-space limit of {limit} (`ulimit -v`): {e}; raise the limit or pass --threads 1"
+                );
+                ExitCode::from(exit::BUDGET)
+            }
+            None => {
+                eprintln!("illumnet: error: cannot start {n} threads: {e}");
+                ExitCode::FAILURE
+            }
+        };
     }
     let progress = progress_bar::BarProgress::new(cli.quiet);
     let json = matches!(
