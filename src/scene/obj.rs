@@ -136,15 +136,13 @@ pub(super) fn import(path: &Path) -> Result<Scene, SceneError> {
 }
 
 /// The image at `path` (PNG, EXR, GIF, by its bytes), read through
-/// [`crate::limits::read_regular`]; failing, the error and whether it is
-/// an I/O failure (`true`) rather than a bad image.
+/// [`crate::limits::read_regular`] and decoded by
+/// [`super::texture::decode_image`] (a size a texture cannot hold is
+/// refused before decoding); failing, the error and whether it is an I/O
+/// failure (`true`) rather than a bad image.
 fn read_image(path: &Path) -> Result<image::DynamicImage, (String, bool)> {
     let bytes = crate::limits::read_regular(path, crate::limits::MAX_INPUT_FILE).map_err(|e| (e.to_string(), true))?;
-    image::ImageReader::new(std::io::Cursor::new(bytes))
-        .with_guessed_format()
-        .map_err(|e| (e.to_string(), true))?
-        .decode()
-        .map_err(|e| (e.to_string(), false))
+    super::texture::decode_image(&bytes).map_err(|e| (e, false))
 }
 
 /// The surface of the `k`-th OBJ object (`model`): its non-degenerate
