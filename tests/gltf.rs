@@ -643,3 +643,43 @@ fn a_texture_the_archive_cannot_hold_is_refused_at_import() {
     let s = Scene::from_file(&d.join("features.gltf")).unwrap_or_else(|e| panic!("{e}"));
     assert_eq!((s.textures[0].width, s.textures[0].height), (16384, 2));
 }
+
+#[test]
+fn mtl_values_beyond_the_toml_bounds_are_refused_naming_file_line_and_field() {
+    // Issue 42, §8: `Ke inf` became 0, `Ke 1e10` 10⁹, `Kd 2` 1, silently.
+    let dir = tempfile::tempdir().unwrap();
+    let obj = dir.path().join("room.obj");
+    std::fs::write(&obj, "mtllib room.mtl\no lamp\nusemtl lamp\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3 4\n")
+        .unwrap();
+    let with = |lines: &str| {
+        std::fs::write(dir.path().join("room.mtl"), format!("# made by a tool\nnewmtl lamp\n{lines}\n")).unwrap();
+        Scene::from_file(&obj)
+    };
+    for (lines, at, field) in [
+        ("Kd 0.5 0.5 0.5\nKe inf 1 1", "room.mtl:4:4", "Ke"),
+        ("Ke 1e10 1 1", "room.mtl:3:4", "Ke"),
+        ("Ke 1 -1 1", "room.mtl:3:6", "Ke"),
+        ("Ke 1 1 1\nKd 0.5 NaN 0.5", "room.mtl:4:8", "Kd"),
+        ("Ke 1 1 1\nKs 0.1 0.1 -0.1", "room.mtl:4:12", "Ks"),
+        ("Ke 1 1 1\nNs inf", "room.mtl:4:4", "Ns"),
+        // One number: tobj 4.0.5 panicked (`parse_float3` unwraps).
+        ("Ke 1 1 1\n  Kd 0.5", "room.mtl:4:3", "Kd"),
+    ] {
+        let e = with(lines).unwrap_err();
+        let text = e.to_string();
+        assert!(!e.unreadable && text.contains(at) && text.contains(&format!("material `lamp`.{field}")), "{text}");
+    }
+    // A reflectance above 1 (exporters write colour × intensity): clamped
+    // to 1 and said, naming the line.
+    let s = with("Ke 1 1 1\nKd 2 0.5 0.5").unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(s.materials[0].model, ReflectanceModel::Diffuse { reflectance: [1.0, 0.5, 0.5] });
+    assert!(s.notes.iter().any(|n| n.contains("room.mtl:4:4") && n.contains("clamped to 1")), "{:?}", s.notes);
+    // At the bounds: read as written.
+    let s = with("Ke 1e9 0 0\nKd 1 1 1\nNs 1e6").unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(s.surfaces[0].emission, [1e9, 0.0, 0.0]);
+    // `illumnet build`: exit 3.
+    with("Ke inf 1 1").unwrap_err();
+    let (code, err) = build_exit(&obj);
+    assert_eq!(code, Some(3), "{err}");
+    assert!(err.contains("room.mtl:3:4") && err.contains("material `lamp`.Ke"), "{err}");
+}
