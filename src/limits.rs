@@ -63,6 +63,34 @@ pub fn camera_is_usable(position: [f32; 3], look_at: [f32; 3], up: [f32; 3]) -> 
     len(&f) >= 1e-6 && len(&cross) >= 1e-6 * len(&f)
 }
 
+/// Largest side of a texture, in texels: the archive's `TXHD` rule
+/// (format §5.15), which the glTF and OBJ importers apply to every image
+/// they decode, so that a texture a scene accepts is one its build can
+/// write (a 1 × 20 000 texture passed import and failed the build's end,
+/// issue 42, §7).
+pub const MAX_TEXTURE_SIDE: u32 = 16384;
+
+/// Most texels an importer decodes in one texture (an 8192² image): its
+/// memory, not the format, sets this bound.
+pub const MAX_TEXTURE_TEXELS: u64 = 1 << 26;
+
+/// Why an image of `width × height` texels cannot be a scene's texture
+/// (`None` when it can): each side in 1..=[`MAX_TEXTURE_SIDE`], at most
+/// [`MAX_TEXTURE_TEXELS`] in all. The importers' one rule, checked from
+/// the image's header before it is decoded.
+pub fn texture_size_problem(width: u32, height: u32) -> Option<String> {
+    let side = 1..=MAX_TEXTURE_SIDE;
+    if !(side.contains(&width) && side.contains(&height)) {
+        return Some(format!("{width} × {height} texels, each side must be in 1..={MAX_TEXTURE_SIDE}"));
+    }
+    if width as u64 * height as u64 > MAX_TEXTURE_TEXELS {
+        return Some(format!(
+            "{width} × {height} texels, more than the {MAX_TEXTURE_TEXELS} (8192²) a texture may hold"
+        ));
+    }
+    None
+}
+
 /// Largest scene-side file read whole (a TOML scene or camera file, an OBJ,
 /// an MTL, a texture, a glTF file, its buffers and images), in bytes.
 pub const MAX_INPUT_FILE: u64 = 8 << 30;

@@ -559,3 +559,127 @@ fn mtl_textures_specular_and_emission() {
     let e = Scene::from_file(&p).unwrap_err().to_string();
     assert!(e.contains("dark.obj") && e.contains("Ke r g b"), "{e}");
 }
+
+/// Standard base64 with padding (RFC 4648), for `data:` URIs.
+fn base64(bytes: &[u8]) -> String {
+    const A: &[u8] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+    let mut out = String::new();
+    for c in bytes.chunks(3) {
+        let byte = |i: usize| *c.get(i).unwrap_or(&0) as u32;
+        let n = (byte(0) << 16) | (byte(1) << 8) | byte(2);
+        for k in 0..4 {
+            out.push(if k <= c.len() { A[((n >> (18 - 6 * k)) & 63) as usize] as char } else { '=' });
+        }
+    }
+    out
+}
+
+/// `illumnet build` of `scene` (draft): its exit code and stderr.
+fn build_exit(scene: &Path) -> (Option<i32>, String) {
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_illumnet"))
+        .args(["build", "-q", "--quality", "draft"])
+        .arg(scene)
+        .arg("-o")
+        .arg(scene.with_extension("inet"))
+        .output()
+        .unwrap();
+    (out.status.code(), String::from_utf8_lossy(&out.stderr).into_owned())
+}
+
+#[test]
+fn an_image_given_as_a_data_uri_is_read() {
+    // Issue 42, §7: refused as "external reference in slice only import".
+    let dir = tempfile::tempdir().unwrap();
+    let mut json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(data("features.gltf")).unwrap()).unwrap();
+    let png = std::fs::read(data("checker.png")).unwrap();
+    json["images"][0]["uri"] = format!("data:image/png;base64,{}", base64(&png)).into();
+    std::fs::copy(data("features.bin"), dir.path().join("features.bin")).unwrap();
+    let p = dir.path().join("inline.gltf");
+    std::fs::write(&p, json.to_string()).unwrap();
+    let inline = Scene::from_file(&p).unwrap_or_else(|e| panic!("{e}"));
+    let file = import("features.gltf", &GltfOptions::default());
+    assert_eq!(inline.textures, file.textures, "the same texels as from checker.png");
+    assert_eq!(inline.materials, file.materials);
+    // Not base64: a clear error at the image's uri.
+    json["images"][0]["uri"] = "data:image/png,%89PNG".into();
+    std::fs::write(&p, json.to_string()).unwrap();
+    let e = Scene::from_file(&p).unwrap_err().to_string();
+    assert!(e.contains("inline.gltf") && e.contains("/images/0/uri") && e.contains("base64"), "{e}");
+}
+
+#[test]
+fn a_texture_the_archive_cannot_hold_is_refused_at_import() {
+    // Issue 42, §7: accepted, then the build failed at its end with
+    // "corrupt archive: TXHD[0]: size out of range" (exit 4).
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::copy(data("features.gltf"), d.join("features.gltf")).unwrap();
+    std::fs::copy(data("features.bin"), d.join("features.bin")).unwrap();
+    for name in ["textured.obj", "textured.mtl"] {
+        std::fs::copy(Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/obj").join(name), d.join(name)).unwrap();
+    }
+    for (w, h) in [(1, 20000), (16385, 2)] {
+        image::RgbImage::new(w, h).save(d.join("checker.png")).unwrap();
+        let e = Scene::from_file(&d.join("features.gltf")).unwrap_err();
+        let text = e.to_string();
+        assert!(!e.unreadable, "{text}");
+        assert!(
+            text.contains("features.gltf") && text.contains("/images/0") && text.contains("`checker.png`"),
+            "{text}"
+        );
+        assert!(text.contains(&format!("{w} × {h} texels")) && text.contains("16384"), "{text}");
+        // The same rule for an MTL's map_Kd.
+        let text = Scene::from_file(&d.join("textured.obj")).unwrap_err().to_string();
+        assert!(text.contains("textured.obj") && text.contains("map_Kd") && text.contains("checker.png"), "{text}");
+        assert!(text.contains(&format!("{w} × {h} texels")), "{text}");
+    }
+    // `illumnet build`: exit 3 naming the file and the image, before work.
+    let (code, err) = build_exit(&d.join("features.gltf"));
+    assert_eq!(code, Some(3), "{err}");
+    assert!(err.contains("features.gltf") && err.contains("image 0") && !err.contains("TXHD"), "{err}");
+    // At the limit: read.
+    image::RgbImage::new(16384, 2).save(d.join("checker.png")).unwrap();
+    let s = Scene::from_file(&d.join("features.gltf")).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!((s.textures[0].width, s.textures[0].height), (16384, 2));
+}
+
+#[test]
+fn mtl_values_beyond_the_toml_bounds_are_refused_naming_file_line_and_field() {
+    // Issue 42, §8: `Ke inf` became 0, `Ke 1e10` 10⁹, `Kd 2` 1, silently.
+    let dir = tempfile::tempdir().unwrap();
+    let obj = dir.path().join("room.obj");
+    std::fs::write(&obj, "mtllib room.mtl\no lamp\nusemtl lamp\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3 4\n")
+        .unwrap();
+    let with = |lines: &str| {
+        std::fs::write(dir.path().join("room.mtl"), format!("# made by a tool\nnewmtl lamp\n{lines}\n")).unwrap();
+        Scene::from_file(&obj)
+    };
+    for (lines, at, field) in [
+        ("Kd 0.5 0.5 0.5\nKe inf 1 1", "room.mtl:4:4", "Ke"),
+        ("Ke 1e10 1 1", "room.mtl:3:4", "Ke"),
+        ("Ke 1 -1 1", "room.mtl:3:6", "Ke"),
+        ("Ke 1 1 1\nKd 0.5 NaN 0.5", "room.mtl:4:8", "Kd"),
+        ("Ke 1 1 1\nKs 0.1 0.1 -0.1", "room.mtl:4:12", "Ks"),
+        ("Ke 1 1 1\nNs inf", "room.mtl:4:4", "Ns"),
+        // One number: tobj 4.0.5 panicked (`parse_float3` unwraps).
+        ("Ke 1 1 1\n  Kd 0.5", "room.mtl:4:3", "Kd"),
+    ] {
+        let e = with(lines).unwrap_err();
+        let text = e.to_string();
+        assert!(!e.unreadable && text.contains(at) && text.contains(&format!("material `lamp`.{field}")), "{text}");
+    }
+    // A reflectance above 1 (exporters write colour × intensity): clamped
+    // to 1 and said, naming the line.
+    let s = with("Ke 1 1 1\nKd 2 0.5 0.5").unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(s.materials[0].model, ReflectanceModel::Diffuse { reflectance: [1.0, 0.5, 0.5] });
+    assert!(s.notes.iter().any(|n| n.contains("room.mtl:4:4") && n.contains("clamped to 1")), "{:?}", s.notes);
+    // At the bounds: read as written.
+    let s = with("Ke 1e9 0 0\nKd 1 1 1\nNs 1e6").unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(s.surfaces[0].emission, [1e9, 0.0, 0.0]);
+    // `illumnet build`: exit 3.
+    with("Ke inf 1 1").unwrap_err();
+    let (code, err) = build_exit(&obj);
+    assert_eq!(code, Some(3), "{err}");
+    assert!(err.contains("room.mtl:3:4") && err.contains("material `lamp`.Ke"), "{err}");
+}

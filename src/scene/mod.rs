@@ -20,6 +20,7 @@ mod error;
 pub mod gltf;
 mod import;
 pub mod motion;
+mod mtl;
 mod obj;
 mod parse;
 pub mod texture;

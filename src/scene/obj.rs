@@ -55,25 +55,37 @@ pub fn mtl_model(kd: [f32; 3], ks: [f32; 3], ns: f32) -> (ReflectanceModel, bool
     )
 }
 
-/// An OBJ file's models and its materials (an error when its MTL could not be read).
-pub(super) type ObjFile = (Vec<tobj::Model>, Result<Vec<tobj::Material>, tobj::LoadError>);
+/// An OBJ file's models, its materials (an error when its MTL could not be
+/// read), and what [`super::mtl::scan`] found in its MTL files.
+pub(super) type ObjFile = (Vec<tobj::Model>, Result<Vec<tobj::Material>, tobj::LoadError>, Vec<super::mtl::MtlFinding>);
 
 /// The OBJ at `path` as `tobj` reads it, with the MTL files it names
 /// (a result, since a missing MTL file is not an error), every file read
 /// through [`crate::limits::read_regular`]: the OBJ or an MTL that is not a
 /// regular file of at most [`crate::limits::MAX_INPUT_FILE`] bytes (a FIFO,
 /// `/dev/zero`, a directory) is an I/O error naming it (exit 5), never a
-/// hang or a read without end. Shared by OBJ scenes and `mesh` surfaces.
+/// hang or a read without end. Each MTL's values are scanned first (its
+/// findings returned for OBJ scenes to refuse or say; `mesh` surfaces,
+/// which use no material, ignore them); one `tobj` would panic on is not
+/// given to it. Shared by OBJ scenes and `mesh` surfaces.
 pub(super) fn load_obj_file(path: &Path) -> Result<ObjFile, SceneError> {
     let bytes =
         crate::limits::read_regular(path, crate::limits::MAX_INPUT_FILE).map_err(|e| SceneError::io(path, e))?;
     let dir = path.parent().unwrap_or(Path::new("."));
     let refused: std::cell::RefCell<Option<SceneError>> = Default::default();
+    let findings: std::cell::RefCell<Vec<super::mtl::MtlFinding>> = Default::default();
     let opts = tobj::LoadOptions { triangulate: true, single_index: true, ..Default::default() };
     let loaded = tobj::load_obj_buf(&mut &bytes[..], &opts, |mtl_path| {
         let full = dir.join(mtl_path);
         match crate::limits::read_regular(&full, crate::limits::MAX_INPUT_FILE) {
-            Ok(text) => tobj::load_mtl_buf(&mut &text[..]),
+            Ok(text) => {
+                let scan = super::mtl::scan(&full, &text);
+                findings.borrow_mut().extend(scan.findings);
+                if scan.malformed {
+                    return Err(tobj::LoadError::MaterialParseError);
+                }
+                tobj::load_mtl_buf(&mut &text[..])
+            }
             Err(e) => {
                 // A file that is there but cannot be read (not a regular
                 // file, too large) is refused; a missing one is said.
@@ -87,13 +99,22 @@ pub(super) fn load_obj_file(path: &Path) -> Result<ObjFile, SceneError> {
     if let Some(e) = refused.into_inner() {
         return Err(e);
     }
-    loaded.map_err(|e| error(path, "", format!("cannot load OBJ: {e}")))
+    let (models, materials) = loaded.map_err(|e| error(path, "", format!("cannot load OBJ: {e}")))?;
+    Ok((models, materials, findings.into_inner()))
 }
 
 /// Reads the OBJ at `path` and the MTL files it names.
 pub(super) fn import(path: &Path) -> Result<Scene, SceneError> {
-    let (models, mtl) = load_obj_file(path)?;
+    let (models, mtl, findings) = load_obj_file(path)?;
     let mut notes = Notes::default();
+    // An MTL value beyond the TOML reader's bounds: refused, or (a
+    // reflectance above 1) clamped and said, naming file, line and field.
+    for f in findings {
+        if f.refused {
+            return Err(f.error);
+        }
+        notes.add(f.error.to_string());
+    }
     let mtl = match mtl {
         Ok(m) => m,
         Err(e) => {
@@ -136,15 +157,13 @@ pub(super) fn import(path: &Path) -> Result<Scene, SceneError> {
 }
 
 /// The image at `path` (PNG, EXR, GIF, by its bytes), read through
-/// [`crate::limits::read_regular`]; failing, the error and whether it is
-/// an I/O failure (`true`) rather than a bad image.
+/// [`crate::limits::read_regular`] and decoded by
+/// [`super::texture::decode_image`] (a size a texture cannot hold is
+/// refused before decoding); failing, the error and whether it is an I/O
+/// failure (`true`) rather than a bad image.
 fn read_image(path: &Path) -> Result<image::DynamicImage, (String, bool)> {
     let bytes = crate::limits::read_regular(path, crate::limits::MAX_INPUT_FILE).map_err(|e| (e.to_string(), true))?;
-    image::ImageReader::new(std::io::Cursor::new(bytes))
-        .with_guessed_format()
-        .map_err(|e| (e.to_string(), true))?
-        .decode()
-        .map_err(|e| (e.to_string(), false))
+    super::texture::decode_image(&bytes).map_err(|e| (e, false))
 }
 
 /// The surface of the `k`-th OBJ object (`model`): its non-degenerate

@@ -76,6 +76,39 @@ impl Shading {
 /// further textures enter as their surfaces' mean albedo only (said).
 pub const MAX_TEXEL_BYTES: usize = 1 << 30;
 
+/// An encoded image (PNG, JPEG, … by its bytes) decoded as a texture: its
+/// size read from the header first and held to
+/// [`crate::limits::texture_size_problem`] (the archive's side limit and the
+/// importers' texel bound) before anything is decoded; the decoder limited
+/// to that size. The glTF and OBJ importers' one way in, so that every
+/// texture a scene keeps is one its build can write. The error says what
+/// is wrong; callers name the image.
+pub(in crate::scene) fn decode_image(bytes: &[u8]) -> Result<image::DynamicImage, String> {
+    use crate::limits::{MAX_TEXTURE_SIDE, MAX_TEXTURE_TEXELS, texture_size_problem};
+    let reader = || {
+        image::ImageReader::new(std::io::Cursor::new(bytes))
+            .with_guessed_format()
+            .map_err(|e| format!("cannot read the image: {e}"))
+    };
+    let (width, height) = reader()?.into_dimensions().map_err(|e| format!("cannot read the image: {e}"))?;
+    if let Some(problem) = texture_size_problem(width, height) {
+        return Err(format!("cannot be a texture: {problem}"));
+    }
+    let mut limits = image::Limits::default();
+    limits.max_image_width = Some(MAX_TEXTURE_SIDE);
+    limits.max_image_height = Some(MAX_TEXTURE_SIDE);
+    // Eight bytes a texel: a 16-bit RGBA image at the texel bound.
+    limits.max_alloc = Some(MAX_TEXTURE_TEXELS * 8);
+    let mut reader = reader()?;
+    reader.limits(limits);
+    let image = reader.decode().map_err(|e| format!("cannot decode the image: {e}"))?;
+    // The decoded size, in case a decoder's differs from its header's.
+    match texture_size_problem(image.width(), image.height()) {
+        Some(problem) => Err(format!("cannot be a texture: {problem}")),
+        None => Ok(image),
+    }
+}
+
 /// Linear value → sRGB-encoded byte (rounded).
 pub fn linear_to_srgb_byte(v: f32) -> u8 {
     let v = if v.is_finite() { v.clamp(0.0, 1.0) } else { 0.0 };

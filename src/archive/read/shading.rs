@@ -4,9 +4,9 @@ use super::check;
 use super::views::{InetView, ShadingView};
 use crate::archive::ArchiveError;
 use crate::archive::layout;
+use crate::limits::MAX_TEXTURE_SIDE;
 
-/// Largest texture side (texels) and coordinate magnitude (§5.15).
-const MAX_TEXTURE_SIDE: u32 = 16384;
+/// Largest texture coordinate magnitude and tint (§5.15).
 const MAX_UV: f32 = 1e6;
 const MAX_TINT: f32 = 1e6;
 

@@ -16,8 +16,6 @@ use crate::scene::error::error;
 pub(super) const MAX_ACCESSOR: usize = 1 << 24;
 /// Largest file (the glTF itself, a buffer or an image) read, in bytes.
 const MAX_FILE: u64 = crate::limits::MAX_INPUT_FILE;
-/// Largest decoded texture, in pixels (an 8192² image).
-const MAX_TEXTURE_PIXELS: u64 = 1 << 26;
 
 /// A parsed file: the document, its buffers, and its images.
 pub(super) struct Loaded {
@@ -42,6 +40,22 @@ fn read_file(path: &Path, named_by: &Path, at: &str) -> Result<Vec<u8>, SceneErr
         unreadable: true,
         ..error(named_by, at, format!("cannot read `{}`: {e}", path.display()))
     })
+}
+
+/// The bytes of a `data:` URI (`data:[<media type>];base64,<data>`, the
+/// form glTF allows), decoded by the `gltf` crate's own base64 reader
+/// (`buffer::Data::from_source`, which zero-pads to a multiple of 4 bytes:
+/// harmless after an image's end), as buffers' are. Used for images,
+/// since the crate's image importer refuses any URI in a slice-only import
+/// ("external reference", issue 42, §7). The decoded bytes are at most ¾
+/// of the URI, which was read within [`MAX_FILE`] with its file.
+fn data_uri(uri: &str) -> Result<Vec<u8>, String> {
+    if !uri.starts_with("data:") || !uri.contains(";base64,") {
+        return Err("a data: URI must be base64 (`data:<type>;base64,…`)".into());
+    }
+    gltf::buffer::Data::from_source(gltf::buffer::Source::Uri(uri), None)
+        .map(|d| d.0)
+        .map_err(|e| format!("cannot decode the data: URI: {e}"))
 }
 
 /// `%XX` escapes decoded; `None` for a bad escape or bytes that are not UTF-8.
@@ -166,8 +180,11 @@ impl Loaded {
 }
 
 impl Images {
-    /// Image `index`, decoded on first use (8-bit RGB, or as a data URI
-    /// decodes), within [`MAX_TEXTURE_PIXELS`].
+    /// Image `index`, decoded on first use as 8-bit RGB, through
+    /// [`crate::scene::texture::decode_image`]: an image a texture cannot
+    /// hold (a side beyond [`crate::limits::MAX_TEXTURE_SIDE`], more than
+    /// [`crate::limits::MAX_TEXTURE_TEXELS`]) is refused naming it, before
+    /// it is decoded.
     pub(super) fn get(
         &mut self,
         file: &Path,
@@ -190,48 +207,28 @@ impl Images {
                 (None, None) => return Err(error(file, &at, "the image has neither a uri nor a bufferView")),
                 _ => {}
             }
-            let decode = |bytes: &[u8]| -> Result<image::DynamicImage, SceneError> {
-                let mut reader = image::ImageReader::new(std::io::Cursor::new(bytes))
-                    .with_guessed_format()
-                    .map_err(|e| error(file, &at, format!("cannot read the image: {e}")))?;
-                let mut limits = image::Limits::default();
-                limits.max_alloc = Some(MAX_TEXTURE_PIXELS * 8);
-                reader.limits(limits);
-                reader.decode().map_err(|e| error(file, &at, format!("cannot decode the image: {e}")))
-            };
-            let decoded = match img.source() {
+            let read;
+            let bytes: &[u8] = match img.source() {
                 gltf::image::Source::View { view, .. } => {
                     let data = &buffers[view.buffer().index()].0;
-                    let bytes = view
-                        .offset()
+                    view.offset()
                         .checked_add(view.length())
                         .and_then(|end| data.get(view.offset()..end))
-                        .ok_or_else(|| {
-                        error(file, format!("{at}/bufferView"), "the view lies outside its buffer")
-                    })?;
-                    decode(bytes)?
+                        .ok_or_else(|| error(file, format!("{at}/bufferView"), "the view lies outside its buffer"))?
                 }
                 gltf::image::Source::Uri { uri, .. } if uri.starts_with("data:") => {
-                    if !uri.contains(";base64,") {
-                        return Err(error(file, format!("{at}/uri"), "a data URI image must be base64"));
-                    }
-                    let d = gltf::image::Data::from_source(img.source(), None, buffers)
-                        .map_err(|e| error(file, format!("{at}/uri"), format!("cannot decode the image: {e}")))?;
-                    if d.width as u64 * d.height as u64 > MAX_TEXTURE_PIXELS {
-                        return Err(error(file, &at, "the image is larger than 8192² pixels"));
-                    }
-                    self.decoded.insert(index, d);
-                    return Ok(&self.decoded[&index]);
+                    read = data_uri(uri).map_err(|e| error(file, format!("{at}/uri"), e))?;
+                    &read
                 }
                 gltf::image::Source::Uri { uri, .. } => {
                     let p = uri_path(file, &self.base, uri, &format!("{at}/uri"))?;
-                    decode(&read_file(&p, file, &format!("{at}/uri"))?)?
+                    read = read_file(&p, file, &format!("{at}/uri"))?;
+                    &read
                 }
             };
-            if decoded.width() as u64 * decoded.height() as u64 > MAX_TEXTURE_PIXELS {
-                return Err(error(file, &at, "the image is larger than 8192² pixels"));
-            }
-            let rgb = decoded.into_rgb8();
+            let rgb = crate::scene::texture::decode_image(bytes)
+                .map_err(|e| error(file, &at, format!("{}: {e}", image_name(raw, index))))?
+                .into_rgb8();
             let (width, height) = rgb.dimensions();
             self.decoded.insert(
                 index,
@@ -240,6 +237,19 @@ impl Images {
         }
         Ok(&self.decoded[&index])
     }
+}
+
+/// How an error names image `index`: its index, its name if it has one,
+/// and its URI (not a `data:` URI's bytes) or buffer view.
+fn image_name(raw: &gltf::json::Image, index: usize) -> String {
+    let name = raw.name.as_ref().map_or(String::new(), |n| format!(" `{n}`"));
+    let source = match (&raw.uri, &raw.buffer_view) {
+        (Some(uri), _) if uri.starts_with("data:") => " (a data: URI)".to_string(),
+        (Some(uri), _) => format!(" (`{uri}`)"),
+        (None, Some(view)) => format!(" (buffer view {})", view.value()),
+        (None, None) => String::new(),
+    };
+    format!("image {index}{name}{source}")
 }
 
 /// Checks an accessor before it is read: its component type and shape are

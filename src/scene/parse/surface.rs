@@ -220,7 +220,7 @@ fn transform_matrix(t: &RawTransform) -> Result<(Mat3, Vec3), String> {
 /// The triangles of the OBJ file at `path` (a `mesh` surface): positions
 /// only, materials ignored.
 fn load_obj(path: &Path) -> Result<Vec<Primitive>, (String, bool)> {
-    let (models, _) = crate::scene::obj::load_obj_file(path).map_err(|e| {
+    let (models, _, _) = crate::scene::obj::load_obj_file(path).map_err(|e| {
         let what = if e.file == path { "OBJ".to_string() } else { format!("OBJ `{}`: its MTL", path.display()) };
         let hint =
             if e.unreadable && e.file == path { " (a mesh path is taken from the scene file's folder)" } else { "" };
