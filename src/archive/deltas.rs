@@ -116,6 +116,21 @@ impl SpillFile {
         self.len() == 0
     }
 
+    /// A spilled block's bytes, read back (a sharded build keeps them).
+    pub fn block_bytes(&self, block: &Block) -> std::io::Result<Vec<u8>> {
+        match &block.stored {
+            Stored::Held(bytes) => Ok(bytes.clone()),
+            Stored::Spilled { offset, len } => {
+                let mut out = Vec::with_capacity(*len as usize);
+                self.read(*offset, *len, &mut Vec::new(), &mut |piece| {
+                    out.extend_from_slice(piece);
+                    Ok(())
+                })?;
+                Ok(out)
+            }
+        }
+    }
+
     /// Hands `len` bytes at `offset` to `sink`, in pieces of 1 MiB or of
     /// `buf`'s capacity if that is larger.
     fn read(

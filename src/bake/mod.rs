@@ -28,6 +28,7 @@ mod links;
 mod reflectance;
 mod settings;
 mod setup;
+pub mod shard;
 mod spill;
 mod trace;
 
@@ -37,6 +38,7 @@ pub use crate::patch::order::PatchOrder;
 pub use bundle::BundleStats;
 pub use instances::{Instance, instances};
 pub use settings::{BuildSettings, DEFAULT_MAX_BUCKET, MAX_BUCKET, Quality, ray_space_divisions};
+use spill::Spill;
 pub use spill::SpilledLinks;
 
 use crate::archive::ArchiveContents;
@@ -278,12 +280,56 @@ fn build_impl(
     bound: Option<&MemoryBound>,
     progress: &dyn Progress,
 ) -> Result<(Sequence, Option<SpilledLinks>), BuildError> {
-    settings.validate()?;
-    // Resident before the build's own memory: the program and the scene
-    // (the budget's uncounted constant covers them).
-    let resident_before = crate::memory::resident_now();
     // A build that keeps its links for verification is never bounded.
     let bound = bound.filter(|_| !keep_links);
+    let prepared = prepare(scene, settings, bound)?;
+    let spill = prepared.spill_plan(bound, settings)?;
+    let t1 = Instant::now();
+    let traced = prepared.trace(settings, spill.as_ref(), None, progress)?;
+    let trace_s = t1.elapsed().as_secs_f64();
+
+    let t2 = Instant::now();
+    let trace::Traced { bundles, hits, nd_hits, backs, nd_backs, deltas, stats } = traced;
+    let spilled_deltas = spill.as_ref().and_then(|s| s.delta_file());
+    let links =
+        assemble::link_table(bundles, spill, prepared.setup.patches.len(), settings.max_bucket, keep_links, progress)?;
+    let counts = Counts { hits, nd_hits, backs, nd_backs, deltas, spilled_deltas, stats };
+    let times = (trace_s, t2.elapsed().as_secs_f64());
+    prepared.finish(scene, settings, links, counts, times, progress)
+}
+
+/// What a build has made before tracing: the setup, the ray grids'
+/// bounds, the materials' lobes and which patches are non-diffuse. A
+/// build, each shard of one and their merge make it alike.
+struct Prepared {
+    setup: setup::Setup,
+    bounds: (glam::Vec3, glam::Vec3),
+    frames: u32,
+    lobes: Vec<Option<crate::reflectance::Lobe>>,
+    nd_index: Vec<u32>,
+    setup_s: f64,
+    /// Resident before the build's own memory: the program and the scene
+    /// (the budget's uncounted constant covers them).
+    resident_before: Option<u64>,
+}
+
+/// What tracing counted, beside the links: from one build, or summed
+/// over the shards of one.
+struct Counts {
+    hits: Vec<u32>,
+    nd_hits: Vec<u32>,
+    backs: Vec<u32>,
+    nd_backs: Vec<u32>,
+    deltas: Vec<Vec<crate::archive::deltas::Block>>,
+    spilled_deltas: Option<crate::archive::deltas::SpillFile>,
+    stats: bundle::BundleStats,
+}
+
+/// Directions, instances and patches for `scene`; under `bound`, a scene
+/// of too many primitives refused before its patches are cut.
+fn prepare(scene: &Scene, settings: &BuildSettings, bound: Option<&MemoryBound>) -> Result<Prepared, BuildError> {
+    settings.validate()?;
+    let resident_before = crate::memory::resident_now();
     let t0 = Instant::now();
     let dirs = setup::directions(settings)?;
     let instances = instances(scene);
@@ -296,67 +342,89 @@ fn build_impl(
     let setup = setup::Setup::new(scene, settings, dirs, instances)?;
     let setup_s = t0.elapsed().as_secs_f64();
     let bounds = settings.grid_bounds.unwrap_or_else(|| crate::geometry::bounds_of(&setup.prims));
-    let frames = scene.frame_count();
-    let input =
-        trace::TraceInput { prims: &setup.prims, active: &setup.active, sort_key: &setup.sort_key, frames, bounds };
-
     let lobes = reflectance::primitive_lobes(scene, &setup.prim_surface);
     let nd_index = reflectance::nondiffuse_index(&setup.patches, &lobes);
-    // Under a budget: what the links may hold before workers spill them
-    // (spill::SpillPlan), or a refusal now.
-    let spill = bound
-        .map(|b| budget::spill_within(b, &setup, &nd_index, frames, settings.ray_spacing, bounds, resident_before))
-        .transpose()?;
-    let t1 = Instant::now();
-    let traced = trace::trace_all(
-        &input,
-        &setup.patches,
-        &setup.dirs,
-        settings.ray_spacing,
-        settings.max_bucket,
-        &nd_index,
-        spill.as_ref(),
-        progress,
-    )?;
-    let trace_s = t1.elapsed().as_secs_f64();
+    Ok(Prepared { setup, bounds, frames: scene.frame_count(), lobes, nd_index, setup_s, resident_before })
+}
 
-    let t2 = Instant::now();
-    let trace::Traced { bundles, hits, nd_hits, backs, nd_backs, deltas, stats: traced_stats } = traced;
-    let spilled_deltas = spill.as_ref().and_then(|s| s.delta_file());
-    let assemble::FrameLinks { table, spilled, base } =
-        assemble::link_table(bundles, spill, setup.patches.len(), settings.max_bucket, keep_links, progress)?;
-    let assemble_s = t2.elapsed().as_secs_f64();
+impl Prepared {
+    /// Under `bound`: what the links may hold before workers spill them
+    /// (spill::SpillPlan), or a refusal now.
+    fn spill_plan(&self, bound: Option<&MemoryBound>, settings: &BuildSettings) -> Result<Option<Spill>, BuildError> {
+        bound
+            .map(|b| {
+                let (setup, nd) = (&self.setup, &self.nd_index);
+                budget::spill_within(b, setup, nd, self.frames, settings.ray_spacing, self.bounds, self.resident_before)
+            })
+            .transpose()
+    }
 
-    let t3 = Instant::now();
-    let (reflectance_contents, rstats) = reflectance::sections(settings, &setup, &lobes, nd_hits, nd_backs, progress)?;
-    let reflectance_s = t3.elapsed().as_secs_f64();
+    /// Traces every pair, or the chunks `only`.
+    fn trace(
+        &self,
+        settings: &BuildSettings,
+        spill: Option<&Spill>,
+        only: Option<std::ops::Range<u32>>,
+        progress: &dyn Progress,
+    ) -> Result<trace::Traced, BuildError> {
+        let setup = &self.setup;
+        let input = trace::TraceInput {
+            prims: &setup.prims,
+            active: &setup.active,
+            sort_key: &setup.sort_key,
+            frames: self.frames,
+            bounds: self.bounds,
+        };
+        let (delta, bucket) = (settings.ray_spacing, settings.max_bucket);
+        trace::trace_all(&input, &setup.patches, &setup.dirs, delta, bucket, &self.nd_index, spill, only, progress)
+    }
 
-    let stats = BuildStats {
-        directions: setup.dirs.len() as u32,
-        patches: setup.patches.len() as u32,
-        rays: traced_stats.rays,
-        hits: traced_stats.hits,
-        links: traced_stats.links,
-        link_ends: table.offsets.last().copied().unwrap_or(0),
-        setup_s,
-        trace_s,
-        assemble_s,
-        tables: rstats.tables as u32,
-        tables_cached: rstats.tables_cached as u32,
-        orientations: rstats.orientations as u32,
-        nondiffuse_patches: reflectance_contents.as_ref().map_or(0, |r| r.patches.len() as u32),
-        reflectance_s,
-    };
-    let made = assemble::Products {
-        hits,
-        backs,
-        table,
-        base,
-        deltas,
-        spilled_deltas,
-        reflectance: reflectance_contents,
-        bounds,
-        warnings: rstats.warnings,
-    };
-    Ok((assemble::sequence(scene, settings, setup, made, stats)?, spilled))
+    /// The reflectance sections and the archive's contents, from frame
+    /// 0's links and the counts; `times` are tracing's and assembly's.
+    fn finish(
+        self,
+        scene: &Scene,
+        settings: &BuildSettings,
+        links: assemble::FrameLinks,
+        counts: Counts,
+        (trace_s, assemble_s): (f64, f64),
+        progress: &dyn Progress,
+    ) -> Result<(Sequence, Option<SpilledLinks>), BuildError> {
+        let assemble::FrameLinks { table, spilled, base } = links;
+        let Counts { hits, nd_hits, backs, nd_backs, deltas, spilled_deltas, stats: traced_stats } = counts;
+        let setup = self.setup;
+        let t3 = Instant::now();
+        let (reflectance_contents, rstats) =
+            reflectance::sections(settings, &setup, &self.lobes, nd_hits, nd_backs, progress)?;
+        let reflectance_s = t3.elapsed().as_secs_f64();
+
+        let stats = BuildStats {
+            directions: setup.dirs.len() as u32,
+            patches: setup.patches.len() as u32,
+            rays: traced_stats.rays,
+            hits: traced_stats.hits,
+            links: traced_stats.links,
+            link_ends: table.offsets.last().copied().unwrap_or(0),
+            setup_s: self.setup_s,
+            trace_s,
+            assemble_s,
+            tables: rstats.tables as u32,
+            tables_cached: rstats.tables_cached as u32,
+            orientations: rstats.orientations as u32,
+            nondiffuse_patches: reflectance_contents.as_ref().map_or(0, |r| r.patches.len() as u32),
+            reflectance_s,
+        };
+        let made = assemble::Products {
+            hits,
+            backs,
+            table,
+            base,
+            deltas,
+            spilled_deltas,
+            reflectance: reflectance_contents,
+            bounds: self.bounds,
+            warnings: rstats.warnings,
+        };
+        Ok((assemble::sequence(scene, settings, setup, made, stats)?, spilled))
+    }
 }

@@ -25,8 +25,19 @@ pub struct BuildCommand {
     /// Wavefront OBJ with its MTL (.obj).
     scene: PathBuf,
     /// Archive to write.
-    #[arg(short, long, value_name = "ARCHIVE")]
-    output: PathBuf,
+    #[arg(short, long, value_name = "ARCHIVE", required_unless_present = "shard")]
+    output: Option<PathBuf>,
+    /// Trace only shard I of K (`0/4`..`3/4`) of the build, for a cluster:
+    /// its share of the direction pairs, balanced by rays, written as a
+    /// shard (sorted link-end runs, counts, a checksummed manifest) into
+    /// --shard-dir; `illumnet merge` makes the archive from all K, the
+    /// bytes a one-machine build writes. `auto/K` takes I from
+    /// $SLURM_ARRAY_TASK_ID or $JOB_COMPLETION_INDEX.
+    #[arg(long, value_name = "I/K", requires = "shard_dir", conflicts_with_all = ["output", "frame"])]
+    shard: Option<String>,
+    /// Where a shard's files go (shared by all shards of a build).
+    #[arg(long, value_name = "DIR", requires = "shard")]
+    shard_dir: Option<PathBuf>,
     /// For an animated scene: build only this frame, as a still archive
     /// (default: the whole sequence in one archive).
     #[arg(long, value_name = "N")]
@@ -152,9 +163,64 @@ impl GltfArgs {
 
 /// Runs `illumnet build` with its parsed arguments.
 pub fn run(command: BuildCommand, progress: &dyn Progress) -> Result<()> {
-    let BuildCommand { scene, output, frame, mut settings, budget, gltf } = command;
+    let BuildCommand { scene, output, frame, mut settings, budget, gltf, shard, shard_dir } = command;
     settings.memory_budget = budget.memory_budget;
-    build(&scene, &gltf.options(), &output, frame, settings, progress)
+    match (shard, shard_dir, output) {
+        (None, None, Some(output)) => build(&scene, &gltf.options(), &output, frame, settings, progress),
+        _ => bail_input!("give -o ARCHIVE, or --shard I/K with --shard-dir DIR"),
+    }
+}
+
+/// A `build --shard I/K --shard-dir DIR` (`cli/shard.rs` runs it).
+pub struct ShardJob {
+    /// The scene file.
+    pub scene: PathBuf,
+    /// Its glTF options.
+    pub gltf: GltfOptions,
+    /// `I/K` or `auto/K`.
+    pub spec: String,
+    /// Where the shard's files go.
+    pub dir: PathBuf,
+    /// The build's options.
+    pub args: BuildArgs,
+}
+
+impl BuildCommand {
+    /// The shard this command builds, if it builds one (`--shard`).
+    pub fn shard_job(&mut self) -> Option<ShardJob> {
+        let (spec, dir) = (self.shard.take()?, self.shard_dir.take()?);
+        let mut args = self.settings.clone();
+        args.memory_budget = self.budget.memory_budget;
+        Some(ShardJob { scene: self.scene.clone(), gltf: self.gltf.options(), spec, dir, args })
+    }
+}
+
+/// A `build` command's scene and settings as the shards of a build gave
+/// them (their manifests' invocation), read again by `merge`.
+pub fn replay(invocation: &[String], directory: &Path) -> Result<(Scene, BuildSettings)> {
+    #[derive(clap::Parser)]
+    struct Replay {
+        #[command(flatten)]
+        build: BuildCommand,
+        /// The global options, which may follow the command: ignored.
+        #[arg(short, long)]
+        quiet: bool,
+        #[arg(long)]
+        threads: Option<usize>,
+    }
+    // `-o` stands in for the shard options left out: the merge's own
+    // output is not the shards'.
+    let args = ["build"]
+        .into_iter()
+        .map(String::from)
+        .chain(invocation.iter().cloned())
+        .chain(["-o".into(), "merged.inet".into()]);
+    let Replay { build, .. } = <Replay as clap::Parser>::try_parse_from(args)
+        .map_err(|e| BadInput(format!("the shards' build command does not parse: {e}")))?;
+    let scene_path = directory.join(&build.scene);
+    let scene = read_scene(&scene_path, &build.gltf.options(), None, &build.settings)?;
+    let settings = build_settings(&scene, &build.settings);
+    Ok((scene, settings))
 }
 
 /// The sizes given on the command line, over the scene's own.
@@ -164,7 +230,7 @@ fn hints(a: &BuildArgs) -> BuildHints {
 
 /// Refuses an archive named as an image or a scene: a slip (`-o scene.png`
 /// meant for `render`), said before any work.
-fn refuse_misnamed_archive(output: &Path) -> Result<()> {
+pub fn refuse_misnamed_archive(output: &Path) -> Result<()> {
     if let Some(ext) = output.extension().and_then(|e| e.to_str())
         && ["png", "exr", "jpg", "jpeg", "gif", "tif", "tiff", "hdr", "toml", "gltf", "glb", "obj"]
             .contains(&ext.to_ascii_lowercase().as_str())
@@ -179,7 +245,7 @@ fn refuse_misnamed_archive(output: &Path) -> Result<()> {
 
 /// The settings of a build of `scene`: the scene's own, resolved at the
 /// `--quality` asked, with every option given on the command line over them.
-fn build_settings(scene: &Scene, args: &BuildArgs) -> BuildSettings {
+pub fn build_settings(scene: &Scene, args: &BuildArgs) -> BuildSettings {
     let quality = match args.quality {
         Quality::Draft => bake::Quality::Draft,
         Quality::Default => bake::Quality::Default,
@@ -211,7 +277,7 @@ fn build_settings(scene: &Scene, args: &BuildArgs) -> BuildSettings {
 /// The folder `output` is written into, made now (for a bounded build's
 /// scratch; removed again if the build fails before anything is written
 /// there), cleared of what an interrupted build of this archive left.
-fn prepare_output_folder(output: &Path) -> Result<illumnet::scratch::OutputDir> {
+pub fn prepare_output_folder(output: &Path) -> Result<illumnet::scratch::OutputDir> {
     let folder = illumnet::scratch::OutputDir::make(output).with_context(|| {
         format!("-o {}: cannot create the folder {}", output.display(), illumnet::scratch::dir_of(output).display())
     })?;
@@ -282,7 +348,7 @@ pub fn build_scene(scene: &Scene, output: &Path, args: &BuildArgs, progress: &dy
     let folder = prepare_output_folder(output)?;
     let bound = bake::MemoryBound { budget: budget.bytes, output: output.to_path_buf() };
     let t = Instant::now();
-    let (seq, mut spilled) = match bake::build_sequence_bounded(scene, &settings, &bound, progress) {
+    let (seq, spilled) = match bake::build_sequence_bounded(scene, &settings, &bound, progress) {
         Ok(x) => x,
         Err(bake::BuildError::Failed(m)) => return Err(BadInput(m).into()),
         // Says where a default budget came from (`ulimit -v`, the cgroup).
@@ -295,6 +361,21 @@ pub fn build_scene(scene: &Scene, output: &Path, args: &BuildArgs, progress: &dy
         eprintln!("warning: {w}");
     }
     report_spills(&seq, spilled.as_ref(), budget, output);
+    write_and_check(output, seq, spilled, folder, t, settings.patch_size, progress)
+}
+
+/// Writes a built sequence (and its spilled links) to `output`, reads it
+/// back and checks it whole, and prints the summary: the end of `build`
+/// and of `merge`.
+pub fn write_and_check(
+    output: &Path,
+    seq: bake::Sequence,
+    mut spilled: Option<bake::SpilledLinks>,
+    folder: illumnet::scratch::OutputDir,
+    t: Instant,
+    patch_size: f32,
+    progress: &dyn Progress,
+) -> Result<()> {
     let (contents, stats) = (seq.contents, seq.stats);
     let t_w = Instant::now();
     let bytes =
@@ -321,7 +402,7 @@ pub fn build_scene(scene: &Scene, output: &Path, args: &BuildArgs, progress: &dy
     let secs = t.elapsed().as_secs_f64();
     let seconds = FinishSeconds { total: secs, write: t_write, check: t_check };
     print_summary(output, &stats, bytes, &seconds, sequence.as_ref());
-    for w in facing_nearby(&written.view(), &written.meta().surface_names, settings.patch_size)? {
+    for w in facing_nearby(&written.view(), &written.meta().surface_names, patch_size)? {
         eprintln!("illumnet: warning: {w}");
     }
     Ok(())
@@ -390,6 +471,28 @@ pub fn build(
     args: BuildArgs,
     progress: &dyn Progress,
 ) -> Result<()> {
+    let scene = read_scene(scene_path, gltf, frame, &args)?;
+    build_scene(&scene, output, &args, progress)
+}
+
+/// Reads the scene at `scene_path` as `build` does: glTF options, `--turn`,
+/// and `--frame` applied.
+pub fn read_scene(scene_path: &Path, gltf: &GltfOptions, frame: Option<u32>, args: &BuildArgs) -> Result<Scene> {
+    let mut scene = read_turned(scene_path, gltf, args)?;
+    let frames = scene.frame_count();
+    match frame {
+        Some(f) if frames == 1 && f > 0 => bail_input!("--frame {f}: the scene is a still (its one frame is 0)"),
+        Some(f) if f >= frames => {
+            bail_input!("--frame {f} is outside the sequence 0..{frames} (frames 0 to {})", frames - 1)
+        }
+        Some(f) => scene = scene.at_frame(f),
+        None => {}
+    }
+    Ok(scene)
+}
+
+/// The scene file read (TOML, glTF or OBJ), its notes said, `--turn` applied.
+fn read_turned(scene_path: &Path, gltf: &GltfOptions, args: &BuildArgs) -> Result<Scene> {
     let is_gltf = illumnet::scene::gltf::is_gltf_path(scene_path);
     if !is_gltf && *gltf != GltfOptions::default() {
         bail_input!("--camera, --light-radius and --fps are for glTF scenes; a TOML scene states them itself");
@@ -416,14 +519,5 @@ pub fn build(
             .input(|| format!("--turn `{t}`: `{deg}` is not a number of degrees"))?;
         scene.turn_surface(name, deg).map_err(|e| BadInput(format!("--turn `{t}`: {e}")))?;
     }
-    let frames = scene.frame_count();
-    match frame {
-        Some(f) if frames == 1 && f > 0 => bail_input!("--frame {f}: the scene is a still (its one frame is 0)"),
-        Some(f) if f >= frames => {
-            bail_input!("--frame {f} is outside the sequence 0..{frames} (frames 0 to {})", frames - 1)
-        }
-        Some(f) => scene = scene.at_frame(f),
-        None => {}
-    }
-    build_scene(&scene, output, &args, progress)
+    Ok(scene)
 }

@@ -158,6 +158,9 @@ pub fn code(err: &anyhow::Error) -> u8 {
         if cause.is::<BudgetError>() {
             return BUDGET;
         }
+        if cause.is::<illumnet::bake::shard::ShardError>() {
+            return CORRUPT_ARCHIVE;
+        }
         if let Some(e) = cause.downcast_ref::<illumnet::bake::BuildError>() {
             return match e {
                 illumnet::bake::BuildError::OverBudget { .. } => BUDGET,

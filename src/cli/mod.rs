@@ -12,6 +12,7 @@ mod frames;
 mod inspect;
 mod progress_bar;
 mod render;
+mod shard;
 mod upgrade;
 mod verify;
 
@@ -60,6 +61,10 @@ enum Command {
     /// then renames it over OUTPUT (default: the archive itself); an
     /// archive that needs no rewriting (version 10 or 11) is copied.
     Upgrade(upgrade::UpgradeCommand),
+    /// Merge the shards of a sharded build (`build --shard I/K`) into the
+    /// archive: every manifest and file checked first (exit 4 naming the
+    /// shard), the same bytes as a one-machine build.
+    Merge(shard::MergeCommand),
     /// Build and render the embedded Cornell box.
     Demo(demo::DemoCommand),
     /// Frames of a render farm: `frames check` reports which are complete,
@@ -189,12 +194,16 @@ pub fn main() -> ExitCode {
             | Command::Verify(verify::VerifyCommand { json: true, .. })
     );
     let result = match cli.command {
-        Command::Build(command) => build::run(command, &progress),
+        Command::Build(mut command) => match command.shard_job() {
+            Some(job) => shard::build_shard(job, &progress),
+            None => build::run(command, &progress),
+        },
         Command::Render(command) => render::run(command, &progress),
         Command::Inspect(command) => inspect::run(command),
         Command::Verify(command) => verify::run(command),
         Command::Compare(command) => compare::run(command),
         Command::Upgrade(command) => upgrade::run(command),
+        Command::Merge(command) => shard::run(command, &progress),
         Command::Demo(command) => demo::run(command, &progress),
         Command::Frames(command) => frames::run(command),
     };

@@ -87,6 +87,18 @@ pub(in crate::bake) fn largest_pair_rays(dirs: &DirectionSet, delta: f32, (lo, h
     layouts.iter().enumerate().map(|(k, lay)| grid_for(dir_of(k), k as u32, lo, hi, lay)).map(|g| g.nu * g.nv).max()
 }
 
+/// Rays each pair's bundle traces over `bounds` (its grid's size): the
+/// work a sharded build balances. Call after the ray count was checked.
+pub(in crate::bake) fn pair_rays(dirs: &DirectionSet, delta: f32, (lo, hi): (Vec3, Vec3)) -> Vec<u64> {
+    let dir_of = |k: u32| Vec3::from(dirs.directions[2 * k as usize]);
+    (0..(dirs.len() / 2) as u32)
+        .map(|k| {
+            let g = grid_for(dir_of(k), k, lo, hi, &layout(dirs, delta, k));
+            g.nu * g.nv
+        })
+        .collect()
+}
+
 /// Rays the bundles of `layouts` would hold over `bounds`, at most,
 /// counted in f64 (tiny spacings overflow integer grid sizes): what is
 /// checked against [`MAX_RAYS`] before any grid is made.

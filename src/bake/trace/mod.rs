@@ -27,9 +27,9 @@ use rayon::prelude::*;
 
 pub(super) use changes::{PART_BYTES_PER_RECORD, part_records};
 use changes::{accumulate_changes, compress_part};
-pub(super) use layout::largest_pair_rays;
 pub use layout::layout;
 use layout::{BundleLayout, estimated_rays, grid_for};
+pub(super) use layout::{largest_pair_rays, pair_rays};
 use scratch::{Scratch, ScratchLease};
 use walk::Walk;
 
@@ -108,6 +108,13 @@ pub struct TraceInput<'a> {
 /// is fixed: the archive's bytes must not depend on the number of threads.
 const CHUNKS: u32 = 64;
 
+/// Pairs per chunk, and chunks, for `pairs` direction pairs: fixed by the
+/// pair count alone, so that shards of a build agree on them.
+pub(super) fn chunking(pairs: u32) -> (u32, u32) {
+    let per_chunk = pairs.div_ceil(CHUNKS).max(1);
+    (per_chunk, pairs.div_ceil(per_chunk))
+}
+
 /// Everything tracing produces.
 pub struct Traced {
     /// One bundle per direction pair, in pair order: the links of frame 0.
@@ -134,8 +141,9 @@ pub struct Traced {
 /// changes each), totals.
 type Chunk = (Vec<Bundle>, Vec<Vec<Block>>, BundleStats);
 
-/// Traces every direction pair; see the module docs.
-/// With `spill`, workers hand their bundles to it after each pair, which
+/// Traces every direction pair, or the pairs of the chunks `only` (a
+/// shard's: the other pairs are left untraced, their counts zero); see
+/// the module docs. With `spill`, workers hand their bundles to it after each pair, which
 /// spills them to disk when the build holds too many (`spill.rs`); the
 /// bundles returned are those never spilled.
 #[allow(clippy::too_many_arguments)]
@@ -147,6 +155,7 @@ pub fn trace_all(
     max_bucket: u32,
     nd_index: &[u32],
     spill: Option<&Spill>,
+    only: Option<std::ops::Range<u32>>,
     progress: &dyn Progress,
 ) -> Result<Traced, BuildError> {
     let (lo, hi) = input.bounds;
@@ -175,14 +184,16 @@ pub fn trace_all(
         // changes (the format removes them anyway).
         patch_active: patches.primitive.iter().map(|&p| input.active[p as usize]).collect(),
         pairs,
-        per_chunk: pairs.div_ceil(CHUNKS).max(1),
+        per_chunk: chunking(pairs).0,
     };
-    let chunks = pairs.div_ceil(tracer.per_chunk);
+    let chunks = only.unwrap_or(0..chunking(pairs).1);
+    let traced = (chunks.start * tracer.per_chunk).min(pairs)..(chunks.end * tracer.per_chunk).min(pairs);
     let pool = Mutex::new(Vec::new());
-    progress.start("tracing direction bundles", pairs as u64);
-    let results: Vec<Result<Chunk, BuildError>> = (0..chunks).into_par_iter().map(|c| tracer.chunk(c, &pool)).collect();
+    progress.start("tracing direction bundles", traced.len() as u64);
+    let results: Vec<Result<Chunk, BuildError>> =
+        chunks.clone().into_par_iter().map(|c| tracer.chunk(c, &pool)).collect();
     progress.finish();
-    tracer.finish(results, chunks)
+    tracer.finish(results, chunks.len() as u32)
 }
 
 /// Refuses a build whose bounds are not finite or that would trace more
