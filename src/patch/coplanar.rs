@@ -186,10 +186,30 @@ fn touching(
     }
     let ei = boundary_edges(pi, &patches.primitives[i]);
     let ej = boundary_edges(pj, &patches.primitives[j]);
+    // Edges that overlap over more than `eps` come within `eps` of each
+    // other (the test's rounding, relative to the primitives' size, is
+    // far below it): only those whose extents along the pair's widest
+    // axis come within `margin` are tested, found by a search among j's
+    // edges sorted along it, so two strips of n cells cost about n
+    // tests, not n². Extents are taken from a point of the pair, where
+    // they are exact to well below the margin wherever the pair lies.
+    let (o, margin) = (pi.p[0], 4.0 * eps);
+    let k = (hi_i.max(hi_j) - lo_i.min(lo_j)).max_position();
+    let extent = |p0: Vec3, p1: Vec3| {
+        let (s, t) = (p0[k] - o[k], p1[k] - o[k]);
+        (s.min(t), s.max(t))
+    };
+    let mut sorted: Vec<(f32, f32, usize)> =
+        ej.iter().enumerate().map(|(x, &(_, b0, b1))| (extent(b0, b1).0, extent(b0, b1).1, x)).collect();
+    sorted.sort_unstable_by(|x, y| x.0.total_cmp(&y.0).then(x.2.cmp(&y.2)));
+    let longest = sorted.iter().map(|e| e.1 - e.0).fold(0.0f32, f32::max);
     for &(a, a0, a1) in &ei {
         let len = (a1 - a0).length();
         let dir = (a1 - a0) / len;
-        for &(b, b0, b1) in &ej {
+        let (a_lo, a_hi) = extent(a0, a1);
+        let first = sorted.partition_point(|e| e.0 < a_lo - margin - longest);
+        for &(_, _, x) in sorted[first..].iter().take_while(|e| e.0 <= a_hi + margin) {
+            let (b, b0, b1) = ej[x];
             // Collinear: both ends of b on a's line.
             let off = |p: Vec3| (p - a0) - dir * (p - a0).dot(dir);
             if off(b0).length() > eps || off(b1).length() > eps {
@@ -260,16 +280,34 @@ mod tests {
         assert_eq!(swept, every);
     }
 
-    /// Every pair of primitives of one group compared: the quadratic
-    /// reference the tree's candidates must give the same pairs as.
+    /// Every pair of primitives of one group compared, every pair of
+    /// their boundary edges tested: the quadratic reference the tree's
+    /// candidates and the edges' search must give the same pairs as.
     fn every_pair(prims: &[Primitive], group: &[u32], patches: &Patches) -> Vec<(u32, u32)> {
         let bounds: Vec<_> = prims.iter().map(Primitive::bounds).collect();
         let mut every = Vec::new();
         for i in 0..prims.len() {
             for j in i + 1..prims.len() {
                 let grouped = patches.primitives[i].grouped() || patches.primitives[j].grouped();
-                if group[i] == group[j] && !grouped {
-                    touching(prims, (bounds[i], bounds[j]), patches, i, j, &mut every);
+                let (pi, pj) = (&prims[i], &prims[j]);
+                let size = |b: &(Vec3, Vec3)| (b.1 - b.0).length();
+                let eps = 1e-5 * size(&bounds[i]).max(size(&bounds[j]));
+                let coplanar =
+                    pi.normal().dot(pj.normal()) >= 0.9999 && (pj.p[0] - pi.p[0]).dot(pi.normal()).abs() <= eps;
+                if group[i] != group[j] || grouped || !coplanar {
+                    continue;
+                }
+                for &(a, a0, a1) in &boundary_edges(pi, &patches.primitives[i]) {
+                    let len = (a1 - a0).length();
+                    let dir = (a1 - a0) / len;
+                    for &(b, b0, b1) in &boundary_edges(pj, &patches.primitives[j]) {
+                        let off = |p: Vec3| (p - a0) - dir * (p - a0).dot(dir);
+                        let (s0, s1) = ((b0 - a0).dot(dir), (b1 - a0).dot(dir));
+                        let overlap = s0.max(s1).min(len) - s0.min(s1).max(0.0);
+                        if off(b0).length() <= eps && off(b1).length() <= eps && overlap > eps {
+                            every.push((a, b));
+                        }
+                    }
                 }
             }
         }
