@@ -307,3 +307,47 @@ fn under_an_address_space_limit_without_a_budget_jobs_are_refused_or_run_never_a
         );
     }
 }
+
+#[test]
+fn a_patch_size_far_below_the_scenes_is_refused_before_its_patches_are_cut() {
+    // A 1 m room whose [build] patch_size of 0.1 mm cuts it into about
+    // 6·10⁸ patches (tens of GiB): refused under 2G at once, naming the
+    // cut and what to change (issue 42 §4). It had cut until the
+    // allocator aborted, past 3.5 GB; under a timeout here, so that the
+    // old behaviour fails rather than hangs.
+    let dir = tempfile::tempdir().unwrap();
+    let scene = dir.path().join("room.toml");
+    std::fs::write(
+        &scene,
+        "[camera]\nposition = [0.5, 0.5, -1.0]\nlook_at = [0.5, 0.5, 0.5]\nfov_y_deg = 50\nwidth = 32\nheight = 32\n\
+         [build]\npatch_size = 1e-4\n\
+         [[material]]\nname = 'grey'\ntype = 'diffuse'\nreflectance = [0.5, 0.5, 0.5]\n\
+         [[surface]]\nname = 'lamp'\nmaterial = 'grey'\nemission = [1, 1, 1]\n\
+         quad = [[0.4, 0.99, 0.4], [0.6, 0.99, 0.4], [0.6, 0.99, 0.6], [0.4, 0.99, 0.6]]\n\
+         [[surface]]\nname = 'room'\nmaterial = 'grey'\nbox = { min = [0, 0, 0], max = [1, 1, 1], inward = true }\n",
+    )
+    .unwrap();
+    let archive = dir.path().join("room.inet");
+    let start = std::time::Instant::now();
+    let mut child = Command::new(env!("CARGO_BIN_EXE_illumnet"))
+        .args(["build", scene.to_str().unwrap(), "-q", "-o", archive.to_str().unwrap(), "--memory-budget", "2G"])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    while child.try_wait().unwrap().is_none() {
+        if start.elapsed() > std::time::Duration::from_secs(20) {
+            child.kill().unwrap();
+            panic!("still cutting after 20 s: not refused before work");
+        }
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    let took = start.elapsed();
+    let out = child.wait_with_output().unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(6), "{stderr}");
+    assert!(stderr.contains("the build needs at least") && stderr.contains("patches as they are cut"), "{stderr}");
+    assert!(stderr.contains("patch_size"), "the refusal says what to change: {stderr}");
+    assert!(took < std::time::Duration::from_secs(3), "refused after {took:?}, not before work");
+    assert!(!archive.exists(), "nothing is written");
+}

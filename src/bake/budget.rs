@@ -8,7 +8,7 @@ use glam::Vec3;
 use super::setup::Setup;
 use super::spill::{BUNDLE_BYTES_PER_LINK, RUN_WRITE_BUFFER, Spill, SpillPlan};
 use super::{BuildError, Instance, MemoryBound, trace};
-use crate::patch::Patches;
+use crate::patch::{CutSize, Patches};
 
 /// Resident bytes a build holds per primitive before tracing: the parsed
 /// scene, its instances' and the build's columns, the patches'
@@ -69,6 +69,42 @@ pub(super) fn refuse_many_primitives(bound: &MemoryBound, instances: &[Instance]
         ("links", LEAST_LINKS),
     ];
     if bound.budget < parts.iter().map(|p| p.1).sum() {
+        return Err(BuildError::OverBudget { budget: bound.budget, parts });
+    }
+    Ok(())
+}
+
+/// Resident bytes per patch while the patches are cut: their columns
+/// (with their growth's slack), each patch's list of neighbours before the
+/// lists are packed, the packed table, and the spatial order's copies.
+/// Measured (docs/notebook/2026-12-07-coplanar-setup.md) as the setup's
+/// peak above the scene's: 138 to 206 bytes a patch for the Cornell box
+/// at 1 to 4 mm, 93 to 180 for rows of 25 000 to 100 000 long strips.
+const CUT_BYTES_PER_PATCH: u64 = 224;
+
+/// Resident bytes per vertex of the patches (12 bytes, and the growth's
+/// slack of its column).
+const CUT_BYTES_PER_VERTEX: u64 = 24;
+
+/// Refuses, under `bound`, a cut of `cut` patches (of `prims` primitives)
+/// that the budget could not hold with what tracing needs at least,
+/// before any patch is cut: a patch size far below the scene's (10⁻⁴ m
+/// in a 1 m room: 6·10⁸ patches) had cut until the allocator aborted
+/// (issue 42 §4). What the cut made is counted again, as measured, in
+/// [`spill_within`].
+pub(super) fn refuse_many_patches(bound: &MemoryBound, prims: usize, cut: CutSize) -> Result<(), BuildError> {
+    let threads = rayon::current_num_threads() as u64;
+    let (p, v) = (cut.patches, cut.vertices);
+    let parts = vec![
+        ("primitives and BVH", prims as u64 * (SETUP_BYTES_PER_PRIMITIVE + BVH_BYTES_PER_PRIMITIVE)),
+        (
+            "patches as they are cut",
+            p.saturating_mul(CUT_BYTES_PER_PATCH).saturating_add(v.saturating_mul(CUT_BYTES_PER_VERTEX)),
+        ),
+        ("tracers' scratch", threads.saturating_mul(p.saturating_mul(24))),
+        ("links", LEAST_LINKS),
+    ];
+    if bound.budget < parts.iter().fold(0u64, |a, p| a.saturating_add(p.1)) {
         return Err(BuildError::OverBudget { budget: bound.budget, parts });
     }
     Ok(())

@@ -182,7 +182,10 @@ impl std::fmt::Display for BuildError {
                 for (i, (name, b)) in parts.iter().enumerate() {
                     write!(f, "{}{name} {}", if i > 0 { ", " } else { "" }, Bytes(*b))?;
                 }
-                write!(f, "); raise --memory-budget, or use larger patches or a larger --ray-spacing")
+                write!(
+                    f,
+                    "); raise --memory-budget, or use larger patches (--patch-size, or the scene's [build] patch_size) or a larger --ray-spacing"
+                )
             }
         }
     }
@@ -339,7 +342,12 @@ fn prepare(scene: &Scene, settings: &BuildSettings, bound: Option<&MemoryBound>)
     if let Some(b) = bound {
         budget::refuse_many_primitives(b, &instances)?;
     }
-    let setup = setup::Setup::new(scene, settings, dirs, instances)?;
+    // And one whose patches it could not hold, before they are cut.
+    let refuse_cut = |prims: usize, cut: crate::patch::CutSize| match bound {
+        Some(b) => budget::refuse_many_patches(b, prims, cut),
+        None => Ok(()),
+    };
+    let setup = setup::Setup::new(scene, settings, dirs, instances, bound.map(|_| &refuse_cut as &dyn Fn(_, _) -> _))?;
     let setup_s = t0.elapsed().as_secs_f64();
     let bounds = settings.grid_bounds.unwrap_or_else(|| crate::geometry::bounds_of(&setup.prims));
     let lobes = reflectance::primitive_lobes(scene, &setup.prim_surface);

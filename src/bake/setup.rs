@@ -9,7 +9,7 @@ use super::settings::{BuildSettings, ray_space_divisions};
 use crate::archive::presence::FrameSpan;
 use crate::geodesic::{DirectionSet, DirectionSetKind};
 use crate::geometry::Primitive;
-use crate::patch::Patches;
+use crate::patch::{CutSize, Patches};
 use crate::scene::{ReflectanceModel, Scene};
 
 /// The direction set `settings` asks for: the geodesic set of its
@@ -48,12 +48,15 @@ pub(super) struct Setup {
 
 impl Setup {
     /// Cuts `instances` (of `scene`, checked) into patches as `settings`
-    /// say, with `dirs` kept for the stages after.
+    /// say, with `dirs` kept for the stages after; refused before cutting
+    /// when `refuse_cut` (under a budget) refuses the primitives' count
+    /// and what cutting them would make.
     pub(super) fn new(
         scene: &Scene,
         settings: &BuildSettings,
         dirs: DirectionSet,
         mut instances: Vec<Instance>,
+        refuse_cut: Option<&dyn Fn(usize, CutSize) -> Result<(), BuildError>>,
     ) -> Result<Self, BuildError> {
         let triangle_group = group_mesh_triangles(scene, settings, &mut instances);
         // Columns of exactly the primitives' count: a mesh of 10⁶ triangles
@@ -80,6 +83,11 @@ impl Setup {
             .enumerate()
             .flat_map(|(i, inst)| std::iter::repeat_n(i as u32, inst.primitives.len()))
             .collect();
+        // Under a budget, a cut it cannot hold is refused before it is made.
+        if let Some(refuse) = refuse_cut {
+            let (size, order) = (settings.patch_size, settings.cell_order);
+            refuse(prims.len(), crate::patch::cut_size(&prims, &prim_instance, &triangle_group, size, order)?)?;
+        }
         let patches = cut_patches(scene, settings, &prims, &prim_instance, &triangle_group)?;
         Ok(Self { dirs, instances, prims, prim_grain, prim_surface, active, sort_key, patches })
     }

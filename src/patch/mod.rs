@@ -11,6 +11,7 @@
 //! edge overlaps another's over a positive length; it never crosses a crease,
 //! where spreading light would be wrong.
 
+mod coplanar;
 pub mod mesh;
 pub mod order;
 
@@ -120,121 +121,6 @@ pub fn grid_for(p: &Primitive, size: f32, order: CellOrder) -> PatchGrid {
     }
 }
 
-/// Boundary edges of a primitive's cells: `(patch, start, end)`.
-fn boundary_edges(prim: &Primitive, pp: &PrimitivePatches) -> Vec<(u32, Vec3, Vec3)> {
-    let g = pp.grid;
-    let mut out = Vec::new();
-    let at = |local_vertex: u32| prim.point(g.vertex_uv(local_vertex));
-    for cell in 0..g.cell_count() {
-        let c = g.cell_corners(cell);
-        let n = if c[3] == NO_VERTEX { 3 } else { 4 };
-        for k in 0..n {
-            let (v0, v1) = (c[k], c[(k + 1) % n]);
-            let (a, b) = (g.vertex_uv(v0), g.vertex_uv(v1));
-            // An edge lies on the primitive's boundary when both ends do, on one side.
-            let on_u0 = a.x == 0.0 && b.x == 0.0;
-            let on_v0 = a.y == 0.0 && b.y == 0.0;
-            let on_far = match prim.kind {
-                PrimitiveKind::Quad => (a.x == 1.0 && b.x == 1.0) || (a.y == 1.0 && b.y == 1.0),
-                PrimitiveKind::Triangle => (a.x + a.y - 1.0).abs() < 1e-6 && (b.x + b.y - 1.0).abs() < 1e-6,
-            };
-            if on_u0 || on_v0 || on_far {
-                out.push((pp.first_patch + cell, at(v0), at(v1)));
-            }
-        }
-    }
-    out
-}
-
-/// Pairs of patches of different, coplanar primitives of one group whose
-/// boundary edges overlap over a positive length.
-///
-/// Candidates are found by sorting each group's primitives along the axis
-/// its bounding box is widest along and sweeping: only primitives whose
-/// extents along it touch are compared, so a building of 10⁵ primitives
-/// costs about as many comparisons as it has touching neighbours, where
-/// comparing every pair cost n²/2 (hours at 10⁶). (Many primitives that
-/// share the axis's extent, a wall of tiles seen edge-on, still meet.)
-fn coplanar_neighbours(prims: &[Primitive], group_of: &[u32], patches: &Patches) -> Vec<(u32, u32)> {
-    // Grouped triangles meet their neighbours through their mesh's edges.
-    let cand: Vec<u32> = (0..prims.len() as u32).filter(|&i| !patches.primitives[i as usize].grouped()).collect();
-    let bounds: Vec<(Vec3, Vec3)> = cand.iter().map(|&i| prims[i as usize].bounds()).collect();
-    let group = |c: usize| group_of[cand[c] as usize];
-    let size = |b: &(Vec3, Vec3)| (b.1 - b.0).length();
-    // The largest slack any pair's test below allows, for the sweep.
-    let slack = 1e-5 * bounds.iter().map(size).fold(0.0f32, f32::max);
-    // Per group, the axis its primitives spread along most.
-    let mut extent: std::collections::BTreeMap<u32, (Vec3, Vec3)> = std::collections::BTreeMap::new();
-    for (c, b) in bounds.iter().enumerate() {
-        let e = extent.entry(group(c)).or_insert(*b);
-        *e = (e.0.min(b.0), e.1.max(b.1));
-    }
-    let axis: std::collections::BTreeMap<u32, usize> =
-        extent.iter().map(|(&g, (lo, hi))| (g, (*hi - *lo).max_position())).collect();
-    // Each candidate's extent along its group's axis.
-    let span: Vec<(f32, f32)> = (0..cand.len())
-        .map(|c| {
-            let k = axis[&group(c)];
-            (bounds[c].0[k], bounds[c].1[k])
-        })
-        .collect();
-    let mut order: Vec<usize> = (0..cand.len()).collect();
-    order.sort_by(|&a, &b| group(a).cmp(&group(b)).then(span[a].0.total_cmp(&span[b].0)));
-    let mut pairs = Vec::new();
-    let mut active: Vec<usize> = Vec::new();
-    for &k in &order {
-        active.retain(|&j| group(j) == group(k) && span[j].1 + slack >= span[k].0);
-        for &m in &active {
-            let (a, b) = (k.min(m), k.max(m));
-            let (i, j) = (cand[a] as usize, cand[b] as usize);
-            touching(prims, (bounds[a], bounds[b]), patches, i, j, &mut pairs);
-        }
-        active.push(k);
-    }
-    pairs
-}
-
-/// Adds to `pairs` the patches of primitives `i` and `j` (of one group)
-/// whose boundary edges overlap, when the two are coplanar and touch.
-fn touching(
-    prims: &[Primitive],
-    (bound_i, bound_j): ((Vec3, Vec3), (Vec3, Vec3)),
-    patches: &Patches,
-    i: usize,
-    j: usize,
-    pairs: &mut Vec<(u32, u32)>,
-) {
-    let size = |b: &(Vec3, Vec3)| (b.1 - b.0).length();
-    let (pi, pj) = (&prims[i], &prims[j]);
-    let (ni, nj) = (pi.normal(), pj.normal());
-    let ((lo_i, hi_i), (lo_j, hi_j)) = (bound_i, bound_j);
-    let eps = 1e-5 * size(&bound_i).max(size(&bound_j));
-    if lo_i.cmpgt(hi_j + eps).any() || lo_j.cmpgt(hi_i + eps).any() {
-        return; // too far apart to touch
-    }
-    if ni.dot(nj) < 0.9999 || (pj.p[0] - pi.p[0]).dot(ni).abs() > eps {
-        return; // not coplanar
-    }
-    let ei = boundary_edges(pi, &patches.primitives[i]);
-    let ej = boundary_edges(pj, &patches.primitives[j]);
-    for &(a, a0, a1) in &ei {
-        let len = (a1 - a0).length();
-        let dir = (a1 - a0) / len;
-        for &(b, b0, b1) in &ej {
-            // Collinear: both ends of b on a's line.
-            let off = |p: Vec3| (p - a0) - dir * (p - a0).dot(dir);
-            if off(b0).length() > eps || off(b1).length() > eps {
-                continue;
-            }
-            let (s0, s1) = ((b0 - a0).dot(dir), (b1 - a0).dot(dir));
-            let overlap = s0.max(s1).min(len) - s0.min(s1).max(0.0);
-            if overlap > eps {
-                pairs.push((a, b));
-            }
-        }
-    }
-}
-
 /// Each primitive's grid at patch size `size` (quads' cells numbered in
 /// `order`; a grouped triangle, per `triangle_group`, is a single cell),
 /// refused when a primitive would have more than [`MAX_GRID`] cells along
@@ -261,11 +147,62 @@ fn checked_grids(
             g.n_u, g.n_v
         ));
     }
-    let total: u64 = grids.iter().enumerate().filter(|(i, _)| !grouped(*i)).map(|(_, g)| g.cell_count() as u64).sum();
+    // In u64: 2¹⁶ × 2¹⁶ cells overflow a u32.
+    let total: u64 = grids.iter().enumerate().filter(|(i, _)| !grouped(*i)).map(|(_, g)| cells_u64(g)).sum();
     if total > MAX_PATCHES {
         return Err(format!("patch size {size} m gives {total} patches, more than the {MAX_PATCHES} supported"));
     }
     Ok(grids)
+}
+
+/// A grid's cells, in u64 (its `cell_count` is a u32 product).
+fn cells_u64(g: &PatchGrid) -> u64 {
+    match g.kind {
+        PrimitiveKind::Quad => g.n_u as u64 * g.n_v as u64,
+        PrimitiveKind::Triangle => g.n_u as u64 * g.n_u as u64,
+    }
+}
+
+/// What cutting a scene's primitives makes, counted from their grids
+/// before any patch is made: a build refuses a cut its memory budget
+/// cannot hold before cutting it (issue 42 §4), where the cut itself had
+/// grown until the allocator aborted.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct CutSize {
+    /// Patches: every grid's cells and one per group of small triangles.
+    pub patches: u64,
+    /// Vertices: every grid's, and at most three per grouped triangle.
+    pub vertices: u64,
+}
+
+/// The patches and vertices [`Patches::with_groups`] would make of the
+/// same arguments (vertices at most), or its refusal of the grids; in
+/// time and memory linear in the primitives, whatever the patch size.
+pub fn cut_size(
+    primitives: &[Primitive],
+    group_of: &[u32],
+    triangle_group: &[u32],
+    size: f32,
+    order: CellOrder,
+) -> Result<CutSize, String> {
+    let grids = checked_grids(primitives, triangle_group, size, order)?;
+    let mut cut = CutSize { patches: 0, vertices: 0 };
+    for (pi, g) in grids.iter().enumerate() {
+        if triangle_group[pi] == UNGROUPED {
+            let n = g.n_u as u64 + 1;
+            cut.patches += cells_u64(g);
+            cut.vertices += match g.kind {
+                PrimitiveKind::Quad => n * (g.n_v as u64 + 1),
+                PrimitiveKind::Triangle => n * (n + 1) / 2,
+            };
+        } else {
+            // As push_grouped_triangle: a patch for each triangle that opens a group.
+            let joins = pi > 0 && triangle_group[pi - 1] == triangle_group[pi] && group_of[pi - 1] == group_of[pi];
+            cut.patches += u64::from(!joins);
+            cut.vertices += 3;
+        }
+    }
+    Ok(cut)
 }
 
 impl Patches {
@@ -438,7 +375,7 @@ impl Patches {
             }
         }
         lists.resize(self.len(), Vec::new());
-        for (a, b) in coplanar_neighbours(primitives, group_of, self) {
+        for (a, b) in coplanar::neighbours(primitives, group_of, self).0 {
             lists[a as usize].push(b);
             lists[b as usize].push(a);
         }
@@ -524,56 +461,5 @@ mod tests {
         assert!((s - 0.5).abs() < 1e-5);
         // Every interior quad patch has four neighbours, CSR is consistent.
         assert_eq!(*patches.adjacency_offsets.last().unwrap() as usize, patches.adjacency.len());
-    }
-
-    #[test]
-    fn the_sweep_finds_the_coplanar_neighbours_every_pair_finds() {
-        // Quads tiling two planes (one crossing the other) in three groups,
-        // one of them a wall seen edge-on from its sweep axis (x = 3),
-        // shuffled, with gaps: the sweep must find exactly the pairs that
-        // testing every pair of primitives finds.
-        let mut prims = Vec::new();
-        let mut group = Vec::new();
-        for i in 0..12u32 {
-            for k in 0..9u32 {
-                if (i * 7 + k * 3) % 5 == 0 {
-                    continue; // a gap
-                }
-                let (x, z) = (i as f32 * 0.5, k as f32 * 0.4);
-                let p0 = Vec3::new(x, 0.0, z);
-                prims.push(Primitive::quad([
-                    p0,
-                    p0 + Vec3::Z * 0.4,
-                    p0 + Vec3::new(0.5, 0.0, 0.4),
-                    p0 + Vec3::X * 0.5,
-                ]));
-                group.push((i + k) % 2);
-                let q0 = Vec3::new(x, k as f32 * 0.4, 1.0);
-                prims.push(Primitive::quad([
-                    q0,
-                    q0 + Vec3::X * 0.5,
-                    q0 + Vec3::new(0.5, 0.4, 0.0),
-                    q0 + Vec3::Y * 0.4,
-                ]));
-                group.push(2);
-            }
-        }
-        let order: Vec<usize> = (0..prims.len()).map(|i| (i * 37) % prims.len()).collect();
-        let (prims, group): (Vec<Primitive>, Vec<u32>) = order.iter().map(|&i| (prims[i], group[i])).unzip();
-        let patches = Patches::new(&prims, &group, 0.2, DEFAULT_CELL_ORDER).unwrap();
-        let bounds: Vec<_> = prims.iter().map(Primitive::bounds).collect();
-        let mut every = Vec::new();
-        for i in 0..prims.len() {
-            for j in i + 1..prims.len() {
-                if group[i] == group[j] {
-                    touching(&prims, (bounds[i], bounds[j]), &patches, i, j, &mut every);
-                }
-            }
-        }
-        let mut swept = coplanar_neighbours(&prims, &group, &patches);
-        swept.sort_unstable();
-        every.sort_unstable();
-        assert!(every.len() > 100, "{} pairs", every.len());
-        assert_eq!(swept, every);
     }
 }
