@@ -4,6 +4,7 @@
 //! their boundary cells share an edge over a positive length.
 
 use glam::Vec3;
+use rayon::prelude::*;
 
 use super::{Patches, PrimitivePatches};
 use crate::geometry::grid::NO_VERTEX;
@@ -122,25 +123,55 @@ pub(super) fn neighbours(prims: &[Primitive], group_of: &[u32], patches: &Patche
     for run in cand.chunk_by(|&a, &b| group_of[a as usize] == group_of[b as usize]) {
         let bounds: Vec<(Vec3, Vec3)> = run.iter().map(|&i| prims[i as usize].bounds()).collect();
         let tree = BoxTree::new(&bounds);
-        for (a, &i) in run.iter().enumerate() {
-            tree.overlapping(&bounds, bounds[a], slack, |b| {
-                // Each pair once, the lower primitive first (`touching`
-                // is not symmetric in floating point).
-                let j = run[b];
-                if j > i {
-                    compared += 1;
-                    touching(prims, (bounds[a], bounds[b]), patches, i as usize, j as usize, &mut pairs);
+        // In parallel over pieces of the group, each piece's pairs in
+        // primitive order and the pieces in theirs: the same list as one
+        // thread's.
+        let pieces: Vec<(Vec<(u32, u32)>, u64)> = (0..run.len())
+            .collect::<Vec<usize>>()
+            .par_chunks(1024)
+            .map(|piece| {
+                let (mut found, mut n) = (Vec::new(), 0u64);
+                let (mut ei, mut ej, mut sorted) = (Vec::new(), Vec::new(), Vec::new());
+                for &a in piece {
+                    let i = run[a];
+                    // i's boundary edges, made once for all its pairs.
+                    let mut made = false;
+                    tree.overlapping(&bounds, bounds[a], slack, |b| {
+                        // Each pair once, the lower primitive first
+                        // (`touching` is not symmetric in floating point).
+                        let j = run[b];
+                        if j > i {
+                            n += 1;
+                            let edges = Edges { i: &mut ei, j: &mut ej, sorted: &mut sorted, i_made: &mut made };
+                            touching(prims, (bounds[a], bounds[b]), patches, i as usize, j as usize, edges, &mut found);
+                        }
+                    });
                 }
-            });
+                (found, n)
+            })
+            .collect();
+        for (found, n) in pieces {
+            pairs.extend(found);
+            compared += n;
         }
     }
     (pairs, compared)
 }
 
-/// Boundary edges of a primitive's cells: `(patch, start, end)`.
-fn boundary_edges(prim: &Primitive, pp: &PrimitivePatches) -> Vec<(u32, Vec3, Vec3)> {
+/// Buffers `touching` reuses across the pairs of a group: the boundary
+/// edges of the pair's two primitives (the first's made once for all its
+/// pairs), and the second's sorted along the pair's widest axis.
+struct Edges<'a> {
+    i: &'a mut Vec<(u32, Vec3, Vec3)>,
+    j: &'a mut Vec<(u32, Vec3, Vec3)>,
+    sorted: &'a mut Vec<(f32, f32, usize)>,
+    i_made: &'a mut bool,
+}
+
+/// Boundary edges of a primitive's cells, `(patch, start, end)`, into `out`.
+fn boundary_edges(prim: &Primitive, pp: &PrimitivePatches, out: &mut Vec<(u32, Vec3, Vec3)>) {
     let g = pp.grid;
-    let mut out = Vec::new();
+    out.clear();
     let at = |local_vertex: u32| prim.point(g.vertex_uv(local_vertex));
     for cell in 0..g.cell_count() {
         let c = g.cell_corners(cell);
@@ -160,7 +191,6 @@ fn boundary_edges(prim: &Primitive, pp: &PrimitivePatches) -> Vec<(u32, Vec3, Ve
             }
         }
     }
-    out
 }
 
 /// Adds to `pairs` the patches of primitives `i` and `j` (of one group)
@@ -171,6 +201,7 @@ fn touching(
     patches: &Patches,
     i: usize,
     j: usize,
+    edges: Edges<'_>,
     pairs: &mut Vec<(u32, u32)>,
 ) {
     let size = |b: &(Vec3, Vec3)| (b.1 - b.0).length();
@@ -184,8 +215,11 @@ fn touching(
     if ni.dot(nj) < 0.9999 || (pj.p[0] - pi.p[0]).dot(ni).abs() > eps {
         return; // not coplanar
     }
-    let ei = boundary_edges(pi, &patches.primitives[i]);
-    let ej = boundary_edges(pj, &patches.primitives[j]);
+    if !std::mem::replace(edges.i_made, true) {
+        boundary_edges(pi, &patches.primitives[i], edges.i);
+    }
+    boundary_edges(pj, &patches.primitives[j], edges.j);
+    let (ei, ej) = (&*edges.i, &*edges.j);
     // Edges that overlap over more than `eps` come within `eps` of each
     // other (the test's rounding, relative to the primitives' size, is
     // far below it): only those whose extents along the pair's widest
@@ -199,11 +233,12 @@ fn touching(
         let (s, t) = (p0[k] - o[k], p1[k] - o[k]);
         (s.min(t), s.max(t))
     };
-    let mut sorted: Vec<(f32, f32, usize)> =
-        ej.iter().enumerate().map(|(x, &(_, b0, b1))| (extent(b0, b1).0, extent(b0, b1).1, x)).collect();
+    let sorted = edges.sorted;
+    sorted.clear();
+    sorted.extend(ej.iter().enumerate().map(|(x, &(_, b0, b1))| (extent(b0, b1).0, extent(b0, b1).1, x)));
     sorted.sort_unstable_by(|x, y| x.0.total_cmp(&y.0).then(x.2.cmp(&y.2)));
     let longest = sorted.iter().map(|e| e.1 - e.0).fold(0.0f32, f32::max);
-    for &(a, a0, a1) in &ei {
+    for &(a, a0, a1) in ei {
         let len = (a1 - a0).length();
         let dir = (a1 - a0) / len;
         let (a_lo, a_hi) = extent(a0, a1);
@@ -269,7 +304,9 @@ mod tests {
         for i in 0..prims.len() {
             for j in i + 1..prims.len() {
                 if group[i] == group[j] {
-                    touching(&prims, (bounds[i], bounds[j]), &patches, i, j, &mut every);
+                    let (mut ei, mut ej, mut sorted, mut made) = (Vec::new(), Vec::new(), Vec::new(), false);
+                    let edges = Edges { i: &mut ei, j: &mut ej, sorted: &mut sorted, i_made: &mut made };
+                    touching(&prims, (bounds[i], bounds[j]), &patches, i, j, edges, &mut every);
                 }
             }
         }
@@ -278,6 +315,12 @@ mod tests {
         every.sort_unstable();
         assert!(every.len() > 100, "{} pairs", every.len());
         assert_eq!(swept, every);
+    }
+
+    fn edges_of(prim: &Primitive, pp: &PrimitivePatches) -> Vec<(u32, Vec3, Vec3)> {
+        let mut out = Vec::new();
+        boundary_edges(prim, pp, &mut out);
+        out
     }
 
     /// Every pair of primitives of one group compared, every pair of
@@ -297,10 +340,10 @@ mod tests {
                 if group[i] != group[j] || grouped || !coplanar {
                     continue;
                 }
-                for &(a, a0, a1) in &boundary_edges(pi, &patches.primitives[i]) {
+                for &(a, a0, a1) in &edges_of(pi, &patches.primitives[i]) {
                     let len = (a1 - a0).length();
                     let dir = (a1 - a0) / len;
-                    for &(b, b0, b1) in &boundary_edges(pj, &patches.primitives[j]) {
+                    for &(b, b0, b1) in &edges_of(pj, &patches.primitives[j]) {
                         let off = |p: Vec3| (p - a0) - dir * (p - a0).dot(dir);
                         let (s0, s1) = ((b0 - a0).dot(dir), (b1 - a0).dot(dir));
                         let overlap = s0.max(s1).min(len) - s0.min(s1).max(0.0);
