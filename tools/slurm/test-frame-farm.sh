@@ -1,11 +1,13 @@
 #!/usr/bin/env bash
-# A frame farm on a real single-node Slurm (tools/slurm/local-cluster.sh):
-# the fan room is built once, its 60 frames are rendered by a throttled job
-# array (4 tasks, each taking its share with `--frames auto/4 --skip-done`,
-# at most 2 at once), a job that depends on the array (afterok) gates on
-# `illumnet frames check` (every frame complete, from this archive, with the
-# same settings), and each frame must equal, byte for byte, the same frame
-# of one local `--frames 0..60 --cold` render
+# A whole job on a real single-node Slurm (tools/slurm/local-cluster.sh),
+# submitted by tools/slurm/submit.sh: the fan room built as a job array of
+# 3 shards, merged by a job that depends on them (afterok), its 60 frames
+# rendered by a throttled job array (4 tasks, each taking its share with
+# `--frames auto/4 --skip-done`, at most 2 at once) after the merge, and a
+# job after the array gating on `illumnet frames check` (every frame
+# complete, from this archive, with the same settings). The merged archive
+# must equal, byte for byte, a local one-machine build, and each frame the
+# same frame of one local `--frames 0..60 --cold` render
 # (docs/CLUSTER.md: a --cold frame does not depend on the range it is in).
 # Then no daemon of the cluster may be left, nor anything on its ports.
 #
@@ -23,7 +25,8 @@ cd "$root"
 prog=test-frame-farm.sh
 
 frames=60 # the fan room's whole sequence
-tasks=4   # array tasks 0-3
+tasks=4   # render array tasks 0-3
+shards=3  # build array tasks 0-2
 throttle=2
 size=64x64
 
@@ -43,56 +46,23 @@ job_field() { # job field
 }
 
 in_cluster() { # work
-    local work=$1 t arr check state reason deadline f i
+    local work=$1 t build merge arr check state reason deadline f i
     [[ -n ${SLURM_CONF:-} ]] || die "SLURM_CONF is not set: run through local-cluster.sh run"
     cat "$LOCAL_SLURM_RUN_DIR"/{munged,slurmctld,slurmd}.pid >"$work/daemon-pids"
     sed -n 's/^Slurm\(ctld\|d\)Port=//p' "$SLURM_CONF" >"$work/daemon-ports"
     sinfo
 
+    # The whole pipeline through the submit script: the build as a job
+    # array of shards, the merge after it, the frames as a throttled array
+    # after the merge, the check after the frames.
     t=$(now)
-    "$ILLUMNET" build scenes/fan_room.toml --quality draft -o "$work/fan.inet" >"$work/build.log" 2>&1 ||
-        die "the build failed: $work/build.log"
-    say "built the fan room in $(since "$t") s"
-
-    mkdir -p "$work/out" "$work/logs" "$work/timeline"
-    # One array task: its share of the frames, with its start and end times
-    # for the check job (the dependency) and the overlap (the throttle).
-    cat >"$work/farm-task.sh" <<EOF
-#!/bin/bash
-set -euo pipefail
-echo "start \$EPOCHREALTIME" >"$work/timeline/task_\$SLURM_ARRAY_TASK_ID"
-echo "task \$SLURM_ARRAY_TASK_ID of job \$SLURM_ARRAY_JOB_ID on \$SLURMD_NODENAME: its share of $frames frames (--frames auto/$tasks)"
-"$ILLUMNET" render "$work/fan.inet" --frames auto/$tasks --skip-done --cold --size $size --threads 1 -q \\
-    -o "$work/out/frame_%04d.png"
-echo "end \$EPOCHREALTIME" >>"$work/timeline/task_\$SLURM_ARRAY_TASK_ID"
-EOF
-    # The dependent job: every frame exists, and every task ended before it
-    # started.
-    cat >"$work/farm-check.sh" <<EOF
-#!/bin/bash
-set -euo pipefail
-started=\$EPOCHREALTIME
-# The gate a real pipeline would use: every frame complete and made from
-# this archive with the same settings (exit 8 otherwise).
-"$ILLUMNET" frames check "$work/fan.inet" -o "$work/out/frame_%04d.png"
-for ((i = 0; i < $tasks; i++)); do
-    end=\$(sed -n 's/^end //p' "$work/timeline/task_\$i")
-    [[ -n \$end ]] || { echo "task \$i has no end time"; exit 1; }
-    awk -v e="\$end" -v s="\$started" 'BEGIN { exit !(e <= s) }' ||
-        { echo "task \$i ended at \$end, after this job started at \$started"; exit 1; }
-done
-echo "all $tasks tasks ended before this job started"
-EOF
-    chmod +x "$work/farm-task.sh" "$work/farm-check.sh"
-
-    t=$(now)
-    arr=$(sbatch --parsable --job-name=fan-farm --array=0-$((tasks - 1))%$throttle --cpus-per-task=1 \
-        --chdir="$work" --output="$work/logs/farm_%A_%a.out" "$work/farm-task.sh")
-    arr=${arr%%;*}
-    check=$(sbatch --parsable --job-name=fan-check --dependency=afterok:"$arr" --kill-on-invalid-dep=yes \
-        --chdir="$work" --output="$work/logs/check_%j.out" "$work/farm-check.sh")
-    check=${check%%;*}
-    say "submitted array job $arr (tasks 0-$((tasks - 1)), at most $throttle at once) and check job $check (afterok:$arr)"
+    local jobs
+    jobs=$(bash "$here/submit.sh" scenes/fan_room.toml "$work" --illumnet "$ILLUMNET" --shards $shards \
+        --tasks $tasks --throttle $throttle --build-args "--quality draft" \
+        --render-args "--cold --size $size --threads 1" | tee "$work/submit.log" | sed -n 's/^jobs: //p')
+    read -r build merge arr check <<<"$jobs"
+    [[ -n ${check:-} ]] || die "submit.sh printed no job ids: $(cat "$work/submit.log")"
+    say "submitted build array $build ($shards shards), merge $merge, render array $arr, check $check"
     [[ $(job_field "$arr" ArrayTaskThrottle | head -n 1) == "$throttle" ]] ||
         die "scontrol does not show ArrayTaskThrottle=$throttle for job $arr"
     squeue
@@ -119,7 +89,11 @@ EOF
     done
     farm_s=$(since "$t")
     cat "$work"/logs/check_*.out
-    # Every array task completed with exit code 0.
+    # Every shard and the merge completed, and every render task, with exit code 0.
+    scontrol show job -o "$build" | grep -o 'JobState=[^ ]*\|ExitCode=[^ ]*' | paste -d ' ' - - >"$work/build-states"
+    [[ $(grep -c 'JobState=COMPLETED ExitCode=0:0' "$work/build-states") == "$shards" ]] ||
+        die "not every build shard completed with exit code 0 (see $work/build-states, $work/logs)"
+    [[ $(job_field "$merge" JobState) == COMPLETED ]] || die "the merge job $merge did not complete"
     scontrol show job -o "$arr" | grep -o 'ArrayTaskId=[^ ]*\|JobState=[^ ]*\|ExitCode=[^ ]*' |
         paste -d ' ' - - - >"$work/array-states"
     cat "$work/array-states"
@@ -127,7 +101,7 @@ EOF
         die "not every array task completed with exit code 0 (see $work/array-states)"
     # The throttle: never more than $throttle tasks at once.
     local overlap
-    overlap=$(for f in "$work"/timeline/task_*; do
+    overlap=$(for f in "$work"/timeline/render_*; do
         awk '{ print $2, ($1 == "start" ? 1 : -1) }' "$f"
     done | sort -n -k1,1 -k2,2n | awk '{ n += $2; if (n > m) m = n } END { print m }')
     say "farm: $tasks tasks and the check job done in $farm_s s after submission; at most $overlap tasks ran at once"
@@ -177,17 +151,24 @@ outside() {
     ((left == 0)) || die "the cluster left processes or ports behind"
     say "no daemon left (pids ${pids[*]}), nothing listens on ports ${ports[*]}"
 
+    # The merged archive is the one-machine build's, byte for byte.
+    "$ILLUMNET" build scenes/fan_room.toml --quality draft -q -o "$work/local.inet" >"$work/local-build.log" 2>&1 ||
+        die "the local build failed: $work/local-build.log"
+    cmp -s "$work/scene.inet" "$work/local.inet" ||
+        die "the archive merged from $shards shards on Slurm differs from the local build"
+    say "the archive merged from $shards shards is byte-identical to the local build"
+
     t=$(now)
     mkdir -p "$work/ref"
-    "$ILLUMNET" render "$work/fan.inet" --frames 0..$frames --cold --size $size -q \
+    "$ILLUMNET" render "$work/scene.inet" --frames 0..$frames --cold --size $size -q \
         -o "$work/ref/frame_%04d.png" >"$work/ref.log" 2>&1 || die "the local render failed: $work/ref.log"
     say "rendered frames 0..$frames locally, in one run, in $(since "$t") s"
     for ((i = 0; i < frames; i++)); do
         f=$(printf 'frame_%04d.png' "$i")
-        if [[ ! -s $work/out/$f ]]; then
+        if [[ ! -s $work/frames/$f ]]; then
             say "$f: missing from the farm"
             mismatched=$((mismatched + 1))
-        elif ! cmp -s "$work/out/$f" "$work/ref/$f"; then
+        elif ! cmp -s "$work/frames/$f" "$work/ref/$f"; then
             say "$f: the farm's differs from the local render"
             mismatched=$((mismatched + 1))
         fi
@@ -196,7 +177,7 @@ outside() {
     local distinct
     distinct=$(md5sum "$work"/ref/frame_*.png | awk '{ print $1 }' | sort -u | wc -l)
     ((distinct > 1)) || die "all $frames reference frames are the same image"
-    echo "frame farm on Slurm: $((frames - mismatched))/$frames frames identical to the local render ($distinct distinct images);" \
+    echo "sharded build + frame farm on Slurm: archive from $shards shards identical; $((frames - mismatched))/$frames frames identical to the local render ($distinct distinct images);" \
         "farm $(cat "$work/farm-seconds") s, whole run $(since "$t0") s"
     ((mismatched == 0)) || die "$mismatched of $frames frames differ: work directory $work kept"
     if [[ -n ${FARM_KEEP:-} || -n ${FARM_DIR:-} ]]; then
