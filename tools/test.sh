@@ -11,7 +11,8 @@
 #      mdbook is installed (`cargo install mdbook --locked`; .ci/run does;
 #      skipped with a note otherwise). Its links, the README's tour and the
 #      command-line reference are checked by tests/docs.rs in step 1;
-#   4. a frame farm on a real single-node Slurm (tools/slurm/: Debian's
+#   4. a sharded build, its merge and a frame farm on a real single-node
+#      Slurm through tools/slurm/submit.sh (tools/slurm/: Debian's
 #      slurm-wlm and munge, installed by the script, daemons on loopback,
 #      stopped by their PIDs), when run as root (apt and the munge user need
 #      it; skipped with a note otherwise; ILLUMNET_SKIP_SLURM=1 skips it);
