@@ -6,6 +6,8 @@
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
+use illumnet::bake::shard::manifest::Manifest;
+
 fn illumnet(args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_illumnet")).args(args).output().unwrap()
 }
@@ -123,6 +125,15 @@ fn damaged_missing_doubled_and_foreign_shards_are_refused_naming_the_shard() {
     let text = std::fs::read_to_string(&m).unwrap().replacen("\"shard\": 2", "\"shard\": 1", 1);
     std::fs::write(&m, text).unwrap();
     refused(merge(&[&d], &out), &["shard-0002-of-0003.manifest", "damaged"]);
+
+    // A manifest forged with a valid checksum: shard 2's run claimed for
+    // pair 0, another shard's pairs.
+    let d = copy_of(&good, &tmp.path().join("forged"));
+    let m = d.join("shard-0002-of-0003.manifest");
+    let mut forged = Manifest::from_text(&std::fs::read_to_string(&m).unwrap()).unwrap();
+    forged.runs[0].first_pair = 0;
+    std::fs::write(&m, forged.to_text()).unwrap();
+    refused(merge(&[&d], &out), &["shard 2/3", "outside the shard's pairs"]);
 
     // A missing shard (a gap), and a shard given twice.
     let d = copy_of(&good, &tmp.path().join("gap"));

@@ -393,20 +393,28 @@ pub fn merge_shards(
         let mut file = std::fs::File::open(&counts_path).map_err(|e| here(e.to_string()))?;
         let mut reader = std::io::BufReader::new(&mut file);
         let c = ShardCounts::read(&mut reader, m.counts.bytes, patches, nd, prepared.frames as u64).map_err(here)?;
+        // Sums that cannot wrap: what no build makes is refused below (the
+        // ends against the runs, H_p against 2³²) or by the archive's check.
         for p in 0..patches {
-            hits[p] += c.hits[p] as u64;
+            hits[p] = hits[p].saturating_add(c.hits[p] as u64);
             sum.backs[p] = sum.backs[p].saturating_add(c.backs[p]);
-            sum.ends[p] += c.ends[p];
+            sum.ends[p] = sum.ends[p].saturating_add(c.ends[p]);
         }
         for i in 0..nd {
-            nd_hits[i] += c.nd_hits[i];
-            nd_backs[i] += c.nd_backs[i];
+            nd_hits[i] = nd_hits[i].saturating_add(c.nd_hits[i]);
+            nd_backs[i] = nd_backs[i].saturating_add(c.nd_backs[i]);
         }
         for t in 0..3 {
-            sum.totals[t] += c.totals[t];
+            sum.totals[t] = sum.totals[t].saturating_add(c.totals[t]);
         }
         sum.parts.extend(c.parts);
+        // A run's links are of the shard's own pairs.
+        let per_chunk = trace::chunking(pairs as u32).0 as u64;
+        let own = m.chunk_range[0] as u64 * per_chunk..m.chunk_range[1] as u64 * per_chunk;
         for r in &m.runs {
+            if !own.contains(&(r.first_pair as u64)) {
+                return Err(here(format!("a run starts at pair {}, outside the shard's pairs {own:?}", r.first_pair)));
+            }
             let path = manifest::check_file(dir, &r.file).map_err(here)?;
             if r.file.bytes != (r.ends + r.slots) * 12 {
                 return Err(here(format!("{}: its length does not hold its records", path.display())));
@@ -418,7 +426,7 @@ pub fn merge_shards(
     progress.finish();
     // The shards' tracing, summed: what the summary's rate is over.
     let trace_s = shards.iter().map(|s| s.manifest.trace_seconds).sum();
-    let ends_total: u64 = sum.ends.iter().sum();
+    let ends_total = sum.ends.iter().fold(0u64, |a, &e| a.saturating_add(e));
     if ends_total != runs.iter().map(|r| r.ends).sum::<u64>() {
         return Err(shards_err("the shards' link-end counts do not match their runs".into()));
     }
