@@ -135,6 +135,14 @@ fn damaged_missing_doubled_and_foreign_shards_are_refused_naming_the_shard() {
     std::fs::write(&m, forged.to_text()).unwrap();
     refused(merge(&[&d], &out), &["shard 2/3", "outside the shard's pairs"]);
 
+    // A stale shard: traced by another version of the program.
+    let d = copy_of(&good, &tmp.path().join("stale"));
+    let m = d.join("shard-0001-of-0003.manifest");
+    let mut stale = Manifest::from_text(&std::fs::read_to_string(&m).unwrap()).unwrap();
+    stale.binary_version = "0.0.1".into();
+    std::fs::write(&m, stale.to_text()).unwrap();
+    refused(merge(&[&d], &out), &["shard 1/3", "traced by illumnet 0.0.1"]);
+
     // A missing shard (a gap), and a shard given twice.
     let d = copy_of(&good, &tmp.path().join("gap"));
     std::fs::remove_file(d.join("shard-0001-of-0003.manifest")).unwrap();

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # A whole job on a real single-node Slurm (tools/slurm/local-cluster.sh),
 # submitted by tools/slurm/submit.sh: the fan room built as a job array of
-# 3 shards, merged by a job that depends on them (afterok), its 60 frames
+# 4 shards, merged by a job that depends on them (afterok), its 60 frames
 # rendered by a throttled job array (4 tasks, each taking its share with
 # `--frames auto/4 --skip-done`, at most 2 at once) after the merge, and a
 # job after the array gating on `illumnet frames check` (every frame
@@ -26,7 +26,7 @@ prog=test-frame-farm.sh
 
 frames=60 # the fan room's whole sequence
 tasks=4   # render array tasks 0-3
-shards=3  # build array tasks 0-2
+shards=4  # build array tasks 0-3
 throttle=2
 size=64x64
 

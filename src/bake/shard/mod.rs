@@ -383,6 +383,13 @@ pub fn merge_shards(
         let m = &s.manifest;
         let dir = s.path.parent().unwrap_or(Path::new("."));
         let here = |e: String| shards_err(format!("shard {}/{} ({}): {e}", m.shard, m.shards, s.path.display()));
+        if m.binary_version != env!("CARGO_PKG_VERSION") {
+            return Err(here(format!(
+                "traced by illumnet {}, and this is {}: merge with the version that traced the shards, or trace them again",
+                m.binary_version,
+                env!("CARGO_PKG_VERSION")
+            )));
+        }
         if m.fingerprint != fp {
             return Err(here(format!(
                 "built from another scene or settings (fingerprint {}, where the scene read now gives {fp}): the scene, a file it names, or the build options changed",
