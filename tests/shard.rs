@@ -134,6 +134,12 @@ fn damaged_missing_doubled_and_foreign_shards_are_refused_naming_the_shard() {
     forged.runs[0].first_pair = 0;
     std::fs::write(&m, forged.to_text()).unwrap();
     refused(merge(&[&d], &out), &["shard 2/3", "outside the shard's pairs"]);
+    let mut forged =
+        Manifest::from_text(&std::fs::read_to_string(d.join("shard-0001-of-0003.manifest")).unwrap()).unwrap();
+    forged.runs[0].ends = u64::MAX;
+    std::fs::write(d.join("shard-0001-of-0003.manifest"), forged.to_text()).unwrap();
+    std::fs::copy(good.join("shard-0002-of-0003.manifest"), d.join("shard-0002-of-0003.manifest")).unwrap();
+    refused(merge(&[&d], &out), &["shard 1/3", "does not hold its records"]);
 
     // A stale shard: traced by another version of the program.
     let d = copy_of(&good, &tmp.path().join("stale"));

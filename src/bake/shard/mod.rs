@@ -423,7 +423,7 @@ pub fn merge_shards(
                 return Err(here(format!("a run starts at pair {}, outside the shard's pairs {own:?}", r.first_pair)));
             }
             let path = manifest::check_file(dir, &r.file).map_err(here)?;
-            if r.file.bytes != (r.ends + r.slots) * 12 {
+            if r.ends.checked_add(r.slots).and_then(|n| n.checked_mul(12)) != Some(r.file.bytes) {
                 return Err(here(format!("{}: its length does not hold its records", path.display())));
             }
             runs.push(Run { first: (r.first_pair, r.first_link), path, ends: r.ends, slots: r.slots });
