@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
-# A whole job on a real single-node Slurm (tools/slurm/local-cluster.sh),
-# submitted by tools/slurm/submit.sh: the fan room built as a job array of
+# Whole jobs on a real single-node Slurm (tools/slurm/local-cluster.sh),
+# submitted by tools/slurm/submit.sh: the Cornell box (4 shards, merge, its
+# frame, identical to one machine's) and the fan room built as a job array of
 # 4 shards, merged by a job that depends on them (afterok), its 60 frames
 # rendered by a throttled job array (4 tasks, each taking its share with
 # `--frames auto/4 --skip-done`, at most 2 at once) after the merge, and a
@@ -52,6 +53,15 @@ in_cluster() { # work
     sed -n 's/^Slurm\(ctld\|d\)Port=//p' "$SLURM_CONF" >"$work/daemon-ports"
     sinfo
 
+    # The Cornell box (a still) through the same pipeline, beside it: 4
+    # shards, the merge, its one frame, the check.
+    local cornell c_check
+    cornell=$(bash "$here/submit.sh" scenes/cornell_box.toml "$work/cornell" --illumnet "$ILLUMNET" --shards 4 \
+        --tasks 1 --throttle 1 --build-args "--quality draft" --render-args "--size $size --threads 1" |
+        tee "$work/submit-cornell.log" | sed -n 's/^jobs: //p')
+    c_check=${cornell##* }
+    [[ -n $c_check ]] || die "submit.sh printed no job ids for the Cornell box: $(cat "$work/submit-cornell.log")"
+
     # The whole pipeline through the submit script: the build as a job
     # array of shards, the merge after it, the frames as a throttled array
     # after the merge, the check after the frames.
@@ -88,6 +98,17 @@ in_cluster() { # work
         sleep 0.5
     done
     farm_s=$(since "$t")
+    deadline=$((SECONDS + ${FARM_TIMEOUT:-300}))
+    while [[ $(job_field "$c_check" JobState) != COMPLETED ]]; do
+        state=$(job_field "$c_check" JobState)
+        case $state in
+        PENDING | CONFIGURING | RUNNING | COMPLETING) ;;
+        *) die "the Cornell box's check job $c_check ended $state: logs in $work/cornell/logs" ;;
+        esac
+        ((SECONDS < deadline)) || die "the Cornell box's jobs did not finish in time (check job $c_check is $state)"
+        sleep 0.5
+    done
+    say "the Cornell box's 4 shards, merge, frame and check done"
     cat "$work"/logs/check_*.out
     # Every shard and the merge completed, and every render task, with exit code 0.
     scontrol show job -o "$build" | grep -o 'JobState=[^ ]*\|ExitCode=[^ ]*' | paste -d ' ' - - >"$work/build-states"
@@ -150,6 +171,18 @@ outside() {
     [[ -s $work/daemon-pids ]] || die "no daemon PIDs were recorded"
     ((left == 0)) || die "the cluster left processes or ports behind"
     say "no daemon left (pids ${pids[*]}), nothing listens on ports ${ports[*]}"
+
+    # The Cornell box's merged archive and frame are one machine's.
+    "$ILLUMNET" build scenes/cornell_box.toml --quality draft -q -o "$work/cornell-local.inet" >/dev/null 2>&1 ||
+        die "the local Cornell box build failed"
+    cmp -s "$work/cornell/scene.inet" "$work/cornell-local.inet" ||
+        die "the Cornell box's archive merged from 4 shards on Slurm differs from the local build"
+    mkdir -p "$work/cornell-ref"
+    "$ILLUMNET" render "$work/cornell/scene.inet" --frames 0..1 --size $size -q \
+        -o "$work/cornell-ref/frame_%04d.png" >/dev/null 2>&1 || die "the local Cornell box render failed"
+    cmp -s "$work/cornell/frames/frame_0000.png" "$work/cornell-ref/frame_0000.png" ||
+        die "the Cornell box's frame from Slurm differs from the local render"
+    say "the Cornell box: archive from 4 shards and its frame identical to one machine's"
 
     # The merged archive is the one-machine build's, byte for byte.
     "$ILLUMNET" build scenes/fan_room.toml --quality draft -q -o "$work/local.inet" >"$work/local-build.log" 2>&1 ||
