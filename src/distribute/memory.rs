@@ -50,9 +50,13 @@ pub fn state_bytes(s: &StateShape) -> u64 {
     // sequence's running totals.
     let carry = if s.sequence { 24 + 24 * nb } else { 0 };
     let iteration = p * (7 * 16 + 12 + 16 * nb + 32 * depth + 16 + carry);
-    // A solution: radiance, received, first bounce (12 each), residual (4), its copy of
-    // the secant pairs, and the carried totals plus emitted power.
-    let solution = p * (40 + 32 * depth + if s.sequence { carry + 16 } else { 0 });
+    // A solution: radiance, received, first bounce (12 each), residual (4),
+    // and the carried totals plus emitted power. Its secant pairs are the
+    // iteration's, moved into it (`step.rs`), so they are counted once
+    // above; a sequence keeps the previous frame's besides (its solution's,
+    // cloned into the next iteration as the warm start's).
+    let solution = p * (40 + if s.sequence { carry + 16 } else { 0 });
+    let previous_pairs = if s.sequence { p * 32 * depth } else { 0 };
     // A frame's overlay (records, and the ends sorted per patch and
     // bucket), twice: the frame's and the one the warm start carries.
     let records = s.max_delta_records;
@@ -71,7 +75,7 @@ pub fn state_bytes(s: &StateShape) -> u64 {
     // A sequence keeps the previous frame's solution while it solves the
     // next (warm starts); a still has one frame, one solution.
     let solutions = if s.sequence { 2 } else { 1 };
-    distributor + setup + iteration + solutions * solution + overlay + glossy
+    distributor + setup + iteration + solutions * solution + previous_pairs + overlay + glossy
 }
 
 #[cfg(test)]
