@@ -11,12 +11,19 @@
 #      mdbook is installed (`cargo install mdbook --locked`; .ci/run does;
 #      skipped with a note otherwise). Its links, the README's tour and the
 #      command-line reference are checked by tests/docs.rs in step 1;
-#   4. a sharded build, its merge and a frame farm on a real single-node
-#      Slurm through tools/slurm/submit.sh (tools/slurm/: Debian's
-#      slurm-wlm and munge, installed by the script, daemons on loopback,
-#      stopped by their PIDs), when run as root (apt and the munge user need
-#      it; skipped with a note otherwise; ILLUMNET_SKIP_SLURM=1 skips it);
-#   5. a short smoke run of each fuzz target, when cargo-fuzz is installed
+#   4. `render --mpi` on Open MPI (tools/mpi/test.sh: 1, 2 and 4 ranks give
+#      one process's images, a killed rank fails the job): Debian's Open MPI
+#      installed by tools/mpi/install.sh, the binary rebuilt with
+#      `--features mpi` (in the test profile, over the plain one), when run
+#      as root or with Open MPI installed (skipped with a note otherwise;
+#      ILLUMNET_SKIP_MPI=1 skips it);
+#   5. a sharded build, its merge, a 2-rank MPI render (when step 4 ran)
+#      and a frame farm on a real single-node Slurm through
+#      tools/slurm/submit.sh (tools/slurm/: Debian's slurm-wlm and munge,
+#      installed by the script, daemons on loopback, stopped by their PIDs),
+#      when run as root (apt and the munge user need it; skipped with a note
+#      otherwise; ILLUMNET_SKIP_SLURM=1 skips it);
+#   6. a short smoke run of each fuzz target, when cargo-fuzz is installed
 #      (tools/fuzz; skipped with a note otherwise).
 # Each step prints how long it took (CI must stay under 30 minutes).
 set -euo pipefail
@@ -38,10 +45,22 @@ if command -v mdbook >/dev/null 2>&1; then
 else
     echo "tools/test.sh: mdbook not installed: guide build skipped (cargo install mdbook --locked)"
 fi
+bin="${CARGO_TARGET_DIR:-target}/debug/illumnet"
+mpi_ranks=0
+if [[ ${ILLUMNET_SKIP_MPI:-} == 1 ]]; then
+    echo "tools/test.sh: ILLUMNET_SKIP_MPI=1: MPI tests skipped"
+elif [[ $EUID -eq 0 ]] || bash tools/mpi/install.sh >/dev/null 2>&1; then
+    step "mpi: install" bash tools/mpi/install.sh
+    step "mpi: build (--features mpi)" cargo build --quiet --profile test --features mpi --bin illumnet
+    step "mpi: 1, 2 and 4 ranks, a killed rank" env ILLUMNET="$bin" bash tools/mpi/test.sh
+    mpi_ranks=2
+else
+    echo "tools/test.sh: not root and Open MPI not installed: MPI tests skipped (tools/mpi/install.sh)"
+fi
 if [[ ${ILLUMNET_SKIP_SLURM:-} == 1 ]]; then
     echo "tools/test.sh: ILLUMNET_SKIP_SLURM=1: Slurm frame farm skipped"
 elif [[ $EUID -eq 0 ]]; then
-    step "slurm frame farm" env ILLUMNET="${CARGO_TARGET_DIR:-target}/debug/illumnet" bash tools/slurm/test-frame-farm.sh
+    step "slurm frame farm" env ILLUMNET="$bin" FARM_MPI_RANKS=$mpi_ranks bash tools/slurm/test-frame-farm.sh
 else
     echo "tools/test.sh: not root: Slurm frame farm skipped (tools/slurm/README.md)"
 fi

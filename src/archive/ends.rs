@@ -35,13 +35,28 @@ impl<'a> Links<'a> {
         patches: usize,
         f: impl FnMut(LinkWindow<'_>) -> Result<(), E>,
     ) -> Result<(), E> {
+        self.for_each_window_in(columns, patches, 0..patches, f)
+    }
+
+    /// Like [`Self::for_each_window`], but over the rows of the patches of
+    /// `range` only: windows cut to it ([`LinkWindow::narrowed`]), those
+    /// without one of its patches not read. For a process that owns a
+    /// range of receivers (`distribute::Team`).
+    pub fn for_each_window_in<E: From<ArchiveError>>(
+        &self,
+        columns: Columns,
+        patches: usize,
+        range: std::ops::Range<usize>,
+        f: impl FnMut(LinkWindow<'_>) -> Result<(), E>,
+    ) -> Result<(), E> {
+        debug_assert!(range.end <= patches);
         match self {
             Links::Resident(s) => {
                 debug_assert_eq!(s.patches, patches);
                 let mut f = f;
-                f(s.window())
+                if range.is_empty() { Ok(()) } else { f(s.window().narrowed(&range)) }
             }
-            Links::Streamed(stream, runs) => stream.for_each_window(columns, *runs, None, f),
+            Links::Streamed(stream, runs) => stream.for_each_window(columns, *runs, range, None, f),
         }
     }
 
@@ -52,18 +67,20 @@ impl<'a> Links<'a> {
     /// gather, whose windows are independent. Resident ends are one
     /// window, given all of `out`; `f` should then split its work over the
     /// workers itself, and so when streamed with fewer windows in flight
-    /// than workers.
+    /// than workers. Only the rows of the patches of `range` are walked,
+    /// and `out` has entries for those patches only.
     pub fn for_each_window_par<T: Send, E: From<ArchiveError> + Send>(
         &self,
         columns: Columns,
         patches: usize,
+        range: std::ops::Range<usize>,
         out: &mut [T],
         per_patch: usize,
         f: impl Fn(LinkWindow<'_>, &mut [T]) -> Result<(), E> + Sync,
     ) -> Result<(), E> {
         match self {
-            Links::Resident(_) => self.for_each_window(columns, patches, |w| f(w, &mut *out)),
-            Links::Streamed(stream, runs) => stream.for_each_window_par(columns, *runs, out, per_patch, f),
+            Links::Resident(_) => self.for_each_window_in(columns, patches, range, |w| f(w, &mut *out)),
+            Links::Streamed(stream, runs) => stream.for_each_window_par(columns, *runs, range, out, per_patch, f),
         }
     }
 
@@ -79,7 +96,7 @@ impl<'a> Links<'a> {
     ) -> Result<(), E> {
         match self {
             Links::Resident(_) => self.for_each_window(columns, patches, f),
-            Links::Streamed(stream, runs) => stream.for_each_window(columns, *runs, Some(wanted), f),
+            Links::Streamed(stream, runs) => stream.for_each_window(columns, *runs, 0..patches, Some(wanted), f),
         }
     }
 

@@ -402,6 +402,16 @@ impl<'w> LinkWindow<'w> {
         Some(Self::validated(patches, other, weight, direction, runs))
     }
 
+    /// The window cut to the patches it shares with `range` (which must
+    /// overlap it): its columns stay whole, its patches (and so the rows a
+    /// pass walks) are those of `range`. For a process that gathers over
+    /// its own receivers only (`distribute::Team`).
+    pub fn narrowed(mut self, range: &Range<usize>) -> Self {
+        let (start, end) = (self.patches.start.max(range.start), self.patches.end.min(range.end));
+        self.patches = start..end.max(start);
+        self
+    }
+
     /// The window's entries of the ends `ends` (absolute indices).
     pub fn local(&self, ends: Range<usize>) -> Range<usize> {
         ends.start - self.first_end..ends.end - self.first_end

@@ -291,26 +291,33 @@ impl LinkStream {
         self.pool.lock().map_or(0, |p| p.iter().map(Buffers::bytes).sum())
     }
 
-    /// Calls `f` on every window in patch order (only those holding a
-    /// patch of the ascending list `wanted`, when given), reading the next
-    /// on a second thread while `f` works on one.
+    /// Whether window `i` holds a patch of `range`.
+    fn meets(&self, i: usize, range: &Range<usize>) -> bool {
+        let r = &self.windows[i].patches;
+        r.start < range.end && range.start < r.end && !range.is_empty()
+    }
+
+    /// Calls `f` on every window in patch order that holds a patch of
+    /// `range` (cut to it, [`LinkWindow::narrowed`]), and of the ascending
+    /// list `wanted` when given, reading the next on a second thread while
+    /// `f` works on one.
     pub(super) fn for_each_window<E: From<ArchiveError>>(
         &self,
         columns: Columns,
         runs: LinkRuns<'_>,
+        range: Range<usize>,
         wanted: Option<&[u32]>,
         mut f: impl FnMut(LinkWindow<'_>) -> Result<(), E>,
     ) -> Result<(), E> {
-        let selected: Vec<usize> = match wanted {
-            None => (0..self.windows.len()).collect(),
-            Some(w) => (0..self.windows.len())
-                .filter(|&i| {
-                    let r = &self.windows[i].patches;
-                    let k = w.partition_point(|&q| (q as usize) < r.start);
-                    k < w.len() && (w[k] as usize) < r.end
-                })
-                .collect(),
-        };
+        let selected: Vec<usize> = (0..self.windows.len())
+            .filter(|&i| self.meets(i, &range))
+            .filter(|&i| {
+                let Some(w) = wanted else { return true };
+                let r = &self.windows[i].patches;
+                let k = w.partition_point(|&q| (q as usize) < r.start);
+                k < w.len() && (w[k] as usize) < r.end
+            })
+            .collect();
         if selected.is_empty() {
             return Ok(());
         }
@@ -343,7 +350,7 @@ impl LinkStream {
                     path: self.path.clone(),
                     source: std::io::Error::other("the link reader stopped"),
                 })??;
-                f(self.window(i, &b, runs))?;
+                f(self.window(i, &b, runs).narrowed(&range))?;
                 // Two buffers and room for two: this never blocks.
                 let _ = free_tx.send(b);
             }
@@ -364,25 +371,32 @@ impl LinkStream {
     /// window over: a stage that one core ran for all, and three threads
     /// contending for two cores. Holds one window's buffers per lane (the
     /// memory plan counts them); with fewer lanes than workers, `f` is
-    /// expected to split its window's work among them.
+    /// expected to split its window's work among them. Only the windows
+    /// holding a patch of `range` are read, cut to it, and `out` has
+    /// entries for the patches of `range` only.
     pub(super) fn for_each_window_par<T: Send, E: From<ArchiveError> + Send>(
         &self,
         columns: Columns,
         runs: LinkRuns<'_>,
+        range: Range<usize>,
         out: &mut [T],
         per_patch: usize,
         f: impl Fn(LinkWindow<'_>, &mut [T]) -> Result<(), E> + Sync,
     ) -> Result<(), E> {
         use rayon::prelude::*;
-        assert_eq!(out.len(), self.patches * per_patch, "one entry set per patch");
+        assert!(range.end <= self.patches, "patches of the archive");
+        assert_eq!(out.len(), range.len() * per_patch, "one entry set per patch");
         if self.evict.load(Ordering::Relaxed) {
             drop_cached(&self.file);
         }
         // Each window's part of `out`, taken by the lane that takes the window.
-        let mut parts = Vec::with_capacity(self.windows.len());
+        let selected: Vec<usize> = (0..self.windows.len()).filter(|&i| self.meets(i, &range)).collect();
+        let mut parts = Vec::with_capacity(selected.len());
         let mut rest = out;
-        for w in &self.windows {
-            let (part, tail) = std::mem::take(&mut rest).split_at_mut(w.patches.len() * per_patch);
+        for &i in &selected {
+            let w = &self.windows[i].patches;
+            let len = w.end.min(range.end) - w.start.max(range.start);
+            let (part, tail) = std::mem::take(&mut rest).split_at_mut(len * per_patch);
             parts.push(Mutex::new(Some(part)));
             rest = tail;
         }
@@ -395,10 +409,11 @@ impl LinkStream {
                 let Some(slot) = parts.get(i) else { break };
                 let part = slot.lock().unwrap_or_else(std::sync::PoisonError::into_inner).take();
                 let part = part.expect("each window is taken once");
+                let i = selected[i];
                 done = self
                     .read_window(i, columns, runs, &mut b)
                     .map_err(E::from)
-                    .and_then(|()| f(self.window(i, &b, runs), part));
+                    .and_then(|()| f(self.window(i, &b, runs).narrowed(&range), part));
                 if done.is_err() {
                     // The other lanes stop at their next window.
                     next.store(parts.len(), Ordering::Relaxed);

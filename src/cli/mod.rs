@@ -10,6 +10,7 @@ mod demo;
 mod exit;
 mod frames;
 mod inspect;
+mod mpi;
 mod progress_bar;
 mod render;
 mod shard;

@@ -200,7 +200,12 @@ fn reduce(acc: &[[f32; 4]; 4]) -> [f32; 4] {
 /// ship).
 fn add_escapes(w: &LinkWindow<'_>, buckets: usize, present: Option<&[bool]>, shoot: &[[f32; 4]], out: &mut [[f32; 4]]) {
     let offsets = w.runs.link_offsets();
-    for x in w.weight.escapes() {
+    // The escapes of the window's rows (a narrowed window's columns hold
+    // other patches' ends too).
+    let (first, last) = (offsets[w.patches.start], offsets[w.patches.end]);
+    let escapes = w.weight.escapes();
+    let escapes = &escapes[escapes.partition_point(|x| x.end < first)..escapes.partition_point(|x| x.end < last)];
+    for x in escapes {
         let end = x.end as usize;
         // The owner: the last patch whose row starts at or before the end.
         let q = w.patches.start + offsets[w.patches.clone()].partition_point(|&o| o as usize <= end) - 1;

@@ -46,10 +46,12 @@ mod overlay;
 pub mod reference;
 mod setup;
 mod step;
+pub mod team;
 mod warm;
 
 pub use anderson::MAX_DEPTH as MAX_ANDERSON_DEPTH;
 pub use error::DistributeError;
+pub use team::Team;
 
 use std::sync::Arc;
 
@@ -320,6 +322,40 @@ pub fn distribute_lit(
     Distributor::new(v, opts, lighting)?.frame(frame, start, progress)
 }
 
+/// One pass over frame 0's link ends (this member's receivers' only, in a
+/// team, the rest from the others): per patch the rays that link, and
+/// whether frame 0's links reach it (link ends of its own or at another's
+/// end: the same, when every link is stored at both ends).
+fn linked_and_reached(
+    v: &InetView<'_>,
+    parts: &[std::ops::Range<usize>],
+    team: Option<&dyn Team>,
+) -> Result<(Vec<f64>, Vec<bool>), ArchiveError> {
+    let n = v.patch_count();
+    let own = parts[team.map_or(0, |t| t.rank())].clone();
+    let mut linked = vec![0.0f64; n];
+    let mut in_base = vec![false; n];
+    v.links.for_each_window_in(Columns::GATHER, n, own, |w| {
+        for q in w.patches.clone() {
+            linked[q] = w.weight.slice(w.row(q)).iter().map(|x| x as f64).sum();
+            in_base[q] |= linked[q] > 0.0;
+            for run in w.runs_of(q) {
+                for &o in run.ids().ids() {
+                    in_base[run.base() + o as usize] = true;
+                }
+            }
+        }
+        Ok::<(), ArchiveError>(())
+    })?;
+    if let Some(t) = team {
+        t.share_f64(&mut linked, parts);
+        let mut flags: Vec<u8> = in_base.iter().map(|&b| b as u8).collect();
+        t.max_u8(&mut flags);
+        in_base = flags.iter().map(|&b| b != 0).collect();
+    }
+    Ok((linked, in_base))
+}
+
 /// What distributing light over one archive needs whatever the frame:
 /// per-patch reflectance, emission and link shares, and the bucket rings,
 /// computed once and reused for every frame of a sequence.
@@ -361,12 +397,36 @@ pub struct Distributor<'a> {
     /// work of an iteration (measurement only; nothing depends on it).
     gather_ns: std::sync::atomic::AtomicU64,
     gather_ends: std::sync::atomic::AtomicU64,
+    /// The processes sharing this distribution, if any (`team.rs`).
+    team: Option<&'a dyn Team>,
+    /// Each member's receivers (one range, `0..n`, without a team).
+    parts: Vec<std::ops::Range<usize>>,
+    /// Bytes received from the other members, and the time spent
+    /// exchanging (ns): measurement only.
+    exchanged_bytes: std::sync::atomic::AtomicU64,
+    exchange_ns: std::sync::atomic::AtomicU64,
+    exchanges: std::sync::atomic::AtomicU64,
 }
 
 impl<'a> Distributor<'a> {
     /// Prepares `v` with `lighting` (one entry per surface).
     pub fn new(v: &InetView<'a>, opts: &DistributeOptions, lighting: &Lighting) -> Result<Self, DistributeError> {
+        Self::new_in(v, opts, lighting, None)
+    }
+
+    /// [`Self::new`] as one member of `team` (see `team.rs`): this process
+    /// reads and gathers over the link ends of its own receivers only, and
+    /// every member's solutions are the same, bit for bit, as one
+    /// process's. Every member must make its distributor, and then solve
+    /// the same frames in the same order.
+    pub fn new_in(
+        v: &InetView<'a>,
+        opts: &DistributeOptions,
+        lighting: &Lighting,
+        team: Option<&'a dyn Team>,
+    ) -> Result<Self, DistributeError> {
         let n = v.patch_count();
+        let parts = team::receiver_ranges(v.link_offsets, team.map_or(1, |t| t.size()));
         let given = lighting.emission.len().min(lighting.reflectance.len()).min(lighting.specular.len());
         let longest = lighting.emission.len().max(lighting.reflectance.len()).max(lighting.specular.len());
         if given != v.surfaces.len() || longest != v.surfaces.len() {
@@ -386,25 +446,8 @@ impl<'a> Distributor<'a> {
                 area_eff[p] = a;
             }
         }
-        // One pass over the link ends: per patch the rays that link, and
-        // which patches frame 0's links reach.
         let use_buckets = opts.buckets && v.build.max_bucket > 0;
-        let mut linked = vec![0.0f64; n];
-        // Patches with frame 0 link ends of their own or at another's end
-        // (the same, when every link is stored at both ends).
-        let mut in_base = vec![false; n];
-        v.links.for_each_window(Columns::GATHER, n, |w| {
-            for q in w.patches.clone() {
-                linked[q] = w.weight.slice(w.row(q)).iter().map(|x| x as f64).sum();
-                in_base[q] |= linked[q] > 0.0;
-                for run in w.runs_of(q) {
-                    for &o in run.ids().ids() {
-                        in_base[run.base() + o as usize] = true;
-                    }
-                }
-            }
-            Ok::<(), ArchiveError>(())
-        })?;
+        let (linked, in_base) = linked_and_reached(v, &parts, team)?;
         let nb = if use_buckets { v.build.max_bucket as usize + 1 } else { 1 };
         let rings = match use_buckets {
             true => Some(
@@ -470,7 +513,57 @@ impl<'a> Distributor<'a> {
             leaving_rows,
             gather_ns: Default::default(),
             gather_ends: Default::default(),
+            team,
+            parts,
+            exchanged_bytes: Default::default(),
+            exchange_ns: Default::default(),
+            exchanges: Default::default(),
         })
+    }
+
+    /// The receivers this process gathers for (all patches without a
+    /// team).
+    pub fn own_receivers(&self) -> std::ops::Range<usize> {
+        self.parts[self.team.map_or(0, |t| t.rank())].clone()
+    }
+
+    /// The link ends of this process's receivers.
+    fn own_ends(&self) -> u64 {
+        let own = self.own_receivers();
+        self.v.link_offsets[own.end] - self.v.link_offsets[own.start]
+    }
+
+    /// Bytes received from the other members of the team and seconds
+    /// spent exchanging, over every frame so far (zero without a team).
+    pub fn exchange_totals(&self) -> (u64, f64) {
+        use std::sync::atomic::Ordering::Relaxed;
+        (self.exchanged_bytes.load(Relaxed), self.exchange_ns.load(Relaxed) as f64 * 1e-9)
+    }
+
+    /// Exchanges made so far (one a gather, with a team).
+    pub fn exchanges(&self) -> u64 {
+        self.exchanges.load(std::sync::atomic::Ordering::Relaxed)
+    }
+
+    /// The team this distribution is shared with, if any.
+    pub fn team(&self) -> Option<&'a dyn Team> {
+        self.team
+    }
+
+    /// Gives the other members of the team what this one's receivers got
+    /// (`recv`, `nb` slots a patch), and takes theirs: after it every
+    /// member's `recv` is whole.
+    fn share_received(&self, recv: &mut [[f32; 4]]) {
+        let Some(t) = self.team else { return };
+        use std::sync::atomic::Ordering::Relaxed;
+        let started = std::time::Instant::now();
+        let per_patch = self.nb * 4;
+        t.share_f32(bytemuck::cast_slice_mut(recv), &team::scaled(&self.parts, per_patch));
+        let own = self.own_receivers().len();
+        let bytes = ((self.v.patch_count() - own) * per_patch * 4) as u64;
+        self.exchanged_bytes.fetch_add(bytes, Relaxed);
+        self.exchange_ns.fetch_add(started.elapsed().as_nanos() as u64, Relaxed);
+        self.exchanges.fetch_add(1, Relaxed);
     }
 
     /// Seconds spent in the gathers over frame 0's link ends and the ends

@@ -333,10 +333,16 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
             crate::archive::Links::Resident(_) => true,
             crate::archive::Links::Streamed(s, _) => s.windows_in_flight() < rayon::current_num_threads(),
         };
-        d.v.links.for_each_window_par(Columns::GATHER, d.v.patch_count(), recv, nb, |w, out| {
+        // This process's receivers only (all of them without a team); the
+        // team's other members send theirs.
+        let own = d.own_receivers();
+        let mine = &mut recv[own.start * nb..own.end * nb];
+        d.v.links.for_each_window_par(Columns::GATHER, d.v.patch_count(), own, mine, nb, |w, out| {
             gather(&w, nb, present, shoot, out, parallel);
             Ok::<(), DistributeError>(())
-        })
+        })?;
+        d.share_received(recv);
+        Ok(())
     }
 
     /// The full gather: frame 0's links, the frame's overlay, and what
@@ -346,11 +352,15 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
         let v = &d.v;
         let present = s.absent_mask();
         let started = std::time::Instant::now();
+        let exchanging = d.exchange_totals().1;
         self.gather_base(present)?;
         {
+            // The gather's own time: without the team's exchange.
             use std::sync::atomic::Ordering::Relaxed;
-            d.gather_ns.fetch_add(started.elapsed().as_nanos() as u64, Relaxed);
-            d.gather_ends.fetch_add(v.link_end_count() as u64, Relaxed);
+            let exchange = d.exchange_totals().1 - exchanging;
+            let gather = (started.elapsed().as_secs_f64() - exchange).max(0.0);
+            d.gather_ns.fetch_add((gather * 1e9) as u64, Relaxed);
+            d.gather_ends.fetch_add(d.own_ends(), Relaxed);
         }
         // Directional light is shot once, the step after the table step
         // that made it.

@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
 # Whole jobs on a real single-node Slurm (tools/slurm/local-cluster.sh),
 # submitted by tools/slurm/submit.sh: the Cornell box (4 shards, merge, its
-# frame, identical to one machine's) and the fan room built as a job array of
+# frame rendered by an MPI job of FARM_MPI_RANKS ranks, `render --mpi`, when
+# that is set, else by a one-task array; archive and frame identical to one
+# machine's) and the fan room built as a job array of
 # 4 shards, merged by a job that depends on them (afterok), its 60 frames
 # rendered by a throttled job array (4 tasks, each taking its share with
 # `--frames auto/4 --skip-done`, at most 2 at once) after the merge, and a
@@ -16,7 +18,9 @@
 #
 # Environment: ILLUMNET (default target/release/illumnet), FARM_DIR (work
 # directory, default a fresh mktemp -d; removed after a success unless
-# FARM_KEEP=1), FARM_TIMEOUT (seconds for the farm, default 300), and
+# FARM_KEEP=1), FARM_TIMEOUT (seconds for the farm, default 300), FARM_MPI_RANKS (ranks
+# of the Cornell box's MPI render job; needs ILLUMNET built with
+# --features mpi and Open MPI, tools/mpi/install.sh; default 0: none), and
 # local-cluster.sh's LOCAL_SLURM_* (ports, timeouts). Exit 0 only if all holds.
 set -euo pipefail
 
@@ -30,6 +34,8 @@ tasks=4   # render array tasks 0-3
 shards=4  # build array tasks 0-3
 throttle=2
 size=64x64
+mpi_ranks=${FARM_MPI_RANKS:-0}
+[[ $mpi_ranks =~ ^[0-9]+$ ]] || { echo "FARM_MPI_RANKS must be a number, not '$mpi_ranks'" >&2; exit 2; }
 
 say() { echo "$prog: $*" >&2; }
 die() {
@@ -54,10 +60,12 @@ in_cluster() { # work
     sinfo
 
     # The Cornell box (a still) through the same pipeline, beside it: 4
-    # shards, the merge, its one frame, the check.
+    # shards, the merge, its one frame (by an MPI job of $mpi_ranks ranks
+    # when asked), the check.
     local cornell c_check
     cornell=$(bash "$here/submit.sh" scenes/cornell_box.toml "$work/cornell" --illumnet "$ILLUMNET" --shards 4 \
-        --tasks 1 --throttle 1 --build-args "--quality draft" --render-args "--size $size --threads 1" |
+        --tasks 1 --throttle 1 --mpi-ranks "$mpi_ranks" --build-args "--quality draft" \
+        --render-args "--size $size --threads 1" |
         tee "$work/submit-cornell.log" | sed -n 's/^jobs: //p')
     c_check=${cornell##* }
     [[ -n $c_check ]] || die "submit.sh printed no job ids for the Cornell box: $(cat "$work/submit-cornell.log")"
@@ -109,6 +117,11 @@ in_cluster() { # work
         sleep 0.5
     done
     say "the Cornell box's 4 shards, merge, frame and check done"
+    if ((mpi_ranks > 0)); then
+        grep -q "^MPI: $mpi_ranks ranks" "$work"/cornell/logs/render_mpi_*.out ||
+            die "the Cornell box's render job did not run on $mpi_ranks MPI ranks: $(cat "$work"/cornell/logs/render_mpi_*.out)"
+        say "the Cornell box's frame by $mpi_ranks MPI ranks: $(grep '^MPI:' "$work"/cornell/logs/render_mpi_*.out)"
+    fi
     cat "$work"/logs/check_*.out
     # Every shard and the merge completed, and every render task, with exit code 0.
     scontrol show job -o "$build" | grep -o 'JobState=[^ ]*\|ExitCode=[^ ]*' | paste -d ' ' - - >"$work/build-states"

@@ -44,7 +44,11 @@ pub fn render_frames(
             renderer.set_camera(Some(setup.cameras.at(base, f)?));
         }
         let camera = renderer.camera(af);
-        if setup.extras.skip_done && skips.done(setup, f, &camera)? {
+        let leader = setup.extras.leader();
+        // Every member of an MPI job skips what rank 0 finds done.
+        let done = setup.extras.skip_done && leader && skips.done(setup, f, &camera)?;
+        let done = setup.extras.team.map_or(done, |t| t.leader_says(done));
+        if done {
             // The next frame rendered starts cold: its warm start is gone.
             previous = None;
             totals.skipped += 1;
@@ -64,6 +68,12 @@ pub fn render_frames(
                 solution
             }
         };
+        if !leader {
+            // The other members of an MPI job solve the light with rank 0
+            // (every frame's collectives) and leave the rest to it.
+            previous = Some(solution);
+            continue;
+        }
         totals.size = (camera.width, camera.height);
         if reuse {
             println!("frame {f}: the camera moved, the light is frame 0's: 0 iterations");
@@ -101,7 +111,7 @@ pub fn render_frames(
             images.push(image);
         }
     }
-    if setup.extras.skip_done {
+    if setup.extras.skip_done && setup.extras.leader() {
         skips.print();
     }
     Ok(images)

@@ -76,6 +76,14 @@ pub struct RenderCommand {
     explain: explain::ExplainArgs,
     #[command(flatten)]
     relight: relight::RelightArgs,
+    /// Share the distribution among the processes of an MPI job (launched
+    /// by `mpirun` or `srun`): each reads and gathers over the link ends
+    /// of its own range of receivers, and they exchange what those
+    /// received after every gather; the images are bit-identical to one
+    /// process's, written by rank 0. Needs a binary built with
+    /// `--features mpi` (docs/CLUSTER.md).
+    #[arg(long)]
+    mpi: bool,
 }
 
 /// Runs `illumnet render` with its parsed arguments.
@@ -93,6 +101,7 @@ pub fn run(command: RenderCommand, progress: &dyn Progress) -> Result<()> {
         camera,
         explain,
         relight,
+        mpi,
     } = command;
     settings.memory_budget = budget.memory_budget;
     let extras = Extras {
@@ -102,14 +111,36 @@ pub fn run(command: RenderCommand, progress: &dyn Progress) -> Result<()> {
         reference: explain.reference.as_deref(),
         error_scale: explain.error_scale,
         skip_done,
+        team: None,
     };
-    RenderCameras::new(&camera).and_then(|cameras| {
-        render(&archive, &output, exr.as_deref(), frames.as_deref(), settings, &cameras, &relight.set, extras, progress)
-    })
+    let go = |extras: Extras<'_>, progress: &dyn Progress| {
+        RenderCameras::new(&camera).and_then(|cameras| {
+            render(
+                &archive,
+                &output,
+                exr.as_deref(),
+                frames.as_deref(),
+                settings,
+                &cameras,
+                &relight.set,
+                extras,
+                progress,
+            )
+        })
+    };
+    match mpi {
+        // Only rank 0 shows progress.
+        true => super::mpi::in_job(|team| {
+            let quiet = illumnet::progress::NoProgress;
+            go(Extras { team: Some(team), ..extras }, if team.rank() == 0 { progress } else { &quiet })
+        }),
+        false => go(extras, progress),
+    }
 }
 
-/// Optional outputs of `render`: whole-sequence previews, and a
-/// false-colour picture instead of the shaded PNG.
+/// Optional parts of `render`: whole-sequence previews, a false-colour
+/// picture instead of the shaded PNG, and the MPI job it shares the
+/// distribution with.
 #[derive(Clone, Copy, Default)]
 pub struct Extras<'a> {
     pub gif: Option<&'a Path>,
@@ -120,6 +151,17 @@ pub struct Extras<'a> {
     /// `--skip-done`: frames whose files are complete and match are not
     /// rendered again.
     pub skip_done: bool,
+    /// `--mpi`: the processes sharing the distribution; rank 0 alone
+    /// prints and writes.
+    pub team: Option<&'a dyn distribute::Team>,
+}
+
+impl Extras<'_> {
+    /// Whether this process prints and writes: the only one, or rank 0 of
+    /// an MPI job.
+    pub fn leader(&self) -> bool {
+        self.team.is_none_or(|t| t.rank() == 0)
+    }
 }
 
 /// What every frame of one render shares: what was asked (options,
@@ -206,7 +248,7 @@ pub fn render(
     let mut lighting = distribute::Lighting::from_view(&view);
     relight::relight(&mut lighting, &archive, sets)?;
     let t_s = Instant::now();
-    let distributor = distribute::Distributor::new(&view, &opts, &lighting)?;
+    let distributor = distribute::Distributor::new_in(&view, &opts, &lighting, extras.team)?;
     let t_setup = t_s.elapsed().as_secs_f64();
     let edge_samples = options::edge_samples(&args, sequence_output);
     let render_opts = RenderOptions { samples_per_axis: args.samples, edge_samples_per_axis: edge_samples };
@@ -231,7 +273,9 @@ pub fn render(
     let mut totals = Totals::starting_at((summary.camera.width, summary.camera.height));
     let images = frame_loop::render_frames(&setup, &mut renderer, &mut totals, progress)?;
     archive.check_unchanged()?;
-    outputs::write_previews(&setup, &images)?;
-    print_summary(&setup, &totals, t_open, t_setup);
+    if extras.leader() {
+        outputs::write_previews(&setup, &images)?;
+        print_summary(&setup, &totals, t_open, t_setup);
+    }
     Ok(())
 }

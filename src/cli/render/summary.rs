@@ -64,4 +64,29 @@ pub fn print_summary(setup: &RenderSetup<'_>, totals: &Totals, t_open: f64, t_se
         },
         memory::peak_resident().map(|b| format!(", peak memory {}", Bytes(b))).unwrap_or_default()
     );
+    if let Some(team) = setup.distributor.team() {
+        print_team(setup, team);
+    }
+}
+
+/// `--mpi`: the ranks, rank 0's share of the link ends, and what it
+/// exchanged.
+fn print_team(setup: &RenderSetup<'_>, team: &dyn illumnet::distribute::Team) {
+    let d = setup.distributor;
+    let own = d.own_receivers();
+    let offsets = setup.view.link_offsets;
+    let share = (offsets[own.end] - offsets[own.start]) as f64 / (*offsets.last().unwrap_or(&0)).max(1) as f64;
+    let (bytes, seconds) = d.exchange_totals();
+    let exchanges = d.exchanges().max(1);
+    println!(
+        "MPI: {} ranks; rank 0 gathered for patches {}..{} ({:.1}% of the link ends); exchanged {:.2} MB in {} exchanges ({:.3} MB each, {:.3} s in all)",
+        team.size(),
+        own.start,
+        own.end,
+        100.0 * share,
+        bytes as f64 / 1e6,
+        d.exchanges(),
+        bytes as f64 / exchanges as f64 / 1e6,
+        seconds
+    );
 }

@@ -1,0 +1,209 @@
+//! A distribution shared by a team of processes (`distribute::Team`, what
+//! `render --mpi` runs on): each member gathers over its own receivers'
+//! link ends and the members exchange what their receivers got. Here the
+//! members are threads exchanging through shared memory, so that the
+//! partition itself (ranges, narrowed windows mapped and streamed, the
+//! setup pass, warm-started frames, glossy tables) is held to one
+//! process's light bit for bit in every test run; `tools/mpi/test.sh`
+//! runs the same with Open MPI.
+
+use std::ops::Range;
+use std::path::{Path, PathBuf};
+use std::sync::{Barrier, Mutex};
+
+use illumnet::archive::{self, Archive};
+use illumnet::bake::{self, BuildSettings};
+use illumnet::distribute::{DistributeOptions, Distributor, Lighting, Solution, Team};
+use illumnet::progress::NoProgress;
+use illumnet::scene::{BuildHints, Scene};
+
+/// What the members of a thread team share.
+struct Hub {
+    members: usize,
+    barrier: Barrier,
+    f32s: Mutex<Vec<f32>>,
+    f64s: Mutex<Vec<f64>>,
+    u8s: Mutex<Vec<u8>>,
+    flag: Mutex<bool>,
+}
+
+/// One member of a thread team.
+struct Member<'h> {
+    hub: &'h Hub,
+    rank: usize,
+}
+
+impl Member<'_> {
+    /// The all-gather through `buf`: each member writes its part, all
+    /// wait, each reads the others' parts, all wait again (so that no
+    /// part is overwritten before everyone has read it).
+    fn share<T: Copy + Default>(&self, buf: &Mutex<Vec<T>>, data: &mut [T], parts: &[Range<usize>]) {
+        {
+            let mut b = buf.lock().unwrap();
+            if b.len() != data.len() {
+                b.resize(data.len(), T::default());
+            }
+            let mine = parts[self.rank].clone();
+            b[mine.clone()].copy_from_slice(&data[mine]);
+        }
+        self.hub.barrier.wait();
+        {
+            let b = buf.lock().unwrap();
+            for (r, p) in parts.iter().enumerate() {
+                if r != self.rank {
+                    data[p.clone()].copy_from_slice(&b[p.clone()]);
+                }
+            }
+        }
+        self.hub.barrier.wait();
+    }
+}
+
+impl Team for Member<'_> {
+    fn rank(&self) -> usize {
+        self.rank
+    }
+    fn size(&self) -> usize {
+        self.hub.members
+    }
+    fn share_f32(&self, data: &mut [f32], parts: &[Range<usize>]) {
+        self.share(&self.hub.f32s, data, parts)
+    }
+    fn share_f64(&self, data: &mut [f64], parts: &[Range<usize>]) {
+        self.share(&self.hub.f64s, data, parts)
+    }
+    fn max_u8(&self, data: &mut [u8]) {
+        {
+            let mut b = self.hub.u8s.lock().unwrap();
+            if b.len() != data.len() {
+                *b = vec![0; data.len()];
+            }
+            for (b, d) in b.iter_mut().zip(data.iter()) {
+                *b = (*b).max(*d);
+            }
+        }
+        self.hub.barrier.wait();
+        data.copy_from_slice(&self.hub.u8s.lock().unwrap());
+        self.hub.barrier.wait();
+        if self.rank == 0 {
+            self.hub.u8s.lock().unwrap().clear();
+        }
+        self.hub.barrier.wait();
+    }
+    fn leader_says(&self, value: bool) -> bool {
+        if self.rank == 0 {
+            *self.hub.flag.lock().unwrap() = value;
+        }
+        self.hub.barrier.wait();
+        let v = *self.hub.flag.lock().unwrap();
+        self.hub.barrier.wait();
+        v
+    }
+}
+
+fn scene_file(name: &str) -> Scene {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes").join(name);
+    Scene::from_file(&path).unwrap()
+}
+
+/// Builds `scene` (a sequence when animated) at `hints` into `dir`.
+fn write(scene: &Scene, hints: BuildHints, dir: &Path) -> PathBuf {
+    let mut settings = BuildSettings::resolve(scene, hints);
+    settings.prototype_library = None;
+    let contents = match scene.frame_count() > 1 {
+        true => bake::build_sequence(scene, &settings, &NoProgress).unwrap().contents,
+        false => bake::build(scene, &settings, &NoProgress).unwrap().0,
+    };
+    let path = dir.join("scene.inet");
+    archive::write(&path, &contents).unwrap();
+    path
+}
+
+/// Every frame of `a`, each warm-started from the last, as one
+/// distributor (in `team`, when given) does them; and the bytes it
+/// received from the team.
+fn solve_all(a: &Archive, team: Option<&dyn Team>) -> (Vec<Solution>, u64) {
+    let v = a.view();
+    let opts = DistributeOptions { tolerance: 1e-5, ..Default::default() };
+    let d = Distributor::new_in(&v, &opts, &Lighting::from_view(&v), team).unwrap();
+    let frames = v.sequence.map_or(1, |s| s.frames());
+    let mut out: Vec<Solution> = Vec::new();
+    for k in 0..frames {
+        let s = d.frame(k, out.last(), &NoProgress).unwrap();
+        out.push(s);
+    }
+    (out, d.exchange_totals().0)
+}
+
+/// Every member's solutions and bytes received, `members` threads each
+/// opening `path` (streamed in windows of `window` ends, when given).
+fn solve_in_team(path: &Path, members: usize, window: Option<usize>) -> Vec<(Vec<Solution>, u64)> {
+    let hub = Hub {
+        members,
+        barrier: Barrier::new(members),
+        f32s: Mutex::default(),
+        f64s: Mutex::default(),
+        u8s: Mutex::default(),
+        flag: Mutex::default(),
+    };
+    std::thread::scope(|scope| {
+        let handles: Vec<_> = (0..members)
+            .map(|rank| {
+                let hub = &hub;
+                scope.spawn(move || {
+                    let a = match window {
+                        Some(w) => Archive::open_streamed(path, w).unwrap(),
+                        None => Archive::open(path).unwrap(),
+                    };
+                    let member = Member { hub, rank };
+                    solve_all(&a, Some(&member))
+                })
+            })
+            .collect();
+        handles.into_iter().map(|h| h.join().unwrap()).collect()
+    })
+}
+
+fn assert_same(one: &[Solution], team: &[Solution], what: &str) {
+    assert_eq!(one.len(), team.len());
+    for (k, (m, s)) in one.iter().zip(team).enumerate() {
+        assert_eq!(m.balance, s.balance, "{what} frame {k}: energy balance differs");
+        assert!(m.radiance == s.radiance, "{what} frame {k}: radiance differs");
+        assert!(m.received == s.received, "{what} frame {k}: received power differs");
+        assert!(m.residual == s.residual, "{what} frame {k}: residual differs");
+        assert!(m.direct == s.direct, "{what} frame {k}: first bounce differs");
+        assert!(m.directional == s.directional, "{what} frame {k}: directional radiance differs");
+    }
+}
+
+#[test]
+fn a_team_of_any_size_gives_one_process_light_bit_for_bit() {
+    let hints = |p: f32, f: u32, r: f32| BuildHints {
+        patch_size: Some(p),
+        frequency: Some(f),
+        ray_spacing: Some(r),
+        buckets: None,
+    };
+    let cases = [
+        ("cornell_box.toml", hints(0.1, 6, 0.02)),
+        ("glossy_floor.toml", hints(0.25, 5, 0.03)),
+        ("fan_room.toml", hints(0.4, 4, 0.06)),
+    ];
+    for (name, h) in cases {
+        let dir = tempfile::tempdir().unwrap();
+        let path = write(&scene_file(name), h, dir.path());
+        let (want, none) = solve_all(&Archive::open(&path).unwrap(), None);
+        assert_eq!(none, 0, "{name}: one process exchanges nothing");
+        // Mapped with 1 to 4 members; streamed in windows of a few
+        // hundred ends, whose boundaries fall anywhere in a member's range.
+        for (members, window) in [(1, None), (2, None), (3, None), (4, None), (3, Some(300))] {
+            let what = format!("{name}, {members} members, windows {window:?}");
+            let got = solve_in_team(&path, members, window);
+            for (rank, (solutions, received)) in got.iter().enumerate() {
+                assert_same(&want, solutions, &format!("{what}, member {rank}"));
+                assert_eq!(*received > 0, members > 1, "{what}, member {rank}: {received} bytes received");
+            }
+        }
+        eprintln!("{name}: {} frames, {} iterations in frame 0", want.len(), want[0].balance.iterations);
+    }
+}
