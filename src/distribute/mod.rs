@@ -347,7 +347,7 @@ fn linked_and_reached(
         }
         Ok::<(), ArchiveError>(())
     })?;
-    if let Some(t) = team {
+    if let Some(t) = team.filter(|t| t.size() > 1) {
         t.share_f64(&mut linked, parts);
         let mut flags: Vec<u8> = in_base.iter().map(|&b| b as u8).collect();
         t.max_u8(&mut flags);
@@ -554,7 +554,7 @@ impl<'a> Distributor<'a> {
     /// (`recv`, `nb` slots a patch), and takes theirs: after it every
     /// member's `recv` is whole.
     fn share_received(&self, recv: &mut [[f32; 4]]) {
-        let Some(t) = self.team else { return };
+        let Some(t) = self.team.filter(|t| t.size() > 1) else { return };
         use std::sync::atomic::Ordering::Relaxed;
         let started = std::time::Instant::now();
         let per_patch = self.nb * 4;
