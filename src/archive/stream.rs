@@ -291,6 +291,12 @@ impl LinkStream {
         self.pool.lock().map_or(0, |p| p.iter().map(Buffers::bytes).sum())
     }
 
+    /// How many windows hold a patch of `range` (what a pass over those
+    /// patches reads).
+    pub fn windows_meeting(&self, range: &Range<usize>) -> usize {
+        (0..self.windows.len()).filter(|&i| self.meets(i, range)).count()
+    }
+
     /// Whether window `i` holds a patch of `range`.
     fn meets(&self, i: usize, range: &Range<usize>) -> bool {
         let r = &self.windows[i].patches;

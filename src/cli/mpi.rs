@@ -1,5 +1,5 @@
-//! `render --mpi`: the processes of an MPI job (launched by `mpirun` or
-//! `srun`) as one distribution's team (`illumnet::distribute::Team`),
+//! `render --mpi`: the processes of an MPI job (launched by Open MPI's
+//! `mpirun`, on a host or inside a Slurm allocation) as one distribution's team (`illumnet::distribute::Team`),
 //! through the `mpi` crate on the system's MPI (Open MPI on Debian). Built
 //! with the `mpi` feature only; without it `--mpi` is refused with how to
 //! get it.
@@ -118,26 +118,42 @@ impl illumnet::distribute::Team for MpiTeam {
 }
 
 /// Runs `f` as a member of the MPI job this process was launched in,
-/// with the job as its team; a member's error ends the whole job with its
-/// exit code (after saying which member failed and why).
+/// given the job as its team and the number of its ranks on this node
+/// (who share its memory). A member's error ends the whole job with its
+/// exit code, and a panic with 101, after saying which member failed and
+/// why: never a rank left waiting in a collective (or in `MPI_Finalize`,
+/// which unwinding would reach).
 #[cfg(feature = "mpi")]
-pub fn in_job(f: impl FnOnce(&dyn illumnet::distribute::Team) -> anyhow::Result<()>) -> anyhow::Result<()> {
+pub fn in_job(f: impl FnOnce(&dyn illumnet::distribute::Team, usize) -> anyhow::Result<()>) -> anyhow::Result<()> {
     use illumnet::distribute::Team;
+    use mpi::traits::{Communicator, CommunicatorCollectives};
     let team = MpiTeam::join()?;
-    let result = f(&team);
-    if let Err(e) = &result
-        && team.size() > 1
-    {
-        eprintln!("illumnet: error: MPI rank {} of {}: {}", team.rank(), team.size(), super::report(e));
-        eprintln!("illumnet: MPI rank {}: ending the whole job (MPI_Abort): no image is written", team.rank());
-        team.abort(super::exit::code(e));
+    let on_this_node = team.world.split_shared(team.world.rank()).size().max(1) as usize;
+    let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| f(&team, on_this_node)));
+    let ending = |why: String, code: u8| -> ! {
+        eprintln!("illumnet: error: MPI rank {} of {}: {why}", team.rank(), team.size());
+        eprintln!(
+            "illumnet: MPI rank {}: ending the whole job (MPI_Abort): the frame being solved is not written",
+            team.rank()
+        );
+        team.abort(code)
+    };
+    match result {
+        Err(_) if team.size() > 1 => ending("the render panicked (a bug: please report it)".into(), 101),
+        Err(panic) => std::panic::resume_unwind(panic),
+        Ok(Err(e)) if team.size() > 1 => ending(super::report(&e), super::exit::code(&e)),
+        Ok(result) => {
+            // Every rank leaves together: none is finalised while another
+            // still answers a collective.
+            team.world.barrier();
+            result
+        }
     }
-    result
 }
 
 /// Without the `mpi` feature: `--mpi` is refused, saying how to get it.
 #[cfg(not(feature = "mpi"))]
-pub fn in_job(_: impl FnOnce(&dyn illumnet::distribute::Team) -> anyhow::Result<()>) -> anyhow::Result<()> {
+pub fn in_job(_: impl FnOnce(&dyn illumnet::distribute::Team, usize) -> anyhow::Result<()>) -> anyhow::Result<()> {
     Err(anyhow::Error::new(super::exit::BadInput(
         "--mpi: this illumnet was built without MPI; build it with `cargo build --release --features mpi` \
          (which needs an MPI library and libclang: `bash tools/mpi/install.sh` installs Debian's Open MPI)"

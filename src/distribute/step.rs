@@ -329,13 +329,15 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
         // windows are each one worker's, unless fewer are held at once
         // than there are workers (few windows, or a budget with room for
         // few): then a window's patches are split too.
+        let own = d.own_receivers();
         let parallel = match d.v.links {
             crate::archive::Links::Resident(_) => true,
-            crate::archive::Links::Streamed(s, _) => s.windows_in_flight() < rayon::current_num_threads(),
+            crate::archive::Links::Streamed(s, _) => {
+                s.windows_in_flight().min(s.windows_meeting(&own)) < rayon::current_num_threads()
+            }
         };
         // This process's receivers only (all of them without a team); the
         // team's other members send theirs.
-        let own = d.own_receivers();
         let mine = &mut recv[own.start * nb..own.end * nb];
         d.v.links.for_each_window_par(Columns::GATHER, d.v.patch_count(), own, mine, nb, |w, out| {
             gather(&w, nb, present, shoot, out, parallel);

@@ -8,7 +8,9 @@
 #      not compared);
 #   2. a rank killed in the middle of the distribution fails the whole job
 #      (non-zero exit, the launcher naming the dead rank) and leaves no
-#      image under the final name.
+#      image under the final name;
+#   3. a rank that fails (a missing archive) ends the job with MPI_Abort,
+#      naming itself, within a bounded time.
 # Usage: ILLUMNET=path/to/illumnet-built-with-mpi bash tools/mpi/test.sh
 # Installs Open MPI first (tools/mpi/install.sh) when it is missing.
 set -euo pipefail
@@ -101,7 +103,22 @@ fi
 wait "$job" || status=$?
 ((status != 0)) || die "the job exited 0 although rank 1 was killed"
 [[ ! -e $dir/killed.png ]] || die "an image was written by a job that lost a rank"
-ls "$dir" | grep -q '^\.illumnet-killed' && die "a temporary image was left: $(ls -a "$dir")"
+ls -A "$dir" | grep -q '^\.illumnet-killed' && die "a temporary image was left: $(ls -A "$dir")"
 grep -qi "rank 1" "$dir/job.log" || die "the launcher did not name the dead rank: $(cat "$dir/job.log")"
 say "killed rank: the job ended with status $status, no image; the launcher said: $(grep -i -m 1 'rank 1' "$dir/job.log")"
+# 3. A rank that fails (here: its archive is missing) ends the job with
+# MPI_Abort, naming itself, instead of leaving rank 0 waiting.
+cat >"$dir/failing.sh" <<EOF
+#!/usr/bin/env bash
+archive="$dir/a.inet"
+[[ \${OMPI_COMM_WORLD_RANK:-} != 1 ]] || archive="$dir/missing.inet"
+exec "$bin" render -q --mpi "\$archive" -o "$dir/failed.png"
+EOF
+chmod +x "$dir/failing.sh"
+status=0
+timeout 120 "${mpirun[@]}" -np 2 "$dir/failing.sh" >"$dir/failing.log" 2>&1 || status=$?
+((status != 0 && status != 124)) || die "a job with a failing rank ended with status $status (124: it hung)"
+grep -q "MPI rank 1 of 2" "$dir/failing.log" || die "the failing rank did not name itself: $(cat "$dir/failing.log")"
+[[ ! -e $dir/failed.png ]] || die "an image was written by a job whose rank failed"
+say "failing rank: the job ended with status $status: $(grep -m 1 'MPI rank 1 of 2' "$dir/failing.log")"
 say "passed"

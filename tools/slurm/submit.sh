@@ -66,6 +66,7 @@ for n in "$shards" "$tasks" "$throttle"; do
     [[ $n =~ ^[1-9][0-9]*$ ]] || die "--shards, --tasks and --throttle take positive integers (got $n)"
 done
 [[ $mpi_ranks =~ ^[0-9]+$ ]] || die "--mpi-ranks takes a positive integer (got $mpi_ranks)"
+mpi_ranks=$((10#$mpi_ranks))
 ((mpi_ranks == 0)) || command -v mpirun >/dev/null || die "--mpi-ranks: no mpirun (tools/mpi/install.sh installs Open MPI)"
 [[ -n $illumnet && -x $illumnet ]] || die "no illumnet binary (put it on PATH or give --illumnet PATH)"
 [[ -f $scene ]] || die "no scene file $scene"
@@ -107,6 +108,10 @@ echo "start \$EPOCHREALTIME" >"$work/timeline/render_\$SLURM_ARRAY_TASK_ID"
     -o "$work/frames/frame_%04d.png"
 echo "end \$EPOCHREALTIME" >>"$work/timeline/render_\$SLURM_ARRAY_TASK_ID"
 EOF
+# An MPI rank takes one worker thread per CPU Slurm gives its task, unless
+# --render-args says how many.
+threads_arg='--threads ${SLURM_CPUS_PER_TASK:-1}'
+[[ $render_args != *--threads* ]] || threads_arg=
 cat >"$work/jobs/render-mpi.sh" <<EOF
 #!/bin/bash
 # Every frame, each frame's distribution shared by the job's $mpi_ranks ranks
@@ -115,7 +120,7 @@ set -euo pipefail
 echo "start \$EPOCHREALTIME" >"$work/timeline/render_mpi"
 # Open MPI refuses to run as root unless told.
 [[ \$(id -u) != 0 ]] || export OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1
-mpirun -np $mpi_ranks "$illumnet" render "$work/scene.inet" --mpi --skip-done -q $render_args \\
+mpirun -np $mpi_ranks "$illumnet" render "$work/scene.inet" --mpi --skip-done -q $threads_arg $render_args \\
     -o "$work/frames/frame_%04d.png"
 echo "end \$EPOCHREALTIME" >>"$work/timeline/render_mpi"
 EOF

@@ -6,7 +6,7 @@ use std::path::Path;
 
 use anyhow::Result;
 use illumnet::archive::{Archive, ArchiveSummary};
-use illumnet::memory::{BudgetSource, MemoryBudget};
+use illumnet::memory::MemoryBudget;
 use illumnet::progress::Progress;
 use illumnet::render::plan;
 
@@ -55,9 +55,6 @@ pub fn open_within_budget(
         if let plan::LinkAccess::Streamed { in_flight, .. } = memory.access {
             stream.limit_windows_in_flight(in_flight);
         }
-    }
-    if budget.source == BudgetSource::Given || memory.access != plan::LinkAccess::Mapped {
-        println!("memory: {memory}");
     }
     Ok((archive, memory))
 }
