@@ -13,6 +13,7 @@ mod inspect;
 mod mpi;
 mod progress_bar;
 mod render;
+mod serve;
 mod shard;
 mod upgrade;
 mod verify;
@@ -43,6 +44,11 @@ enum Command {
     Build(build::BuildCommand),
     /// Distribute light over an archive's links and render its camera view.
     Render(render::RenderCommand),
+    /// Relight an archive interactively in the browser: a page of its
+    /// patches coloured by their radiance, with controls for the emitters,
+    /// the reflectances, the exposure and the frame, re-solved as they
+    /// change. Serves on loopback; the archive is never written.
+    Serve(serve::ServeCommand),
     /// Validate an archive and print its header, sections and counts.
     Inspect(inspect::InspectCommand),
     /// Check an archive beyond what opening it checks: every link end
@@ -200,6 +206,7 @@ pub fn main() -> ExitCode {
             None => build::run(command, &progress),
         },
         Command::Render(command) => render::run(command, &progress),
+        Command::Serve(command) => serve::run(command),
         Command::Inspect(command) => inspect::run(command),
         Command::Verify(command) => verify::run(command),
         Command::Compare(command) => compare::run(command),

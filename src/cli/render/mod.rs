@@ -15,7 +15,7 @@ pub(crate) mod frame_plan;
 mod open;
 mod options;
 mod outputs;
-mod relight;
+pub(crate) mod relight;
 mod summary;
 
 use std::path::{Path, PathBuf};
@@ -25,6 +25,7 @@ use anyhow::Result;
 use clap::Args;
 use illumnet::archive::{self, Archive};
 use illumnet::distribute;
+use illumnet::memory::BudgetSource;
 use illumnet::progress::Progress;
 use illumnet::render::{self, RenderOptions, plan};
 
@@ -77,7 +78,7 @@ pub struct RenderCommand {
     #[command(flatten)]
     relight: relight::RelightArgs,
     /// Share the distribution among the processes of an MPI job (launched
-    /// by `mpirun` or `srun`): each reads and gathers over the link ends
+    /// by Open MPI's `mpirun`): each reads and gathers over the link ends
     /// of its own range of receivers, and they exchange what those
     /// received after every gather; the images are bit-identical to one
     /// process's, written by rank 0. Needs a binary built with
@@ -104,6 +105,7 @@ pub fn run(command: RenderCommand, progress: &dyn Progress) -> Result<()> {
         mpi,
     } = command;
     settings.memory_budget = budget.memory_budget;
+    let sets = relight.all()?;
     let extras = Extras {
         gif: gif.as_deref(),
         contact_sheet: contact_sheet.as_deref(),
@@ -113,28 +115,31 @@ pub fn run(command: RenderCommand, progress: &dyn Progress) -> Result<()> {
         skip_done,
         team: None,
     };
-    let go = |extras: Extras<'_>, progress: &dyn Progress| {
+    let go_with = |settings: RenderArgs, extras: Extras<'_>, progress: &dyn Progress| {
         RenderCameras::new(&camera).and_then(|cameras| {
-            render(
-                &archive,
-                &output,
-                exr.as_deref(),
-                frames.as_deref(),
-                settings,
-                &cameras,
-                &relight.set,
-                extras,
-                progress,
-            )
+            render(&archive, &output, exr.as_deref(), frames.as_deref(), settings, &cameras, &sets, extras, progress)
         })
     };
     match mpi {
-        // Only rank 0 shows progress.
-        true => super::mpi::in_job(|team| {
+        // Only rank 0 shows progress. Ranks on one node share its memory:
+        // the default budget is divided among them.
+        true => super::mpi::in_job(|team, on_this_node| {
             let quiet = illumnet::progress::NoProgress;
-            go(Extras { team: Some(team), ..extras }, if team.rank() == 0 { progress } else { &quiet })
+            let progress = if team.rank() == 0 { progress } else { &quiet };
+            let mut settings = settings;
+            if settings.memory_budget.is_none() && on_this_node > 1 {
+                let share = super::common::memory_budget(None).bytes / on_this_node as u64;
+                settings.memory_budget = Some(share);
+                if team.rank() == 0 {
+                    println!(
+                        "memory: {on_this_node} ranks on this node: each takes 1/{on_this_node} of the default budget ({})",
+                        illumnet::memory::Bytes(share)
+                    );
+                }
+            }
+            go_with(settings, Extras { team: Some(team), ..extras }, progress)
         }),
-        false => go(extras, progress),
+        false => go_with(settings, extras, progress),
     }
 }
 
@@ -220,7 +225,9 @@ pub fn render(
     let frame_plan = frame_plan::plan_frames(&summary, cameras, frames, reference.as_ref())?;
     if frame_plan.range.is_empty() {
         // `--frames auto/K` with more tasks than frames.
-        println!("no frames to render: {} has none for this task", frames.unwrap_or_default());
+        if extras.leader() {
+            println!("no frames to render: {} has none for this task", frames.unwrap_or_default());
+        }
         return Ok(());
     }
     let (width, height) = frame_plan.largest;
@@ -235,6 +242,9 @@ pub fn render(
         threads: rayon::current_num_threads() as u32,
     };
     let (archive, memory) = open::open_within_budget(path, &summary, &job, budget, &args, progress)?;
+    if extras.leader() && (budget.source == BudgetSource::Given || memory.access != plan::LinkAccess::Mapped) {
+        println!("memory: {memory}");
+    }
     let view = archive.view();
     let t_open = t.elapsed().as_secs_f64();
     let sequence_output = frame_plan.sequence_output();

@@ -20,6 +20,28 @@ pub struct RelightArgs {
     /// each in [0, 1]), e.g. `--set light.emission=20,15,5`.
     #[arg(long = "set", value_name = "NAME.FIELD=R,G,B")]
     pub set: Vec<String>,
+    /// Read `--set` values from a TOML file, `set = ["NAME.FIELD=R,G,B",
+    /// …]` (what `illumnet serve` saves); `--set` values given too are
+    /// applied after them.
+    #[arg(long, value_name = "FILE.toml")]
+    pub set_file: Option<std::path::PathBuf>,
+}
+
+impl RelightArgs {
+    /// Every `--set` value: the file's, then the command line's.
+    pub fn all(&self) -> Result<Vec<String>> {
+        let Some(path) = &self.set_file else { return Ok(self.set.clone()) };
+        #[derive(serde::Deserialize)]
+        #[serde(deny_unknown_fields)]
+        struct SetFile {
+            set: Vec<String>,
+        }
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| crate::cli::exit::IoFailure(format!("--set-file {}: {e}", path.display())))?;
+        let file: SetFile = toml::from_str(&text)
+            .map_err(|e| crate::cli::exit::BadInput(format!("--set-file {}: {e}", path.display())))?;
+        Ok(file.set.into_iter().chain(self.set.iter().cloned()).collect())
+    }
 }
 
 /// Applies `--set NAME.FIELD=R,G,B` changes to `lighting`.

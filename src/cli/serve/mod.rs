@@ -1,0 +1,227 @@
+//! `illumnet serve ARCHIVE`: interactive relighting in the browser. The
+//! page (served from the binary: `assets/serve/`) draws the patches
+//! coloured by their radiance and sends changes of the light; one solver
+//! thread (`solver`) re-solves warm-started from the last solution and
+//! every page connected gets the new radiance (binary WebSocket frames)
+//! and the energy balance. The archive is never written; the light is
+//! saved only on request, as `--set` values `render --set-file` reads.
+//!
+//! The HTTP and WebSocket server is axum on tokio; `protocol` decodes and
+//! checks what pages send, `mesh` the patches as triangles.
+
+mod mesh;
+mod protocol;
+mod solver;
+
+use std::net::{IpAddr, SocketAddr};
+use std::path::PathBuf;
+use std::sync::{Arc, Condvar, Mutex};
+
+use anyhow::{Context, Result};
+use axum::extract::State;
+use axum::extract::ws::{Message, WebSocket, WebSocketUpgrade};
+use axum::http::header;
+use axum::response::IntoResponse;
+use axum::routing::get;
+use clap::Args;
+use illumnet::archive::Archive;
+use tokio::sync::watch;
+
+use super::common::opened;
+use protocol::{Request, Sets};
+use solver::{Desk, Solved, Wanted};
+
+/// `illumnet serve`'s arguments.
+#[derive(Args)]
+pub struct ServeCommand {
+    /// Archive written by `illumnet build` (never written to).
+    archive: PathBuf,
+    /// Port to listen on (0: any free one; the URL printed says which).
+    #[arg(long, default_value_t = 7878)]
+    port: u16,
+    /// Address to listen on. Loopback by default: there is no
+    /// authentication, so another address lets anyone who reaches it
+    /// change the light (a warning says so).
+    #[arg(long, default_value = "127.0.0.1")]
+    bind: IpAddr,
+}
+
+/// What every connection shares.
+struct Shared {
+    archive: Arc<Archive>,
+    desk: Arc<Desk>,
+    solved: watch::Receiver<Option<Arc<Solved>>>,
+    scene: String,
+    mesh: Vec<u8>,
+}
+
+/// Runs `illumnet serve` until interrupted.
+pub fn run(command: ServeCommand) -> Result<()> {
+    let archive = Arc::new(opened(&command.archive, Archive::open(&command.archive))?);
+    let v = archive.view();
+    let desk =
+        Arc::new(Desk { wanted: Mutex::new(Wanted { version: 1, ..Default::default() }), changed: Condvar::new() });
+    let (tx, rx) = watch::channel(None);
+    let shared = Arc::new(Shared {
+        archive: archive.clone(),
+        desk: desk.clone(),
+        solved: rx,
+        scene: scene_message(&archive),
+        mesh: mesh::mesh_bytes(&v),
+    });
+    let solver = {
+        let (archive, desk) = (archive.clone(), desk.clone());
+        std::thread::Builder::new().name("solver".into()).spawn(move || {
+            solver::run(&archive, &desk, |s| tx.send(Some(Arc::new(s))).is_ok());
+        })?
+    };
+    let runtime = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build()?;
+    let result = runtime.block_on(serve(command.bind, command.port, shared));
+    drop(solver); // detached: it ends with the process
+    result
+}
+
+/// Listens and answers until interrupted.
+async fn serve(bind: IpAddr, port: u16, shared: Arc<Shared>) -> Result<()> {
+    let app = axum::Router::new()
+        .route("/", get(|| async { ([(header::CONTENT_TYPE, "text/html; charset=utf-8")], PAGE) }))
+        .route("/app.js", get(|| async { ([(header::CONTENT_TYPE, "text/javascript; charset=utf-8")], SCRIPT) }))
+        .route("/mesh.bin", get(mesh_bin))
+        .route("/ws", get(upgrade))
+        .with_state(shared);
+    let address = SocketAddr::new(bind, port);
+    let listener =
+        tokio::net::TcpListener::bind(address).await.with_context(|| format!("cannot listen on {address}"))?;
+    let local = listener.local_addr()?;
+    if !bind.is_loopback() {
+        eprintln!(
+            "illumnet: warning: listening on {local}, not loopback: there is no authentication, anyone who reaches \
+             this address can change the light (the archive is never written)"
+        );
+    }
+    println!("serving on http://{local}/ (Ctrl-C to stop)");
+    axum::serve(listener, app).await.context("the server stopped")
+}
+
+/// The page and its script, from the binary.
+const PAGE: &str = include_str!("../../../assets/serve/index.html");
+const SCRIPT: &str = include_str!("../../../assets/serve/app.js");
+
+async fn mesh_bin(State(shared): State<Arc<Shared>>) -> impl IntoResponse {
+    ([(header::CONTENT_TYPE, "application/octet-stream")], shared.mesh.clone())
+}
+
+async fn upgrade(ws: WebSocketUpgrade, State(shared): State<Arc<Shared>>) -> impl IntoResponse {
+    ws.max_message_size(protocol::MAX_MESSAGE).on_upgrade(move |socket| connection(socket, shared))
+}
+
+/// One page: the scene first, then every solution as it comes, and an
+/// answer to each request.
+async fn connection(mut socket: WebSocket, shared: Arc<Shared>) {
+    let mut solved = shared.solved.clone();
+    if socket.send(Message::Text(shared.scene.clone().into())).await.is_err() {
+        return;
+    }
+    // The latest solution, if any, at once.
+    let current = solved.borrow_and_update().clone();
+    if let Some(s) = current
+        && send_solved(&mut socket, &s).await.is_err()
+    {
+        return;
+    }
+    loop {
+        tokio::select! {
+            changed = solved.changed() => {
+                if changed.is_err() { return; }
+                let current = solved.borrow_and_update().clone();
+                if let Some(s) = current && send_solved(&mut socket, &s).await.is_err() { return; }
+            }
+            incoming = socket.recv() => {
+                let reply = match incoming {
+                    Some(Ok(Message::Text(text))) => answer(&shared, &text),
+                    Some(Ok(Message::Binary(_))) => Some(error("binary messages are not requests")),
+                    Some(Ok(_)) => None, // pings, pongs
+                    Some(Err(_)) | None => return,
+                };
+                if let Some(r) = reply && socket.send(Message::Text(r.into())).await.is_err() {
+                    return;
+                }
+            }
+        }
+    }
+}
+
+async fn send_solved(socket: &mut WebSocket, s: &Solved) -> Result<(), axum::Error> {
+    socket.send(Message::Text(s.status.clone().into())).await?;
+    if !s.radiance.is_empty() {
+        socket.send(Message::Binary(s.radiance.clone().into())).await?;
+    }
+    Ok(())
+}
+
+fn error(message: impl std::fmt::Display) -> String {
+    serde_json::json!({ "type": "error", "message": message.to_string() }).to_string()
+}
+
+/// Applies one request; the answer to send (changes are answered by the
+/// solution every page receives).
+fn answer(shared: &Shared, text: &str) -> Option<String> {
+    let request = match protocol::decode(text) {
+        Ok(r) => r,
+        Err(e) => return Some(error(e)),
+    };
+    let mut wanted = shared.desk.wanted.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+    let frames = shared.archive.view().sequence.map_or(1, |s| s.frames());
+    match request {
+        Request::Save => {
+            return Some(serde_json::json!({ "type": "saved", "toml": wanted.sets.toml() }).to_string());
+        }
+        Request::Set { target, value } => {
+            let sets = wanted.sets.with(&target, value);
+            if let Err(e) = solver::lighting(&shared.archive, &sets) {
+                return Some(error(format!("{e:#}")));
+            }
+            wanted.sets = sets;
+        }
+        Request::Frame(f) if f >= frames => {
+            return Some(error(format!("frame {f}: the archive has {frames} frame(s)")));
+        }
+        Request::Frame(f) => wanted.frame = f,
+        Request::Reset => wanted.sets = Sets::default(),
+    }
+    wanted.version += 1;
+    shared.desk.changed.notify_one();
+    None
+}
+
+/// The scene as the page needs it: surfaces (names, light, reflectance),
+/// frames, patches, the camera.
+fn scene_message(archive: &Archive) -> String {
+    let v = archive.view();
+    let meta = archive.meta();
+    let lighting = illumnet::distribute::Lighting::from_view(&v);
+    let surfaces: Vec<_> = meta
+        .surface_names
+        .iter()
+        .enumerate()
+        .map(|(s, name)| {
+            serde_json::json!({
+                "name": name,
+                "material": meta.material_names[v.surfaces[s].material as usize],
+                "emission": lighting.emission[s],
+                "reflectance": lighting.reflectance[s],
+                "specular": lighting.specular[s],
+            })
+        })
+        .collect();
+    let c = v.camera;
+    serde_json::json!({
+        "type": "scene",
+        "surfaces": surfaces,
+        "frames": v.sequence.map_or(1, |s| s.frames()),
+        "patches": v.patch_count(),
+        "camera": { "position": c.position, "look_at": c.look_at, "up": c.up, "fov_y_deg": c.fov_y_deg,
+                    "width": c.width, "height": c.height },
+    })
+    .to_string()
+}

@@ -1,0 +1,238 @@
+//! `illumnet serve`, talked to as its page does (WebSocket, JSON requests,
+//! binary radiance frames): the light is linear in emission, two pages see
+//! one state, hostile requests change nothing and are each answered with
+//! an error, and the light saved reads back as `render --set-file` input.
+
+use std::io::{BufRead, BufReader};
+use std::path::Path;
+use std::process::{Child, Command, Stdio};
+use std::time::Duration;
+
+use futures_util::{SinkExt, StreamExt};
+use tokio_tungstenite::tungstenite::Message;
+
+type Socket = tokio_tungstenite::WebSocketStream<tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>>;
+
+/// The server, killed (by its PID, through `Child`) when dropped.
+struct Server {
+    child: Child,
+    url: String,
+}
+
+impl Drop for Server {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+fn build_cornell_box(dir: &Path) -> std::path::PathBuf {
+    let archive = dir.join("c.inet");
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/cornell_box.toml");
+    let out = Command::new(env!("CARGO_BIN_EXE_illumnet"))
+        .args(["build", "-q", "--quality", "draft"])
+        .arg(&scene)
+        .arg("-o")
+        .arg(&archive)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    archive
+}
+
+fn serve(archive: &Path) -> Server {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_illumnet"))
+        .args(["serve", "--port", "0"])
+        .arg(archive)
+        .stdout(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut line = String::new();
+    BufReader::new(child.stdout.take().unwrap()).read_line(&mut line).unwrap();
+    let address = line.split("http://").nth(1).and_then(|r| r.split('/').next()).unwrap_or_else(|| panic!("{line}"));
+    Server { child, url: format!("ws://{address}/ws") }
+}
+
+/// The next text message, as JSON.
+async fn next_json(ws: &mut Socket) -> serde_json::Value {
+    loop {
+        let m = tokio::time::timeout(Duration::from_secs(60), ws.next()).await.expect("an answer").unwrap().unwrap();
+        if let Message::Text(t) = m {
+            return serde_json::from_str(&t).unwrap();
+        }
+    }
+}
+
+/// The next solution: its status and per-patch radiance.
+async fn next_solution(ws: &mut Socket) -> (serde_json::Value, Vec<[f32; 3]>) {
+    let status = loop {
+        let j = next_json(ws).await;
+        if j["type"] == "solved" {
+            break j;
+        }
+        assert_ne!(j["type"], "error", "{j}");
+    };
+    let m = tokio::time::timeout(Duration::from_secs(60), ws.next()).await.unwrap().unwrap().unwrap();
+    let Message::Binary(b) = m else { panic!("expected the radiance after the status, got {m:?}") };
+    assert_eq!(&b[..4], b"INRD");
+    let n = u32::from_le_bytes(b[12..16].try_into().unwrap()) as usize;
+    assert_eq!(b.len(), 16 + 12 * n);
+    let radiance = b[16..]
+        .chunks_exact(12)
+        .map(|c| [0, 1, 2].map(|k| f32::from_le_bytes(c[4 * k..4 * k + 4].try_into().unwrap())))
+        .collect();
+    (status, radiance)
+}
+
+async fn send(ws: &mut Socket, text: &str) {
+    ws.send(Message::Text(text.into())).await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_page_relights_the_cornell_box() {
+    let dir = tempfile::tempdir().unwrap();
+    let archive = build_cornell_box(dir.path());
+    let server = serve(&archive);
+    let (mut a, _) = tokio_tungstenite::connect_async(&server.url).await.unwrap();
+    let scene = next_json(&mut a).await;
+    assert_eq!(scene["type"], "scene");
+    let light: Vec<f64> =
+        scene["surfaces"].as_array().unwrap().iter().find(|s| s["name"] == "light").unwrap()["emission"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|x| x.as_f64().unwrap())
+            .collect();
+    let (first, one) = next_solution(&mut a).await;
+    assert_eq!(first["sets"].as_array().unwrap().len(), 0);
+
+    // Twice the lamp: everything is linear in emission.
+    let doubled = format!(
+        r#"{{"op":"set","target":"light.emission","value":[{},{},{}]}}"#,
+        2.0 * light[0],
+        2.0 * light[1],
+        2.0 * light[2]
+    );
+    send(&mut a, &doubled).await;
+    let (status, two) = next_solution(&mut a).await;
+    assert!(status["version"].as_u64() > first["version"].as_u64());
+    let peak = one.iter().flatten().fold(0.0f32, |m, &x| m.max(x));
+    let (mut diff, mut total) = (0.0f64, 0.0f64);
+    for (p, (x, y)) in one.iter().zip(&two).enumerate() {
+        for c in 0..3 {
+            // The solver's tolerance: 1e-4 of the emitted power unshot.
+            assert!((y[c] - 2.0 * x[c]).abs() <= 2e-3 * peak + 1e-2 * x[c], "patch {p}: {} then {}", x[c], y[c]);
+            diff += (y[c] - 2.0 * x[c]).abs() as f64;
+            total += 2.0 * x[c] as f64;
+        }
+    }
+    assert!(diff / total < 1e-3, "radiance doubled to {:.2e} (relative L1)", diff / total);
+
+    // A second page sees the same state, at once.
+    let (mut b, _) = tokio_tungstenite::connect_async(&server.url).await.unwrap();
+    assert_eq!(next_json(&mut b).await["type"], "scene");
+    let (seen, radiance_b) = next_solution(&mut b).await;
+    assert_eq!(seen["version"], status["version"]);
+    assert!(radiance_b == two, "the second page sees other light");
+
+    // Hostile requests: each answered with an error, nothing changes.
+    let mut rng = 0x2545_f491_4f6c_dd1du64;
+    let mut next = || {
+        rng ^= rng << 13;
+        rng ^= rng >> 7;
+        rng ^= rng << 17;
+        rng
+    };
+    let shapes = [
+        r#"{"op":"set","target":"nothing.emission","value":[1,1,1]}"#.to_string(),
+        r#"{"op":"set","target":"light.emission","value":[-1,1,1]}"#.to_string(),
+        r#"{"op":"set","target":"light.emission","value":[1e39,1,1]}"#.to_string(),
+        r#"{"op":"set","target":"red_wall.reflectance","value":[2,0,0]}"#.to_string(),
+        r#"{"op":"set","target":"light.alpha","value":[1,1,1]}"#.to_string(),
+        r#"{"op":"set","target":"light.emission","value":"red"}"#.to_string(),
+        r#"{"op":"frame","frame":5}"#.to_string(),
+        r#"{"op":"frame","frame":1e20}"#.to_string(),
+        r#"{"op":"delete"}"#.to_string(),
+        "{".to_string(),
+    ];
+    for i in 0..1000 {
+        let text = match i % 3 {
+            0 => shapes[next() as usize % shapes.len()].clone(),
+            1 => (0..next() % 64).map(|_| char::from(32 + (next() % 95) as u8)).collect(),
+            _ => format!(
+                r#"{{"op":"set","target":"light.emission","value":[{},{},{}]}}"#,
+                -((next() % 1000) as f64 + 1.0),
+                1,
+                1
+            ),
+        };
+        send(&mut a, &text).await;
+        let answer = next_json(&mut a).await;
+        assert_eq!(answer["type"], "error", "{text} → {answer}");
+    }
+    // Binary requests are not requests either.
+    a.send(Message::Binary(vec![0u8; 64].into())).await.unwrap();
+    assert_eq!(next_json(&mut a).await["type"], "error");
+    send(&mut a, r#"{"op":"save"}"#).await;
+    let saved = next_json(&mut a).await;
+    assert_eq!(saved["type"], "saved", "{saved}");
+    let toml_text = saved["toml"].as_str().unwrap();
+    let parsed: toml::Value = toml::from_str(toml_text).unwrap();
+    assert_eq!(parsed["set"].as_array().unwrap().len(), 1, "only the lamp was set: {toml_text}");
+    // `render --set-file` reads it: the same image as the `--set` it holds.
+    let file = dir.path().join("light.toml");
+    std::fs::write(&file, toml_text).unwrap();
+    let set = parsed["set"][0].as_str().unwrap().to_string();
+    let render = |extra: &[&str], png: &str| {
+        let out = Command::new(env!("CARGO_BIN_EXE_illumnet"))
+            .arg("render")
+            .arg(&archive)
+            .args(["-q", "--shading", "inet", "--samples", "1", "--size", "32x32", "-o"])
+            .arg(dir.path().join(png))
+            .args(extra)
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        image::open(dir.path().join(png)).unwrap().to_rgb8().into_raw()
+    };
+    let from_file = render(&["--set-file", file.to_str().unwrap()], "file.png");
+    assert!(from_file == render(&["--set", &set], "set.png"), "--set-file differs from --set {set}");
+    assert!(from_file != render(&[], "plain.png"), "the saved light is the archive's");
+
+    // Half the red wall's reflectance: its patches lose more than half
+    // their light (less comes back to them too).
+    let names: Vec<String> =
+        scene["surfaces"].as_array().unwrap().iter().map(|s| s["name"].as_str().unwrap().to_string()).collect();
+    let red = names.iter().position(|n| n == "red_wall").unwrap();
+    let red_rho: Vec<f64> =
+        scene["surfaces"][red]["reflectance"].as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect();
+    send(
+        &mut a,
+        &format!(
+            r#"{{"op":"set","target":"red_wall.reflectance","value":[{},{},{}]}}"#,
+            red_rho[0] / 2.0,
+            red_rho[1] / 2.0,
+            red_rho[2] / 2.0
+        ),
+    )
+    .await;
+    let (after, halved) = next_solution(&mut a).await;
+    assert_eq!(
+        after["version"].as_u64(),
+        Some(status["version"].as_u64().unwrap() + 1),
+        "hostile requests changed the state"
+    );
+    let opened = illumnet::archive::Archive::open(&archive).unwrap();
+    let v = opened.view();
+    let surface_of: Vec<usize> = v.patch_primitive.iter().map(|&p| v.primitives[p as usize].surface as usize).collect();
+    let on = |name: &str, r: &[[f32; 3]], c: usize| -> f64 {
+        let s = names.iter().position(|n| n == name).unwrap();
+        r.iter().zip(&surface_of).filter(|(_, k)| **k == s).map(|(x, _)| x[c] as f64).sum()
+    };
+    let (before_red, after_red) = (on("red_wall", &two, 0), on("red_wall", &halved, 0));
+    assert!(after_red < 0.5 * before_red, "the red wall's red: {before_red:.3} → {after_red:.3}");
+    for wall in ["back_wall", "floor", "ceiling"] {
+        let (x, y) = (on(wall, &two, 0), on(wall, &halved, 0));
+        assert!(y < x, "{wall}'s red: {x:.4} → {y:.4}: the red wall reflects less onto it");
+    }
+}
