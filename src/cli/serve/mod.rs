@@ -87,6 +87,7 @@ async fn serve(bind: IpAddr, port: u16, shared: Arc<Shared>) -> Result<()> {
         .route("/", get(|| async { ([(header::CONTENT_TYPE, "text/html; charset=utf-8")], PAGE) }))
         .route("/app.js", get(|| async { ([(header::CONTENT_TYPE, "text/javascript; charset=utf-8")], SCRIPT) }))
         .route("/mesh.bin", get(mesh_bin))
+        .route("/patch-surfaces.bin", get(patch_surfaces))
         .route("/ws", get(upgrade))
         .with_state(shared);
     let address = SocketAddr::new(bind, port);
@@ -109,6 +110,15 @@ const SCRIPT: &str = include_str!("../../../assets/serve/app.js");
 
 async fn mesh_bin(State(shared): State<Arc<Shared>>) -> impl IntoResponse {
     ([(header::CONTENT_TYPE, "application/octet-stream")], shared.mesh.clone())
+}
+
+/// Each patch's surface (`u32`, little-endian), for a page or a test that
+/// picks patches by surface.
+async fn patch_surfaces(State(shared): State<Arc<Shared>>) -> impl IntoResponse {
+    let v = shared.archive.view();
+    let bytes: Vec<u8> =
+        v.patch_primitive.iter().flat_map(|&p| v.primitives[p as usize].surface.to_le_bytes()).collect();
+    ([(header::CONTENT_TYPE, "application/octet-stream")], bytes)
 }
 
 async fn upgrade(ws: WebSocketUpgrade, State(shared): State<Arc<Shared>>) -> impl IntoResponse {

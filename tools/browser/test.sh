@@ -1,0 +1,61 @@
+#!/usr/bin/env bash
+# The page of `illumnet serve` in headless Chromium (tools/test.sh runs it):
+# installs Chromium and chromedriver (tools/browser/install.sh), builds the
+# Cornell box and the fan room, starts `illumnet serve` for each and
+# chromedriver, runs tools/browser/test_serve.py against them, and stops
+# every process it started by its PID (never by name).
+#   ILLUMNET=path/to/illumnet bash tools/browser/test.sh
+set -euo pipefail
+cd "$(dirname "$0")/../.."
+prog=tools/browser/test.sh
+say() { echo "$prog: $*" >&2; }
+die() {
+    say "FAILED: $*"
+    exit 1
+}
+bin=$(realpath "${ILLUMNET:?set ILLUMNET to an illumnet binary}")
+bash tools/browser/install.sh
+work=$(mktemp -d)
+pids=()
+stop() {
+    local p
+    for p in "${pids[@]}"; do
+        kill "$p" 2>/dev/null || true
+    done
+    for p in "${pids[@]}"; do
+        wait "$p" 2>/dev/null || true
+        [[ ! -e /proc/$p ]] || [[ $(awk '{print $3}' "/proc/$p/stat" 2>/dev/null) == Z ]] ||
+            say "warning: process $p still runs"
+    done
+    rm -rf "$work"
+}
+trap stop EXIT
+
+"$bin" build -q scenes/cornell_box.toml --quality draft -o "$work/cornell.inet" >/dev/null
+"$bin" build -q scenes/fan_room.toml --quality draft -o "$work/fan.inet" >/dev/null
+
+start_serve() { # archive log -> prints the page URL
+    "$bin" serve --port 0 "$1" >"$2" 2>&1 &
+    pids+=($!)
+    local i
+    for i in $(seq 300); do
+        grep -q '^serving on ' "$2" && break
+        sleep 0.1
+    done
+    sed -n 's/^serving on \(http:[^ ]*\).*/\1/p' "$2" | head -n 1
+}
+cornell=$(start_serve "$work/cornell.inet" "$work/cornell.log")
+[[ -n $cornell ]] || die "illumnet serve did not start: $(cat "$work/cornell.log")"
+fan=$(start_serve "$work/fan.inet" "$work/fan.log")
+[[ -n $fan ]] || die "illumnet serve did not start: $(cat "$work/fan.log")"
+
+port=$((20000 + RANDOM % 20000))
+chromedriver --port=$port >"$work/chromedriver.log" 2>&1 &
+pids+=($!)
+for i in $(seq 300); do
+    curl -fs "http://127.0.0.1:$port/status" >/dev/null 2>&1 && break
+    sleep 0.1
+done
+python3 tools/browser/test_serve.py --webdriver "http://127.0.0.1:$port" --page "$cornell" --fan-page "$fan" ||
+    die "the page test failed (serve logs: $(tail -n 3 "$work"/*.log))"
+say "passed"
