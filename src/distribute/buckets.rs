@@ -20,13 +20,13 @@ use rayon::prelude::*;
 /// Largest mean ring size accepted (a 4-ring of a grid has 41 patches).
 pub const MAX_RING_MEAN: u64 = 256;
 
-/// The `k`-rings of every patch for `k = 1..=max`, as CSR tables.
+/// The `k`-rings of every patch for `k = 1..=max`, as CSR tables (4
+/// bytes a member and an offset per patch and ring; the weights `w_pq`
+/// follow from the rings' sizes and are computed where they are used).
 pub struct Rings {
     /// `offsets[k-1][p]..offsets[k-1][p+1]` index `members[k-1]`.
-    offsets: Vec<Vec<u64>>,
+    offsets: Vec<Vec<u32>>,
     members: Vec<Vec<u32>>,
-    /// Weight `w_pq` of each member (aligned with `members`).
-    weights: Vec<Vec<f32>>,
 }
 
 impl Rings {
@@ -36,8 +36,8 @@ impl Rings {
     /// rings hold at most 2k²+2k+1).
     pub fn new(adj_offsets: &[u32], adj: &[u32], max: usize) -> Result<Self, String> {
         let n = adj_offsets.len() - 1;
-        let mut offsets = vec![vec![0u64]; max];
-        let cap = (MAX_RING_MEAN * n as u64).max(1024);
+        let mut offsets = vec![vec![0u32]; max];
+        let cap = (MAX_RING_MEAN * n as u64).clamp(1024, u32::MAX as u64);
         let mut members = vec![Vec::new(); max];
         let mut seen = vec![u32::MAX; n];
         let mut frontier = Vec::new();
@@ -64,34 +64,41 @@ impl Rings {
                 let start = members[k].len();
                 members[k].extend_from_slice(&ring);
                 members[k][start..].sort_unstable();
-                offsets[k].push(members[k].len() as u64);
                 if members[k].len() as u64 > cap {
-                    return Err(format!("bucket rings exceed {MAX_RING_MEAN} patches per patch: malformed adjacency"));
+                    return Err(format!(
+                        "bucket rings exceed {} patches per patch: malformed adjacency",
+                        MAX_RING_MEAN.min(cap / n.max(1) as u64)
+                    ));
                 }
+                offsets[k].push(members[k].len() as u32);
             }
         }
-        let mut weights = Vec::with_capacity(max);
-        for k in 0..max {
-            let (o, m) = (&offsets[k], &members[k]);
-            let len = |p: usize| (o[p + 1] - o[p]) as f32;
-            let mut w = vec![0.0f32; m.len()];
-            for q in 0..n {
-                let mut others = 0.0f32;
-                let mut self_at = 0;
-                for e in o[q] as usize..o[q + 1] as usize {
-                    let p = m[e] as usize;
-                    if p == q {
-                        self_at = e;
-                    } else {
-                        w[e] = 1.0 / len(p).max(len(q));
-                        others += w[e];
-                    }
-                }
-                w[self_at] = 1.0 - others;
-            }
-            weights.push(w);
+        for m in &mut members {
+            m.shrink_to_fit();
         }
-        Ok(Self { offsets, members, weights })
+        Ok(Self { offsets, members })
+    }
+
+    /// Calls `add(p, w_pq)` for each member `p` of `q`'s `k`-ring in
+    /// ascending order: `w_pq = 1/max(|ring_k(p)|, |ring_k(q)|)` for the
+    /// others, and what they leave, `1 − Σ w`, for `q` itself (summed in
+    /// the same order each time: the same bits).
+    #[inline]
+    fn weighted(&self, k: usize, q: usize, mut add: impl FnMut(usize, f32)) {
+        let (o, m) = (&self.offsets[k - 1], &self.members[k - 1]);
+        let len = |p: usize| (o[p + 1] - o[p]) as f32;
+        let ring = &m[o[q] as usize..o[q + 1] as usize];
+        let lq = len(q);
+        let mut others = 0.0f32;
+        for &p in ring {
+            if p as usize != q {
+                others += 1.0 / len(p as usize).max(lq);
+            }
+        }
+        for &p in ring {
+            let p = p as usize;
+            add(p, if p == q { 1.0 - others } else { 1.0 / len(p).max(lq) });
+        }
     }
 
     /// The `k`-ring of patch `p` (`k ≥ 1`), ascending, `p` included.
@@ -109,13 +116,12 @@ impl Rings {
                 let q = block * 512 + i;
                 let mut acc = [0.0f32; 4];
                 for k in 1..buckets {
-                    let range = self.offsets[k - 1][q] as usize..self.offsets[k - 1][q + 1] as usize;
-                    for (&p, &w) in self.members[k - 1][range.clone()].iter().zip(&self.weights[k - 1][range]) {
-                        let r = recv[p as usize * buckets + k];
+                    self.weighted(k, q, |p, w| {
+                        let r = recv[p * buckets + k];
                         for c in 0..4 {
                             acc[c] += r[c] * w;
                         }
-                    }
+                    });
                 }
                 *o = acc;
             }

@@ -13,7 +13,7 @@
 
 use rayon::prelude::*;
 
-use super::anderson::Anderson;
+use super::anderson::{Anderson, PairMut, to_half};
 use super::kernels::{BLOCK, PackedRgb, add_ends, gather, silence_absent};
 use super::setup::FrameSetup;
 use super::warm::{Carry, WarmStart};
@@ -72,8 +72,6 @@ pub(super) struct Iteration<'d, 'f, 's> {
     recv: Vec<[f32; 4]>,
     /// Spread onto each patch from its rings.
     spread: Vec<[f32; 4]>,
-    /// What the step changed in the residual, for the acceleration.
-    residual_change: Vec<[f32; 4]>,
     /// Received power over the iterations: what hit the patch itself
     /// (bucket 0, whose density follows the patch's hit count) and what
     /// was spread onto it.
@@ -129,13 +127,12 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
             d,
             s,
             warm,
-            unshot: s.emitted_power.clone(),
+            unshot: s.emitted_powers(),
             send: vec![[0.0; 4]; n],
             shoot: vec![[0.0; 4]; n],
             packed: PackedRgb::new(n),
             recv: vec![[0.0; 4]; n * nb],
             spread: vec![[0.0; 4]; n],
-            residual_change: vec![[0.0; 4]; n],
             total_direct: vec![[0.0; 4]; n],
             total_spread: vec![[0.0; 4]; n],
             carrying,
@@ -182,15 +179,18 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
         self.spread();
         self.add_to_carry();
         self.residual_total = 0.0;
-        self.reflect();
+        // The step's secant pair, unless it mixed in light that `send`
+        // did not make (the warm jump's, a table step's).
+        let recording = !warm_jump && !injected;
+        self.reflect(recording);
         let previous_diffuse = std::mem::replace(&mut self.diffuse_residual, self.residual_total);
         self.reflect_directional();
         if let Some(g) = &self.glossy {
             self.residual_total += g.waiting;
         }
-        if !warm_jump && !injected {
+        if recording {
             if self.diffuse_residual < previous_diffuse {
-                self.anderson.record(&self.send, &self.residual_change);
+                self.anderson.commit();
             } else {
                 self.anderson.reset();
             }
@@ -217,7 +217,7 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
     /// sums are added in block order, so the result does not depend on the
     /// threads.
     fn shoot(&mut self) {
-        let (share, linked, send) = (&self.d.share, &self.s.linked, &self.send);
+        let (d, linked, send) = (self.d, &self.s.linked, &self.send);
         let back_share = &self.d.back_share;
         let lost: Vec<[[f64; 3]; 2]> = self
             .shoot
@@ -228,7 +228,7 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
                 let mut sum = [[0.0f64; 3]; 2];
                 for (i, sh) in out.iter_mut().enumerate() {
                     let p = block * BLOCK + i;
-                    let s = share[p];
+                    let s = d.share(p);
                     let unlinked = 1.0 - linked[p] * s as f64;
                     let back = back_share.get(p).map_or(0.0, |&b| (b as f64).min(unlinked).max(0.0));
                     for c in 0..3 {
@@ -307,8 +307,11 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
             let shoot_e: Vec<[f32; 4]> = c
                 .sent
                 .iter()
-                .zip(&self.d.share)
-                .map(|(x, &s)| [x[0] as f32 * s, x[1] as f32 * s, x[2] as f32 * s, 0.0])
+                .enumerate()
+                .map(|(p, x)| {
+                    let s = self.d.share(p);
+                    [x[0] as f32 * s, x[1] as f32 * s, x[2] as f32 * s, 0.0]
+                })
                 .collect();
             add_ends(e, nb, &shoot_e, -1.0, None, &mut self.recv);
         }
@@ -461,28 +464,40 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
 
     /// Every patch reflects `ρ` of what it received (direct and spread) as
     /// new unshot power and absorbs the rest: `f(x + δ) = f(x) − δ + K·δ`.
-    fn reflect(&mut self) {
-        let (rho, nb) = (&self.d.rho, self.d.nb);
+    /// When `recording`, the step's secant pair (the change of the
+    /// residual, and what was reflected) goes straight into Anderson's
+    /// history.
+    fn reflect(&mut self, recording: bool) {
+        let (d, nb, n) = (self.d, self.d.nb, self.unshot.len());
         let (recv, spread, send) = (&self.recv, &self.spread, &self.send);
+        // Per block of patches, its part of the pair's two vectors.
+        let slots: Vec<Option<PairMut<'_>>> = match recording.then(|| self.anderson.slot(n)).flatten() {
+            Some((df, kdx)) => df.chunks_mut(BLOCK).zip(kdx.chunks_mut(BLOCK)).map(Some).collect(),
+            None => (0..n.div_ceil(BLOCK)).map(|_| None).collect(),
+        };
         let sums: Vec<([f64; 3], f64)> = (
             self.total_direct.par_chunks_mut(BLOCK),
             self.total_spread.par_chunks_mut(BLOCK),
-            self.residual_change.par_chunks_mut(BLOCK),
+            slots.into_par_iter(),
             self.unshot.par_chunks_mut(BLOCK),
         )
             .into_par_iter()
             .enumerate()
-            .map(|(block, (td, ts, rc, un))| {
+            .map(|(block, (td, ts, mut slot, un))| {
                 let (mut absorbed, mut residual) = ([0.0f64; 3], 0.0f64);
                 for i in 0..td.len() {
                     let p = block * BLOCK + i;
+                    let rho = d.rho(p);
                     for c in 0..3 {
                         let direct = recv[p * nb][c];
                         let r = direct + spread[p][c];
                         td[i][c] += direct;
                         ts[i][c] += spread[p][c];
-                        let reflected = r * rho[p][c];
-                        rc[i][c] = reflected - send[p][c];
+                        let reflected = r * rho[c];
+                        if let Some((df, kdx)) = slot.as_mut() {
+                            df[i][c] = to_half(reflected - send[p][c]);
+                            kdx[i][c] = to_half(reflected);
+                        }
                         un[i][c] = un[i][c] - send[p][c] + reflected;
                         absorbed[c] += (r - reflected) as f64;
                         residual += un[i][c].abs() as f64;
@@ -508,7 +523,8 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
         let (d, s, nb) = (self.d, self.s, self.d.nb);
         let v = &d.v;
         let present = s.absent_mask();
-        for ((sh, e), &k) in self.shoot.iter_mut().zip(&s.emitted_power).zip(&d.share) {
+        for (p, sh) in self.shoot.iter_mut().enumerate() {
+            let (e, k) = (s.emitted_power(p), d.share(p));
             *sh = [e[0] * k, e[1] * k, e[2] * k, 0.0];
         }
         self.gather_base(present)?;
@@ -520,9 +536,10 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
         let inv_pi = 1.0 / std::f32::consts::PI;
         Ok((0..v.patch_count())
             .map(|p| {
-                let kd = if d.area_eff[p] > 0.0 { inv_pi / d.area_eff[p] } else { 0.0 };
+                let (area_eff, rho) = (d.area_eff(p), d.rho(p));
+                let kd = if area_eff > 0.0 { inv_pi / area_eff } else { 0.0 };
                 let ks = if v.patch_area[p] > 0.0 { inv_pi / v.patch_area[p] } else { 0.0 };
-                [0, 1, 2].map(|c| d.rho[p][c] * (self.recv[p * nb][c] * kd + self.spread[p][c] * ks))
+                [0, 1, 2].map(|c| rho[c] * (self.recv[p * nb][c] * kd + self.spread[p][c] * ks))
             })
             .collect())
     }
@@ -567,14 +584,21 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
             }
         }
         bal.converged = self.residual_total <= d.opts.tolerance * s.emitted_total();
-        let (area_eff, rho, emit) = (&d.area_eff, &d.rho, &s.emit);
+        // The solution is made in the room the loop's vectors leave, each
+        // freed once nothing below reads it (`memory.rs` counts the loop's
+        // vectors, not these beside them). A still's secant pairs steer no
+        // later frame.
+        self.send = Vec::new();
+        let history = std::mem::replace(&mut self.anderson, Anderson::new(0));
+        let history = if d.v.sequence.is_some() { history } else { Anderson::new(0) };
         let (total_direct, total_spread) = (&self.total_direct, &self.total_spread);
         let inv_pi = 1.0 / std::f32::consts::PI;
         let radiance: Vec<[f32; 3]> = (0..n)
             .map(|p| {
-                let kd = if area_eff[p] > 0.0 { inv_pi / area_eff[p] } else { 0.0 };
+                let (area_eff, rho, emit) = (d.area_eff(p), d.rho(p), s.emit(p));
+                let kd = if area_eff > 0.0 { inv_pi / area_eff } else { 0.0 };
                 let ks = if v.patch_area[p] > 0.0 { inv_pi / v.patch_area[p] } else { 0.0 };
-                [0, 1, 2].map(|c| emit[p][c] + rho[p][c] * (total_direct[p][c] * kd + total_spread[p][c] * ks))
+                [0, 1, 2].map(|c| emit[c] + rho[c] * (total_direct[p][c] * kd + total_spread[p][c] * ks))
             })
             .collect();
         let received: Vec<[f32; 3]> =
@@ -588,6 +612,7 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
                 if got > 0.0 { (u[0].abs() + u[1].abs() + u[2].abs()) / got } else { 0.0 }
             })
             .collect();
+        (self.total_direct, self.total_spread, self.unshot) = (Vec::new(), Vec::new(), Vec::new());
         let direct = match d.opts.split_direct {
             true => Some(self.first_bounce()?),
             false => None,
@@ -617,7 +642,7 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
                 chain: self.warm.carry().map_or(0, |c| c.chain + 1),
                 sent: self.sent_total,
                 received: self.received_total,
-                emitted: s.emitted_power.clone(),
+                emitted: s.emitted_powers(),
                 overlay: s.overlay.as_ref().map(|o| o.gather.clone()),
             })
         });
@@ -633,7 +658,7 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
             surface_emission: s.surface_emission.clone(),
             surface_reflectance: d.surface_reflectance.clone(),
             surface_specular: d.surface_specular.clone(),
-            history: self.anderson,
+            history,
             carry,
             frame,
         })
