@@ -36,9 +36,15 @@ impl Rings {
     /// rings hold at most 2k²+2k+1).
     pub fn new(adj_offsets: &[u32], adj: &[u32], max: usize) -> Result<Self, String> {
         let n = adj_offsets.len() - 1;
-        let mut offsets = vec![vec![0u32]; max];
         let cap = (MAX_RING_MEAN * n as u64).clamp(1024, u32::MAX as u64);
-        let mut members = vec![Vec::new(); max];
+        // Reserved at a grid's sizes, so that the tables are not copied as
+        // they grow (a copy is a second table resident at once); pages
+        // reserved and never written are not resident.
+        let mut offsets: Vec<Vec<u32>> = (0..max).map(|_| Vec::with_capacity(n + 1)).collect();
+        offsets.iter_mut().for_each(|o| o.push(0));
+        let grid = |k: u64| (2 * k * k + 2 * k + 1) * n as u64;
+        let mut members: Vec<Vec<u32>> =
+            (1..=max as u64).map(|k| Vec::with_capacity(grid(k).min(cap) as usize)).collect();
         let mut seen = vec![u32::MAX; n];
         let mut frontier = Vec::new();
         let mut next = Vec::new();
@@ -72,9 +78,6 @@ impl Rings {
                 }
                 offsets[k].push(members[k].len() as u32);
             }
-        }
-        for m in &mut members {
-            m.shrink_to_fit();
         }
         Ok(Self { offsets, members })
     }
