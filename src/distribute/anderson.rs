@@ -142,7 +142,7 @@ impl Anderson {
     /// Records one iteration: it sent `sent`, and the residual changed by
     /// `df` (`K·sent − sent`).
     #[cfg(test)]
-    pub fn record(&mut self, sent: &[[f32; 4]], df: &[[f32; 4]]) {
+    pub fn record(&mut self, sent: &[[f32; 3]], df: &[[f32; 3]]) {
         if let Some((d, k)) = self.slot(sent.len()) {
             for p in 0..sent.len() {
                 for c in 0..3 {
@@ -156,7 +156,7 @@ impl Anderson {
 
     /// What to send for residual `f`: the mixed step, or `f` itself while
     /// there is no history (or a band's least-squares system is singular).
-    pub fn step(&self, f: &[[f32; 4]], send: &mut [[f32; 4]]) {
+    pub fn step(&self, f: &[[f32; 3]], send: &mut [[f32; 3]]) {
         let m = self.pairs.len();
         if m == 0 {
             send.copy_from_slice(f);
@@ -290,24 +290,24 @@ mod tests {
 
     /// Plain and Anderson-accelerated iteration of `x ← e + K·x` for a small
     /// dense `K` with a positive dominant eigenvalue and negative ones.
-    fn iterate(depth: usize, k: &[[f32; 3]; 3], e: [f32; 3], tol: f32) -> (Vec<[f32; 4]>, u32) {
+    fn iterate(depth: usize, k: &[[f32; 3]; 3], e: [f32; 3], tol: f32) -> (Vec<[f32; 3]>, u32) {
         let mut anderson = Anderson::new(depth);
-        let mut x = vec![[0.0f32; 4]; 3];
-        let mut f: Vec<[f32; 4]> = e.iter().map(|&v| [v; 4]).collect();
-        let mut send = vec![[0.0f32; 4]; 3];
+        let mut x = vec![[0.0f32; 3]; 3];
+        let mut f: Vec<[f32; 3]> = e.iter().map(|&v| [v; 3]).collect();
+        let mut send = vec![[0.0f32; 3]; 3];
         for it in 1..200 {
             anderson.step(&f, &mut send);
-            let kd: Vec<[f32; 4]> =
-                (0..3).map(|r| [0, 1, 2, 3].map(|c| (0..3).map(|j| k[r][j] * send[j][c]).sum())).collect();
-            let df: Vec<[f32; 4]> = (0..3).map(|r| [0, 1, 2, 3].map(|c| kd[r][c] - send[r][c])).collect();
+            let kd: Vec<[f32; 3]> =
+                (0..3).map(|r| [0, 1, 2].map(|c| (0..3).map(|j| k[r][j] * send[j][c]).sum())).collect();
+            let df: Vec<[f32; 3]> = (0..3).map(|r| [0, 1, 2].map(|c| kd[r][c] - send[r][c])).collect();
             for r in 0..3 {
-                for c in 0..4 {
+                for c in 0..3 {
                     x[r][c] += send[r][c];
                     f[r][c] += df[r][c];
                 }
             }
             anderson.record(&send, &df);
-            if f.iter().all(|v| v[..3].iter().all(|y| y.abs() < tol)) {
+            if f.iter().all(|v| v.iter().all(|y| y.abs() < tol)) {
                 return (x, it);
             }
         }
@@ -331,10 +331,10 @@ mod tests {
     #[test]
     fn singular_history_falls_back_to_the_plain_step() {
         let mut a = Anderson::new(2);
-        let zero = vec![[0.0f32; 4]; 4];
+        let zero = vec![[0.0f32; 3]; 4];
         a.record(&zero, &zero);
-        let f = vec![[1.0, 2.0, 3.0, 0.0]; 4];
-        let mut send = vec![[9.0f32; 4]; 4];
+        let f = vec![[1.0, 2.0, 3.0]; 4];
+        let mut send = vec![[9.0f32; 3]; 4];
         a.step(&f, &mut send);
         assert_eq!(send, f);
     }

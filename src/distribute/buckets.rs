@@ -111,22 +111,29 @@ impl Rings {
         &self.members[k - 1][o[p] as usize..o[p + 1] as usize]
     }
 
-    /// `out[q] = Σ_{k≥1} Σ_{p ∈ ring_k(q)} w_pq · recv[p·B + k]`, with
-    /// `B = buckets`; bucket 0 is left to the caller.
+    /// `Σ_{k≥1} Σ_{p ∈ ring_k(q)} w_pq · recv[p·B + k]`, with
+    /// `B = buckets`: what patch `q` gets from its rings (bucket 0 is left
+    /// to the caller). Computed where it is used, per patch, so that no
+    /// vector of it is kept.
+    #[inline]
+    pub fn spread_onto(&self, recv: &[[f32; 4]], buckets: usize, q: usize) -> [f32; 4] {
+        let mut acc = [0.0f32; 4];
+        for k in 1..buckets {
+            self.weighted(k, q, |p, w| {
+                let r = recv[p * buckets + k];
+                for c in 0..4 {
+                    acc[c] += r[c] * w;
+                }
+            });
+        }
+        acc
+    }
+
+    /// [`Self::spread_onto`] of every patch into `out`.
     pub fn spread(&self, recv: &[[f32; 4]], buckets: usize, out: &mut [[f32; 4]]) {
         out.par_chunks_mut(512).enumerate().for_each(|(block, chunk)| {
             for (i, o) in chunk.iter_mut().enumerate() {
-                let q = block * 512 + i;
-                let mut acc = [0.0f32; 4];
-                for k in 1..buckets {
-                    self.weighted(k, q, |p, w| {
-                        let r = recv[p * buckets + k];
-                        for c in 0..4 {
-                            acc[c] += r[c] * w;
-                        }
-                    });
-                }
-                *o = acc;
+                *o = self.spread_onto(recv, buckets, block * 512 + i);
             }
         });
     }

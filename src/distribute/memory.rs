@@ -36,22 +36,25 @@ fn ring_bytes(buckets: u64) -> u64 {
 }
 
 /// Per patch: what the distributor keeps for the archive (surface (4),
-/// linked (f64, 8), in_base (1), the non-diffuse index (4), the rings).
+/// linked (f64, 8), in_base (1), the rings; the non-diffuse index (4)
+/// when there are non-diffuse patches).
 /// Reflectance, emission, link shares and effective areas are not kept
 /// per patch: they come from the surface tables and the archive's patch
 /// columns where they are used. (The gather's runs are the archive's,
 /// `LRUN`, counted with it.)
 fn distributor_bytes(s: &StateShape) -> u64 {
-    4 + 8 + 1 + 4 + ring_bytes(s.buckets.max(1))
+    4 + 8 + 1 + if s.nondiffuse_slots > 0 { 4 } else { 0 } + ring_bytes(s.buckets.max(1))
 }
 
-/// Per patch: a frame's iteration: unshot, send, shoot, spread, the two
-/// received totals ([f32; 4], 16 each), the gather's packed RGB (12),
+/// Per patch: a frame's iteration: unshot, send and the two received
+/// totals (RGB, 12 each; what the rings spread onto a patch is computed
+/// where it is used, not kept), shoot ([f32; 4], 16: the kernels read it
+/// so), the gather's packed RGB (12),
 /// received per bucket (16 each), Anderson's secant pairs (two bfloat16
 /// RGB vectors, 12 a pair; the step's change of the residual is written
 /// straight into its pair, no vector of its own).
 fn iteration_bytes(s: &StateShape) -> u64 {
-    6 * 16 + 12 + 16 * s.buckets.max(1) + 12 * s.anderson_depth
+    4 * 12 + 16 + 12 + 16 * s.buckets.max(1) + 12 * s.anderson_depth
 }
 
 /// Per patch: a solution: radiance, received, first bounce (12 each),
@@ -61,7 +64,7 @@ const SOLUTION: u64 = 40;
 /// Bytes a patch of the distribution's state holds at its peak, field by
 /// field. A still's peak is its loop: its solution is made as the loop's
 /// vectors are freed (`step.rs`, `finish`: send and the secant pairs
-/// first, 16 + 12·depth, before radiance and received, 24, are made, and
+/// first, 12 + 12·depth, before radiance and received, 24, are made, and
 /// the rest before the first bounce). A sequence holds the frame's setup,
 /// its warm start and the running totals, and the previous frame's
 /// solution with its secant pairs, beside it: counted in full.
@@ -69,7 +72,7 @@ pub fn patch_bytes(s: &StateShape) -> u64 {
     let (nb, depth) = (s.buckets.max(1), s.anderson_depth);
     let (distributor, iteration) = (distributor_bytes(s), iteration_bytes(s));
     if !s.sequence {
-        let finishing = (iteration + 24).saturating_sub(16 + 12 * depth);
+        let finishing = (iteration + 24).saturating_sub(12 + 12 * depth);
         return distributor + iteration.max(finishing);
     }
     // A frame's linked weights (8) and presence (2); the warm guess (16);

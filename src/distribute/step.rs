@@ -60,23 +60,21 @@ pub(super) struct Iteration<'d, 'f, 's> {
     s: &'f FrameSetup<'d>,
     warm: WarmStart<'s>,
     /// The residual: power still to send.
-    unshot: Vec<[f32; 4]>,
+    unshot: Vec<[f32; 3]>,
     /// What this step sends: the residual itself, the warm guess first, or
     /// Anderson's mixed step.
-    send: Vec<[f32; 4]>,
+    send: Vec<[f32; 3]>,
     /// `send` per link end (`send · U_p/H_p`).
     shoot: Vec<[f32; 4]>,
     /// `shoot`'s RGB packed for the gather of frame 0's links.
     packed: PackedRgb,
     /// Received per patch and bucket.
     recv: Vec<[f32; 4]>,
-    /// Spread onto each patch from its rings.
-    spread: Vec<[f32; 4]>,
     /// Received power over the iterations: what hit the patch itself
     /// (bucket 0, whose density follows the patch's hit count) and what
     /// was spread onto it.
-    total_direct: Vec<[f32; 4]>,
-    total_spread: Vec<[f32; 4]>,
+    total_direct: Vec<[f32; 3]>,
+    total_spread: Vec<[f32; 3]>,
     /// Totals over the iterations, for the next frame's sparse jump
     /// (diffuse sequences only; empty otherwise).
     carrying: bool,
@@ -127,14 +125,13 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
             d,
             s,
             warm,
-            unshot: s.emitted_powers(),
-            send: vec![[0.0; 4]; n],
+            unshot: (0..n).map(|p| rgb(s.emitted_power(p))).collect(),
+            send: vec![[0.0; 3]; n],
             shoot: vec![[0.0; 4]; n],
             packed: PackedRgb::new(n),
             recv: vec![[0.0; 4]; n * nb],
-            spread: vec![[0.0; 4]; n],
-            total_direct: vec![[0.0; 4]; n],
-            total_spread: vec![[0.0; 4]; n],
+            total_direct: vec![[0.0; 3]; n],
+            total_spread: vec![[0.0; 3]; n],
             carrying,
             sent_total: vec![[0.0; 3]; if carrying { n } else { 0 }],
             received_total: vec![[0.0; 3]; if carrying { n * nb } else { 0 }],
@@ -176,7 +173,6 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
         if let Some(g) = self.glossy.as_mut() {
             g.unsent = false;
         }
-        self.spread();
         self.add_to_carry();
         self.residual_total = 0.0;
         // The step's secant pair, unless it mixed in light that `send`
@@ -203,13 +199,17 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
     /// step), or Anderson's mix.
     fn choose_send(&mut self, warm_jump: bool, converged: bool) {
         match self.warm.first_send() {
-            Some(g) if warm_jump => self.send.copy_from_slice(g),
+            Some(g) if warm_jump => self.send.iter_mut().zip(g).for_each(|(s, g)| *s = rgb(*g)),
             _ if converged => self.send.copy_from_slice(&self.unshot),
             _ => self.anderson.step(&self.unshot, &mut self.send),
         }
         // A mixed step may hand absent patches (present in an earlier
         // frame of the history) something to send: they send nothing.
-        silence_absent(self.s.absent_mask(), 1, &mut self.send);
+        if let Some(present) = self.s.absent_mask() {
+            for (s, _) in self.send.iter_mut().zip(present).filter(|(_, here)| !**here) {
+                *s = [0.0; 3];
+            }
+        }
     }
 
     /// `shoot = send · share` per patch; the shares of ends that link
@@ -369,12 +369,13 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
         Ok(())
     }
 
-    /// Light that arrived in wide buckets, spread over rings of neighbours
-    /// (§3.4).
-    fn spread(&mut self) {
-        match &self.d.rings {
-            Some(rings) if self.d.use_buckets => rings.spread(&self.recv, self.d.nb, &mut self.spread),
-            _ => self.spread.fill([0.0; 4]),
+    /// Light that arrived at patch `p`'s rings in wide buckets, spread
+    /// onto it (§3.4): computed where it is used, not kept.
+    #[inline]
+    fn spread_onto(d: &Distributor<'_>, recv: &[[f32; 4]], p: usize) -> [f32; 4] {
+        match &d.rings {
+            Some(rings) if d.use_buckets => rings.spread_onto(recv, d.nb, p),
+            _ => [0.0; 4],
         }
     }
 
@@ -385,13 +386,13 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
             return;
         }
         let nb = self.d.nb;
-        let add = |(t, x): (&mut [[f64; 3]], &[[f32; 4]])| {
+        fn add<const L: usize>((t, x): (&mut [[f64; 3]], &[[f32; L]])) {
             for (t, x) in t.iter_mut().zip(x) {
                 for c in 0..3 {
                     t[c] += x[c] as f64;
                 }
             }
-        };
+        }
         self.sent_total.par_chunks_mut(BLOCK).zip(self.send.par_chunks(BLOCK)).for_each(add);
         self.received_total.par_chunks_mut(BLOCK * nb).zip(self.recv.par_chunks(BLOCK * nb)).for_each(add);
     }
@@ -469,7 +470,7 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
     /// history.
     fn reflect(&mut self, recording: bool) {
         let (d, nb, n) = (self.d, self.d.nb, self.unshot.len());
-        let (recv, spread, send) = (&self.recv, &self.spread, &self.send);
+        let (recv, send) = (&self.recv, &self.send);
         // Per block of patches, its part of the pair's two vectors.
         let slots: Vec<Option<PairMut<'_>>> = match recording.then(|| self.anderson.slot(n)).flatten() {
             Some((df, kdx)) => df.chunks_mut(BLOCK).zip(kdx.chunks_mut(BLOCK)).map(Some).collect(),
@@ -487,12 +488,12 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
                 let (mut absorbed, mut residual) = ([0.0f64; 3], 0.0f64);
                 for i in 0..td.len() {
                     let p = block * BLOCK + i;
-                    let rho = d.rho(p);
+                    let (rho, spread) = (d.rho(p), Self::spread_onto(d, recv, p));
                     for c in 0..3 {
                         let direct = recv[p * nb][c];
-                        let r = direct + spread[p][c];
+                        let r = direct + spread[c];
                         td[i][c] += direct;
-                        ts[i][c] += spread[p][c];
+                        ts[i][c] += spread[c];
                         let reflected = r * rho[c];
                         if let Some((df, kdx)) = slot.as_mut() {
                             df[i][c] = to_half(reflected - send[p][c]);
@@ -531,15 +532,16 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
         if let Some(o) = &s.overlay {
             add_ends(&o.gather, nb, &self.shoot, 1.0, None, &mut self.recv);
         }
-        self.spread();
         self.first_bounce_directional();
-        let inv_pi = 1.0 / std::f32::consts::PI;
+        let (inv_pi, recv) = (1.0 / std::f32::consts::PI, &self.recv);
         Ok((0..v.patch_count())
+            .into_par_iter()
             .map(|p| {
                 let (area_eff, rho) = (d.area_eff(p), d.rho(p));
                 let kd = if area_eff > 0.0 { inv_pi / area_eff } else { 0.0 };
                 let ks = if v.patch_area[p] > 0.0 { inv_pi / v.patch_area[p] } else { 0.0 };
-                [0, 1, 2].map(|c| rho[c] * (self.recv[p * nb][c] * kd + self.spread[p][c] * ks))
+                let spread = Self::spread_onto(d, recv, p);
+                [0, 1, 2].map(|c| rho[c] * (recv[p * nb][c] * kd + spread[c] * ks))
             })
             .collect())
     }
@@ -663,6 +665,12 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
             frame,
         })
     }
+}
+
+/// The RGB lanes of a four-lane row.
+#[inline]
+fn rgb(x: [f32; 4]) -> [f32; 3] {
+    [x[0], x[1], x[2]]
 }
 
 /// The frame's overlay ends of patch `q` as `(other, weight, direction)`,
