@@ -29,10 +29,11 @@ pub struct StateShape {
 }
 
 /// Bytes of one patch's share of the rings a bucketed gather spreads light
-/// over: ring k holds at most 2k² + 2k + 1 patches (4 bytes a member; the
-/// weights are computed from the rings' sizes) and an offset per patch (4).
+/// over: ring k ≥ 2 holds at most 2k² + 2k + 1 patches (4 bytes a member;
+/// the weights are computed from the rings' sizes) and an offset per patch
+/// (4); the 1-ring is the archive's adjacency, counted with it.
 fn ring_bytes(buckets: u64) -> u64 {
-    (1..buckets).map(|k| 4 + 4 * (2 * k * k + 2 * k + 1)).sum()
+    (2..buckets).map(|k| 4 + 4 * (2 * k * k + 2 * k + 1)).sum()
 }
 
 /// Per patch: what the distributor keeps for the archive (surface (4),

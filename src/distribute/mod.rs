@@ -353,7 +353,7 @@ pub struct Distributor<'a> {
     /// Per patch, whether frame 0's links reach it (see [`Self::sparse_jump`]).
     in_base: Vec<bool>,
     nb: usize,
-    rings: Option<buckets::Rings>,
+    rings: Option<buckets::Rings<'a>>,
     patch_surface: Vec<u32>,
     emission_fixed: Vec<bool>,
     /// The lighting's emitted radiance and `k_d` per surface.
