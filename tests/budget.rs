@@ -98,10 +98,10 @@ fn the_plan_is_within_fifteen_percent_of_the_peak_at_three_archive_sizes() {
     // 1.9·10⁶ patches), rendered mapped: the plan the render states
     // against the peak it measures (VmHWM, the program's own memory
     // included: about 10 MiB that no plan counts, `UNCOUNTED`, which at
-    // 4 mm, 1.2·10⁵ patches, is −15%). Measured in release (issue 39 §0):
-    // at 2 and 1 mm 192.3 / 638.2 MiB planned against 205.6 / 695.4 MiB,
-    // −6.5% / −8.2%, at 205 bytes a patch for the distribution (507
-    // before).
+    // 4 mm, 1.2·10⁵ patches, is −18%). Measured in release (issue 39 §0):
+    // at 2, 1.4 and 1 mm 181.2 / 328.2 / 594.1 MiB planned against 203.4 /
+    // 357.3 / 649.8 MiB, −10.9% / −8.1% / −8.6%, at 181 bytes a patch for
+    // the distribution (507 before).
     let dir = tempfile::tempdir().unwrap();
     for mm in [2.0, 1.4, 1.0] {
         let archive = dir.path().join(format!("box{mm}.inet"));
