@@ -20,25 +20,40 @@ use rayon::prelude::*;
 /// Largest mean ring size accepted (a 4-ring of a grid has 41 patches).
 pub const MAX_RING_MEAN: u64 = 256;
 
-/// The `k`-rings of every patch for `k = 1..=max`, as CSR tables.
-pub struct Rings {
-    /// `offsets[k-1][p]..offsets[k-1][p+1]` index `members[k-1]`.
-    offsets: Vec<Vec<u64>>,
+/// The `k`-rings of every patch for `k = 1..=max`: the 1-ring is the
+/// archive's adjacency row and the patch itself (rows are ascending,
+/// without self-loops: checked when the archive is opened), wider rings
+/// are CSR tables (4 bytes a member and an offset per patch and ring). The
+/// weights `w_pq` follow from the rings' sizes and are computed where
+/// they are used.
+pub struct Rings<'a> {
+    adj_offsets: &'a [u32],
+    adj: &'a [u32],
+    /// `offsets[k-2][p]..offsets[k-2][p+1]` index `members[k-2]`.
+    offsets: Vec<Vec<u32>>,
     members: Vec<Vec<u32>>,
-    /// Weight `w_pq` of each member (aligned with `members`).
-    weights: Vec<Vec<f32>>,
 }
 
-impl Rings {
+impl<'a> Rings<'a> {
     /// Breadth-first rings over the adjacency CSR `(adj_offsets, adj)`.
     /// Fails when the rings would hold more than [`MAX_RING_MEAN`] patches
     /// per patch on average (only a malformed adjacency gets there: grid
     /// rings hold at most 2k²+2k+1).
-    pub fn new(adj_offsets: &[u32], adj: &[u32], max: usize) -> Result<Self, String> {
+    pub fn new(adj_offsets: &'a [u32], adj: &'a [u32], max: usize) -> Result<Self, String> {
         let n = adj_offsets.len() - 1;
-        let mut offsets = vec![vec![0u64]; max];
-        let cap = (MAX_RING_MEAN * n as u64).max(1024);
-        let mut members = vec![Vec::new(); max];
+        let cap = (MAX_RING_MEAN * n as u64).clamp(1024, u32::MAX as u64);
+        // Reserved at a grid's sizes, so that the tables are not copied as
+        // they grow (a copy is a second table resident at once); pages
+        // reserved and never written are not resident.
+        let wide = max.saturating_sub(1);
+        let mut offsets: Vec<Vec<u32>> = (0..wide).map(|_| Vec::with_capacity(n + 1)).collect();
+        offsets.iter_mut().for_each(|o| o.push(0));
+        let grid = |k: u64| (2 * k * k + 2 * k + 1) * n as u64;
+        let mut members: Vec<Vec<u32>> =
+            (2..=max as u64).map(|k| Vec::with_capacity(grid(k).min(cap) as usize)).collect();
+        if wide == 0 {
+            return Ok(Self { adj_offsets, adj, offsets, members });
+        }
         let mut seen = vec![u32::MAX; n];
         let mut frontier = Vec::new();
         let mut next = Vec::new();
@@ -61,63 +76,103 @@ impl Rings {
                 }
                 ring.extend_from_slice(&next);
                 std::mem::swap(&mut frontier, &mut next);
-                let start = members[k].len();
-                members[k].extend_from_slice(&ring);
-                members[k][start..].sort_unstable();
-                offsets[k].push(members[k].len() as u64);
-                if members[k].len() as u64 > cap {
-                    return Err(format!("bucket rings exceed {MAX_RING_MEAN} patches per patch: malformed adjacency"));
+                if k == 0 {
+                    continue;
                 }
+                let (offsets, members) = (&mut offsets[k - 1], &mut members[k - 1]);
+                let start = members.len();
+                members.extend_from_slice(&ring);
+                members[start..].sort_unstable();
+                if members.len() as u64 > cap {
+                    return Err(format!(
+                        "bucket rings exceed {} patches per patch: malformed adjacency",
+                        MAX_RING_MEAN.min(cap / n.max(1) as u64)
+                    ));
+                }
+                offsets.push(members.len() as u32);
             }
         }
-        let mut weights = Vec::with_capacity(max);
-        for k in 0..max {
-            let (o, m) = (&offsets[k], &members[k]);
-            let len = |p: usize| (o[p + 1] - o[p]) as f32;
-            let mut w = vec![0.0f32; m.len()];
-            for q in 0..n {
-                let mut others = 0.0f32;
-                let mut self_at = 0;
-                for e in o[q] as usize..o[q + 1] as usize {
-                    let p = m[e] as usize;
-                    if p == q {
-                        self_at = e;
-                    } else {
-                        w[e] = 1.0 / len(p).max(len(q));
-                        others += w[e];
-                    }
-                }
-                w[self_at] = 1.0 - others;
-            }
-            weights.push(w);
+        Ok(Self { adj_offsets, adj, offsets, members })
+    }
+
+    /// Patch `q`'s adjacency row (ascending, without `q`).
+    #[inline]
+    fn row(&self, q: usize) -> &[u32] {
+        &self.adj[self.adj_offsets[q] as usize..self.adj_offsets[q + 1] as usize]
+    }
+
+    /// Calls `f(p)` for each member `p` of `q`'s `k`-ring, ascending.
+    #[inline]
+    fn each_member(&self, k: usize, q: usize, mut f: impl FnMut(usize)) {
+        if k == 1 {
+            let row = self.row(q);
+            let at = row.partition_point(|&p| (p as usize) < q);
+            row[..at].iter().for_each(|&p| f(p as usize));
+            f(q);
+            row[at..].iter().for_each(|&p| f(p as usize));
+        } else {
+            let (o, m) = (&self.offsets[k - 2], &self.members[k - 2]);
+            m[o[q] as usize..o[q + 1] as usize].iter().for_each(|&p| f(p as usize));
         }
-        Ok(Self { offsets, members, weights })
+    }
+
+    /// The size of `q`'s `k`-ring.
+    #[inline]
+    fn len(&self, k: usize, q: usize) -> usize {
+        match k {
+            1 => self.row(q).len() + 1,
+            _ => (self.offsets[k - 2][q + 1] - self.offsets[k - 2][q]) as usize,
+        }
+    }
+
+    /// Calls `add(p, w_pq)` for each member `p` of `q`'s `k`-ring in
+    /// ascending order: `w_pq = 1/max(|ring_k(p)|, |ring_k(q)|)` for the
+    /// others, and what they leave, `1 − Σ w`, for `q` itself (summed in
+    /// the same order each time: the same bits).
+    #[inline]
+    fn weighted(&self, k: usize, q: usize, mut add: impl FnMut(usize, f32)) {
+        let len = |p: usize| self.len(k, p) as f32;
+        let lq = len(q);
+        let mut others = 0.0f32;
+        self.each_member(k, q, |p| {
+            if p != q {
+                others += 1.0 / len(p).max(lq);
+            }
+        });
+        self.each_member(k, q, |p| add(p, if p == q { 1.0 - others } else { 1.0 / len(p).max(lq) }));
     }
 
     /// The `k`-ring of patch `p` (`k ≥ 1`), ascending, `p` included.
     #[cfg(test)]
-    pub fn ring(&self, k: usize, p: usize) -> &[u32] {
-        let o = &self.offsets[k - 1];
-        &self.members[k - 1][o[p] as usize..o[p + 1] as usize]
+    pub fn ring(&self, k: usize, p: usize) -> Vec<u32> {
+        let mut out = Vec::new();
+        self.each_member(k, p, |q| out.push(q as u32));
+        out
     }
 
-    /// `out[q] = Σ_{k≥1} Σ_{p ∈ ring_k(q)} w_pq · recv[p·B + k]`, with
-    /// `B = buckets`; bucket 0 is left to the caller.
+    /// `Σ_{k≥1} Σ_{p ∈ ring_k(q)} w_pq · recv[p·B + k]`, with
+    /// `B = buckets`: what patch `q` gets from its rings (bucket 0 is left
+    /// to the caller). Computed where it is used, per patch, so that no
+    /// vector of it is kept.
+    #[inline]
+    pub fn spread_onto(&self, recv: &[[f32; 4]], buckets: usize, q: usize) -> [f32; 4] {
+        let mut acc = [0.0f32; 4];
+        for k in 1..buckets {
+            self.weighted(k, q, |p, w| {
+                let r = recv[p * buckets + k];
+                for c in 0..4 {
+                    acc[c] += r[c] * w;
+                }
+            });
+        }
+        acc
+    }
+
+    /// [`Self::spread_onto`] of every patch into `out`.
     pub fn spread(&self, recv: &[[f32; 4]], buckets: usize, out: &mut [[f32; 4]]) {
         out.par_chunks_mut(512).enumerate().for_each(|(block, chunk)| {
             for (i, o) in chunk.iter_mut().enumerate() {
-                let q = block * 512 + i;
-                let mut acc = [0.0f32; 4];
-                for k in 1..buckets {
-                    let range = self.offsets[k - 1][q] as usize..self.offsets[k - 1][q + 1] as usize;
-                    for (&p, &w) in self.members[k - 1][range.clone()].iter().zip(&self.weights[k - 1][range]) {
-                        let r = recv[p as usize * buckets + k];
-                        for c in 0..4 {
-                            acc[c] += r[c] * w;
-                        }
-                    }
-                }
-                *o = acc;
+                *o = self.spread_onto(recv, buckets, block * 512 + i);
             }
         });
     }

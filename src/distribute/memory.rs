@@ -29,34 +29,77 @@ pub struct StateShape {
 }
 
 /// Bytes of one patch's share of the rings a bucketed gather spreads light
-/// over: ring k holds at most 2k² + 2k + 1 patches (a member and a weight
-/// each) and an offset per patch.
+/// over: ring k ≥ 2 holds at most 2k² + 2k + 1 patches (4 bytes a member;
+/// the weights are computed from the rings' sizes) and an offset per patch
+/// (4); the 1-ring is the archive's adjacency, counted with it.
 fn ring_bytes(buckets: u64) -> u64 {
-    (1..buckets).map(|k| 8 + 8 * (2 * k * k + 2 * k + 1)).sum()
+    (2..buckets).map(|k| 4 + 4 * (2 * k * k + 2 * k + 1)).sum()
+}
+
+/// Per patch: what the distributor keeps for the archive (surface (4),
+/// linked (f64, 8), in_base (1), the rings; the non-diffuse index (4)
+/// when there are non-diffuse patches).
+/// Reflectance, emission, link shares and effective areas are not kept
+/// per patch: they come from the surface tables and the archive's patch
+/// columns where they are used. (The gather's runs are the archive's,
+/// `LRUN`, counted with it.)
+fn distributor_bytes(s: &StateShape) -> u64 {
+    4 + 8 + 1 + if s.nondiffuse_slots > 0 { 4 } else { 0 } + ring_bytes(s.buckets.max(1))
+}
+
+/// Per patch: a frame's iteration: unshot, send and the two received
+/// totals (RGB, 12 each; what the rings spread onto a patch is computed
+/// where it is used, not kept), shoot ([f32; 4], 16: the kernels read it
+/// so), the gather's packed RGB (12),
+/// received per bucket (16 each), Anderson's secant pairs (two bfloat16
+/// RGB vectors, 12 a pair; the step's change of the residual is written
+/// straight into its pair, no vector of its own).
+fn iteration_bytes(s: &StateShape) -> u64 {
+    4 * 12 + 16 + 12 + 16 * s.buckets.max(1) + 12 * s.anderson_depth
+}
+
+/// Per patch: a solution: radiance, received, first bounce (12 each),
+/// residual (4).
+const SOLUTION: u64 = 40;
+
+/// Bytes a patch of the distribution's state holds at its peak, field by
+/// field. A still's peak is its loop: its solution is made as the loop's
+/// vectors are freed (`step.rs`, `finish`: send and the secant pairs
+/// first, 12 + 12·depth, before radiance and received, 24, are made, and
+/// the rest before the first bounce). A sequence holds the frame's setup,
+/// its warm start and the running totals, and the previous frame's
+/// solution with its secant pairs, beside it: counted in full.
+pub fn patch_bytes(s: &StateShape) -> u64 {
+    let (nb, depth) = (s.buckets.max(1), s.anderson_depth);
+    let (distributor, iteration) = (distributor_bytes(s), iteration_bytes(s));
+    if !s.sequence {
+        let finishing = (iteration + 24).saturating_sub(12 + 12 * depth);
+        return distributor + iteration.max(finishing);
+    }
+    // A frame's linked weights (8) and presence (2); the warm guess (16);
+    // the totals carried to the next frame (24, and 24 per bucket); a
+    // solution carries them and its emitted power (16); the previous
+    // frame's solution and secant pairs.
+    let carry = 24 + 24 * nb;
+    let solution = SOLUTION + carry + 16;
+    distributor + (8 + 2) + iteration + 16 + carry + 2 * solution + 12 * depth
+}
+
+/// Bytes a patch of the distribution's state still holds once a still's
+/// frame is solved (the distributor's and the solution's): the rest of
+/// [`patch_bytes`] is free again for the renderer's vectors. A sequence's
+/// next frame needs it all again: [`patch_bytes`].
+pub fn kept_patch_bytes(s: &StateShape) -> u64 {
+    match s.sequence {
+        true => patch_bytes(s),
+        false => distributor_bytes(s) + SOLUTION,
+    }
 }
 
 /// Heap bytes a distribution of `s` holds at its peak (a frame being
 /// solved while the previous frame's solution is kept).
 pub fn state_bytes(s: &StateShape) -> u64 {
-    let (p, nb, depth) = (s.patches, s.buckets.max(1), s.anderson_depth);
-    // Distributor: rho, emit (12 each), share, area_eff, surface (4 each),
-    // linked (8), in_base (1), rings; non-diffuse index per patch (4). (The
-    // gather's runs are the archive's, `LRUN`, counted with it.)
-    let distributor = p * (12 + 12 + 4 + 4 + 4 + 8 + 1 + 4) + p * ring_bytes(nb);
-    // Frame setup: emit (12), emitted power (16), linked (8), presence (2).
-    let setup = p * (12 + 16 + 8 + 2);
-    // Iteration: seven [f32; 4] vectors, the gather's packed RGB (12),
-    // received per bucket, Anderson's secant pairs, the warm guess, and a
-    // sequence's running totals.
-    let carry = if s.sequence { 24 + 24 * nb } else { 0 };
-    let iteration = p * (7 * 16 + 12 + 16 * nb + 32 * depth + 16 + carry);
-    // A solution: radiance, received, first bounce (12 each), residual (4),
-    // and the carried totals plus emitted power. Its secant pairs are the
-    // iteration's, moved into it (`step.rs`), so they are counted once
-    // above; a sequence keeps the previous frame's besides (its solution's,
-    // cloned into the next iteration as the warm start's).
-    let solution = p * (40 + if s.sequence { carry + 16 } else { 0 });
-    let previous_pairs = if s.sequence { p * 32 * depth } else { 0 };
+    let (p, nb) = (s.patches, s.buckets.max(1));
     // A frame's overlay (records, and the ends sorted per patch and
     // bucket), twice: the frame's and the one the warm start carries.
     let records = s.max_delta_records;
@@ -72,10 +115,7 @@ pub fn state_bytes(s: &StateShape) -> u64 {
     // radiance of two solutions and its direct part; the copied ends; the
     // transposed tables.
     let glossy = s.nondiffuse_slots * (2 * 16 + 12 + 4 + 4 + 12 + 2 * 2 * 12) + s.nondiffuse_ends * 12 + s.table_bytes;
-    // A sequence keeps the previous frame's solution while it solves the
-    // next (warm starts); a still has one frame, one solution.
-    let solutions = if s.sequence { 2 } else { 1 };
-    distributor + setup + iteration + solutions * solution + previous_pairs + overlay + glossy
+    p * patch_bytes(s) + overlay + glossy
 }
 
 #[cfg(test)]
@@ -86,7 +126,7 @@ mod tests {
     fn the_estimate_grows_with_every_part_of_the_shape() {
         let base = StateShape { patches: 1000, buckets: 1, anderson_depth: 5, ..Default::default() };
         let b = state_bytes(&base);
-        assert!(b > 1000 * 400 && b < 1000 * 2000, "{b} bytes for 1000 patches");
+        assert!(b > 1000 * 150 && b < 1000 * 400, "{b} bytes for 1000 patches");
         for more in [
             StateShape { patches: 2000, ..base },
             StateShape { buckets: 4, ..base },

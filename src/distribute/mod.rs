@@ -263,6 +263,21 @@ impl Lighting {
     }
 }
 
+/// The share of patch `p`'s power each link end carries (`1/H_p`, or
+/// `1/E[H_p]` without the patch-size correction), and the area its
+/// irradiance is over (`A_eff = A_p·H_p/E[H_p]`, or `A_p`): computed from
+/// the archive's columns where they are needed rather than kept (8 bytes a
+/// patch), the same bits every time.
+#[inline]
+fn share_and_area(v: &InetView<'_>, opts: &DistributeOptions, p: usize) -> (f32, f32) {
+    let (h, hx, a) = (v.patch_hits[p] as f32, v.patch_expected_hits[p], v.patch_area[p]);
+    if opts.patch_size_correction {
+        (if h > 0.0 { 1.0 / h } else { 0.0 }, if h > 0.0 && hx > 0.0 { a * h / hx } else { a })
+    } else {
+        (if hx > 0.0 { 1.0 / hx } else { 0.0 }, a)
+    }
+}
+
 /// Per-patch reflectance and emitted radiance, from primitive → surface.
 pub fn patch_materials(v: &InetView<'_>, lighting: &Lighting) -> (Vec<[f32; 3]>, Vec<[f32; 3]>) {
     let surface = |prim: u32| v.primitives[prim as usize].surface as usize;
@@ -365,20 +380,16 @@ pub struct Distributor<'a> {
     id: u64,
     v: InetView<'a>,
     opts: DistributeOptions,
-    rho: Vec<[f32; 3]>,
-    emit: Vec<[f32; 3]>,
-    share: Vec<f32>,
     /// Per patch, the share of its power that meets back faces
     /// (`PBAK · share`; empty for files without `PBAK`).
     back_share: Vec<f32>,
-    area_eff: Vec<f32>,
     linked: Vec<f64>,
     /// Whether light is sorted into buckets (and spread, §3.4).
     use_buckets: bool,
     /// Per patch, whether frame 0's links reach it (see [`Self::sparse_jump`]).
     in_base: Vec<bool>,
     nb: usize,
-    rings: Option<buckets::Rings>,
+    rings: Option<buckets::Rings<'a>>,
     patch_surface: Vec<u32>,
     emission_fixed: Vec<bool>,
     /// The lighting's emitted radiance and `k_d` per surface.
@@ -432,20 +443,6 @@ impl<'a> Distributor<'a> {
         if given != v.surfaces.len() || longest != v.surfaces.len() {
             return Err(DistributeError::LightingMismatch { surfaces: v.surfaces.len(), given });
         }
-        let (rho, emit) = patch_materials(v, lighting);
-        // Share of a patch's power each link end carries, and the area used for irradiance.
-        let mut share = vec![0.0f32; n];
-        let mut area_eff = vec![0.0f32; n];
-        for p in 0..n {
-            let (h, hx, a) = (v.patch_hits[p] as f32, v.patch_expected_hits[p], v.patch_area[p]);
-            if opts.patch_size_correction {
-                share[p] = if h > 0.0 { 1.0 / h } else { 0.0 };
-                area_eff[p] = if h > 0.0 && hx > 0.0 { a * h / hx } else { a };
-            } else {
-                share[p] = if hx > 0.0 { 1.0 / hx } else { 0.0 };
-                area_eff[p] = a;
-            }
-        }
         let use_buckets = opts.buckets && v.build.max_bucket > 0;
         let (linked, in_base) = linked_and_reached(v, &parts, team)?;
         let nb = if use_buckets { v.build.max_bucket as usize + 1 } else { 1 };
@@ -490,14 +487,10 @@ impl<'a> Distributor<'a> {
             id: NEXT_ID.fetch_add(1, std::sync::atomic::Ordering::Relaxed),
             v: *v,
             opts: *opts,
-            rho,
-            emit,
             back_share: match v.patch_back_hits {
-                Some(b) => b.iter().zip(&share).map(|(&b, &s)| b as f32 * s).collect(),
+                Some(b) => b.iter().enumerate().map(|(p, &b)| b as f32 * share_and_area(v, opts, p).0).collect(),
                 None => Vec::new(),
             },
-            share,
-            area_eff,
             linked,
             use_buckets,
             in_base,
@@ -564,6 +557,25 @@ impl<'a> Distributor<'a> {
         self.exchanged_bytes.fetch_add(bytes, Relaxed);
         self.exchange_ns.fetch_add(started.elapsed().as_nanos() as u64, Relaxed);
         self.exchanges.fetch_add(1, Relaxed);
+    }
+
+    /// Reflectance `k_d` of patch `p` (its surface's: nothing per patch
+    /// is kept that the surface tables give).
+    #[inline]
+    fn rho(&self, p: usize) -> [f32; 3] {
+        self.surface_reflectance[self.patch_surface[p] as usize]
+    }
+
+    /// Share of patch `p`'s power each of its link ends carries.
+    #[inline]
+    fn share(&self, p: usize) -> f32 {
+        share_and_area(&self.v, &self.opts, p).0
+    }
+
+    /// The area patch `p`'s irradiance is over (`A_eff`).
+    #[inline]
+    fn area_eff(&self, p: usize) -> f32 {
+        share_and_area(&self.v, &self.opts, p).1
     }
 
     /// Seconds spent in the gathers over frame 0's link ends and the ends

@@ -104,7 +104,7 @@ fn frame_materials(v: &InetView<'_>, frame: u32, lighting: &Lighting) -> (Vec<[f
 /// The frame's transport, plainly: its link ends, the share of a
 /// patch's power each end carries, the area irradiance is over, and the
 /// rings wider buckets spread over.
-struct Balance {
+struct Balance<'a> {
     /// Patches.
     n: usize,
     /// Buckets per patch (1 without buckets).
@@ -114,15 +114,15 @@ struct Balance {
     share: Vec<f64>,
     /// The area a patch's irradiance is over.
     area_eff: Vec<f64>,
-    rings: Option<Rings>,
+    rings: Option<Rings<'a>>,
 }
 
-impl Balance {
+impl<'a> Balance<'a> {
     /// Lists `frame`'s link ends (frame 0's and the frame's delta records,
     /// both ends of each, between present patches) and each patch's share
     /// and area under `opts`.
     fn new(
-        v: &InetView<'_>,
+        v: &InetView<'a>,
         frame: u32,
         opts: &DistributeOptions,
         presence: &FramePresence,

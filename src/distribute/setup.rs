@@ -14,20 +14,21 @@ use crate::archive::presence::FramePresence;
 pub(super) struct FrameSetup<'d> {
     /// Which patches are present (`None` for a still: all of them).
     pub presence: Option<FramePresence>,
-    /// Emitted radiance per patch (zero for absent patches).
-    pub emit: Vec<[f32; 3]>,
     /// Emitted radiance per surface (keyed emission applied).
     pub surface_emission: Vec<[f32; 3]>,
+    /// Each patch's surface (the distributor's), and its area: what a
+    /// patch emits is its surface's, so nothing per patch is kept for it.
+    patch_surface: &'d [u32],
+    patch_area: &'d [f32],
     /// The frame's link changes against frame 0 (sequences only).
     pub overlay: Option<Overlay>,
-    /// Per patch, the summed weight of its link ends in this frame.
-    pub linked: Vec<f64>,
+    /// Per patch, the summed weight of its link ends in this frame
+    /// (frame 0's, borrowed, unless the frame changes them).
+    pub linked: Cow<'d, [f64]>,
     /// Per non-diffuse patch and direction, the rays that reach a facing
     /// patch in this frame (borrowed unless the frame changes them).
     pub linked_dir: Cow<'d, [f32]>,
-    /// Power emitted per patch, `π·L_e·A_p` (the first unshot power).
-    pub emitted_power: Vec<[f32; 4]>,
-    /// Its sum per band.
+    /// The power patches emit ([`Self::emitted_power`]) summed per band.
     pub emitted: [f64; 3],
     /// Seconds spent decoding and applying the delta (0 for stills).
     pub delta_s: f64,
@@ -37,6 +38,27 @@ impl FrameSetup<'_> {
     /// The emitted power summed over bands.
     pub fn emitted_total(&self) -> f64 {
         self.emitted.iter().sum()
+    }
+
+    /// Emitted radiance of patch `p` (zero for absent patches).
+    #[inline]
+    pub fn emit(&self, p: usize) -> [f32; 3] {
+        match self.presence.as_ref().is_some_and(|f| !f.patch(p)) {
+            true => [0.0; 3],
+            false => self.surface_emission[self.patch_surface[p] as usize],
+        }
+    }
+
+    /// Power patch `p` emits, `π·L_e·A_p` (the first unshot power).
+    #[inline]
+    pub fn emitted_power(&self, p: usize) -> [f32; 4] {
+        let (e, k) = (self.emit(p), std::f32::consts::PI * self.patch_area[p]);
+        [e[0] * k, e[1] * k, e[2] * k, 0.0]
+    }
+
+    /// [`Self::emitted_power`] of every patch, as a vector.
+    pub fn emitted_powers(&self) -> Vec<[f32; 4]> {
+        (0..self.patch_surface.len()).map(|p| self.emitted_power(p)).collect()
     }
 
     /// Per patch, whether it is present; `None` when all are.
@@ -49,8 +71,6 @@ impl<'a> Distributor<'a> {
     /// Checks `frame` against the archive and sets it up.
     pub(super) fn setup(&self, frame: u32) -> Result<FrameSetup<'_>, DistributeError> {
         let v = &self.v;
-        let n = v.patch_count();
-        let mut emit = self.emit.clone();
         let mut surface_emission = self.surface_emission.clone();
         let t_delta = std::time::Instant::now();
         let (overlay, presence) = match &v.sequence {
@@ -67,16 +87,6 @@ impl<'a> Distributor<'a> {
                         }
                     }
                 }
-                for p in 0..n {
-                    let surface = self.patch_surface[p] as usize;
-                    if !presence.patch(p) {
-                        emit[p] = [0.0; 3];
-                    } else if let Some(keyed) = keyed
-                        && !self.emission_fixed.get(surface).copied().unwrap_or(false)
-                    {
-                        emit[p] = keyed[surface];
-                    }
-                }
                 let (_, overlay) =
                     v.frame_links_with(frame, |r| Overlay::new(self.nb, r, &presence, self.nd.is_some()))?;
                 (Some(overlay), Some(presence))
@@ -84,8 +94,9 @@ impl<'a> Distributor<'a> {
             None if frame == 0 => (None, None),
             None => return Err(DistributeError::NotASequence { frame }),
         };
-        let mut linked = self.linked.clone();
+        let mut linked = Cow::Borrowed(&self.linked[..]);
         if let Some(o) = &overlay {
+            let linked = linked.to_mut();
             for (l, d) in linked.iter_mut().zip(&o.linked) {
                 *l += d;
             }
@@ -101,30 +112,25 @@ impl<'a> Distributor<'a> {
             }
         }
         let delta_s = if overlay.is_some() { t_delta.elapsed().as_secs_f64() } else { 0.0 };
-        let emitted_power: Vec<[f32; 4]> = (0..n)
-            .map(|p| {
-                let k = std::f32::consts::PI * v.patch_area[p];
-                [emit[p][0] * k, emit[p][1] * k, emit[p][2] * k, 0.0]
-            })
-            .collect();
-        let mut emitted = [0.0f64; 3];
-        for u in &emitted_power {
-            for c in 0..3 {
-                emitted[c] += u[c] as f64;
-            }
-        }
         let linked_dir = self.linked_directions(frame, overlay.as_ref());
-        Ok(FrameSetup {
+        let mut setup = FrameSetup {
             presence,
-            emit,
             surface_emission,
+            patch_surface: &self.patch_surface,
+            patch_area: v.patch_area,
             overlay,
             linked,
             linked_dir,
-            emitted_power,
-            emitted,
+            emitted: [0.0; 3],
             delta_s,
-        })
+        };
+        for p in 0..v.patch_count() {
+            let u = setup.emitted_power(p);
+            for c in 0..3 {
+                setup.emitted[c] += u[c] as f64;
+            }
+        }
+        Ok(setup)
     }
 
     /// Per non-diffuse patch and direction, the rays that reach a facing

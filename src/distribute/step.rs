@@ -13,7 +13,7 @@
 
 use rayon::prelude::*;
 
-use super::anderson::Anderson;
+use super::anderson::{Anderson, PairMut, to_half};
 use super::kernels::{BLOCK, PackedRgb, add_ends, gather, silence_absent};
 use super::setup::FrameSetup;
 use super::warm::{Carry, WarmStart};
@@ -60,25 +60,21 @@ pub(super) struct Iteration<'d, 'f, 's> {
     s: &'f FrameSetup<'d>,
     warm: WarmStart<'s>,
     /// The residual: power still to send.
-    unshot: Vec<[f32; 4]>,
+    unshot: Vec<[f32; 3]>,
     /// What this step sends: the residual itself, the warm guess first, or
     /// Anderson's mixed step.
-    send: Vec<[f32; 4]>,
+    send: Vec<[f32; 3]>,
     /// `send` per link end (`send · U_p/H_p`).
     shoot: Vec<[f32; 4]>,
     /// `shoot`'s RGB packed for the gather of frame 0's links.
     packed: PackedRgb,
     /// Received per patch and bucket.
     recv: Vec<[f32; 4]>,
-    /// Spread onto each patch from its rings.
-    spread: Vec<[f32; 4]>,
-    /// What the step changed in the residual, for the acceleration.
-    residual_change: Vec<[f32; 4]>,
     /// Received power over the iterations: what hit the patch itself
     /// (bucket 0, whose density follows the patch's hit count) and what
     /// was spread onto it.
-    total_direct: Vec<[f32; 4]>,
-    total_spread: Vec<[f32; 4]>,
+    total_direct: Vec<[f32; 3]>,
+    total_spread: Vec<[f32; 3]>,
     /// Totals over the iterations, for the next frame's sparse jump
     /// (diffuse sequences only; empty otherwise).
     carrying: bool,
@@ -129,15 +125,13 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
             d,
             s,
             warm,
-            unshot: s.emitted_power.clone(),
-            send: vec![[0.0; 4]; n],
+            unshot: (0..n).map(|p| rgb(s.emitted_power(p))).collect(),
+            send: vec![[0.0; 3]; n],
             shoot: vec![[0.0; 4]; n],
             packed: PackedRgb::new(n),
             recv: vec![[0.0; 4]; n * nb],
-            spread: vec![[0.0; 4]; n],
-            residual_change: vec![[0.0; 4]; n],
-            total_direct: vec![[0.0; 4]; n],
-            total_spread: vec![[0.0; 4]; n],
+            total_direct: vec![[0.0; 3]; n],
+            total_spread: vec![[0.0; 3]; n],
             carrying,
             sent_total: vec![[0.0; 3]; if carrying { n } else { 0 }],
             received_total: vec![[0.0; 3]; if carrying { n * nb } else { 0 }],
@@ -179,18 +173,20 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
         if let Some(g) = self.glossy.as_mut() {
             g.unsent = false;
         }
-        self.spread();
         self.add_to_carry();
         self.residual_total = 0.0;
-        self.reflect();
+        // The step's secant pair, unless it mixed in light that `send`
+        // did not make (the warm jump's, a table step's).
+        let recording = !warm_jump && !injected;
+        self.reflect(recording);
         let previous_diffuse = std::mem::replace(&mut self.diffuse_residual, self.residual_total);
         self.reflect_directional();
         if let Some(g) = &self.glossy {
             self.residual_total += g.waiting;
         }
-        if !warm_jump && !injected {
+        if recording {
             if self.diffuse_residual < previous_diffuse {
-                self.anderson.record(&self.send, &self.residual_change);
+                self.anderson.commit();
             } else {
                 self.anderson.reset();
             }
@@ -203,13 +199,17 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
     /// step), or Anderson's mix.
     fn choose_send(&mut self, warm_jump: bool, converged: bool) {
         match self.warm.first_send() {
-            Some(g) if warm_jump => self.send.copy_from_slice(g),
+            Some(g) if warm_jump => self.send.iter_mut().zip(g).for_each(|(s, g)| *s = rgb(*g)),
             _ if converged => self.send.copy_from_slice(&self.unshot),
             _ => self.anderson.step(&self.unshot, &mut self.send),
         }
         // A mixed step may hand absent patches (present in an earlier
         // frame of the history) something to send: they send nothing.
-        silence_absent(self.s.absent_mask(), 1, &mut self.send);
+        if let Some(present) = self.s.absent_mask() {
+            for (s, _) in self.send.iter_mut().zip(present).filter(|(_, here)| !**here) {
+                *s = [0.0; 3];
+            }
+        }
     }
 
     /// `shoot = send · share` per patch; the shares of ends that link
@@ -217,7 +217,7 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
     /// sums are added in block order, so the result does not depend on the
     /// threads.
     fn shoot(&mut self) {
-        let (share, linked, send) = (&self.d.share, &self.s.linked, &self.send);
+        let (d, linked, send) = (self.d, &self.s.linked, &self.send);
         let back_share = &self.d.back_share;
         let lost: Vec<[[f64; 3]; 2]> = self
             .shoot
@@ -228,7 +228,7 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
                 let mut sum = [[0.0f64; 3]; 2];
                 for (i, sh) in out.iter_mut().enumerate() {
                     let p = block * BLOCK + i;
-                    let s = share[p];
+                    let s = d.share(p);
                     let unlinked = 1.0 - linked[p] * s as f64;
                     let back = back_share.get(p).map_or(0.0, |&b| (b as f64).min(unlinked).max(0.0));
                     for c in 0..3 {
@@ -307,8 +307,11 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
             let shoot_e: Vec<[f32; 4]> = c
                 .sent
                 .iter()
-                .zip(&self.d.share)
-                .map(|(x, &s)| [x[0] as f32 * s, x[1] as f32 * s, x[2] as f32 * s, 0.0])
+                .enumerate()
+                .map(|(p, x)| {
+                    let s = self.d.share(p);
+                    [x[0] as f32 * s, x[1] as f32 * s, x[2] as f32 * s, 0.0]
+                })
                 .collect();
             add_ends(e, nb, &shoot_e, -1.0, None, &mut self.recv);
         }
@@ -378,12 +381,13 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
         Ok(())
     }
 
-    /// Light that arrived in wide buckets, spread over rings of neighbours
-    /// (§3.4).
-    fn spread(&mut self) {
-        match &self.d.rings {
-            Some(rings) if self.d.use_buckets => rings.spread(&self.recv, self.d.nb, &mut self.spread),
-            _ => self.spread.fill([0.0; 4]),
+    /// Light that arrived at patch `p`'s rings in wide buckets, spread
+    /// onto it (§3.4): computed where it is used, not kept.
+    #[inline]
+    fn spread_onto(d: &Distributor<'_>, recv: &[[f32; 4]], p: usize) -> [f32; 4] {
+        match &d.rings {
+            Some(rings) if d.use_buckets => rings.spread_onto(recv, d.nb, p),
+            _ => [0.0; 4],
         }
     }
 
@@ -394,13 +398,13 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
             return;
         }
         let nb = self.d.nb;
-        let add = |(t, x): (&mut [[f64; 3]], &[[f32; 4]])| {
+        fn add<const L: usize>((t, x): (&mut [[f64; 3]], &[[f32; L]])) {
             for (t, x) in t.iter_mut().zip(x) {
                 for c in 0..3 {
                     t[c] += x[c] as f64;
                 }
             }
-        };
+        }
         self.sent_total.par_chunks_mut(BLOCK).zip(self.send.par_chunks(BLOCK)).for_each(add);
         self.received_total.par_chunks_mut(BLOCK * nb).zip(self.recv.par_chunks(BLOCK * nb)).for_each(add);
     }
@@ -473,28 +477,40 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
 
     /// Every patch reflects `ρ` of what it received (direct and spread) as
     /// new unshot power and absorbs the rest: `f(x + δ) = f(x) − δ + K·δ`.
-    fn reflect(&mut self) {
-        let (rho, nb) = (&self.d.rho, self.d.nb);
-        let (recv, spread, send) = (&self.recv, &self.spread, &self.send);
+    /// When `recording`, the step's secant pair (the change of the
+    /// residual, and what was reflected) goes straight into Anderson's
+    /// history.
+    fn reflect(&mut self, recording: bool) {
+        let (d, nb, n) = (self.d, self.d.nb, self.unshot.len());
+        let (recv, send) = (&self.recv, &self.send);
+        // Per block of patches, its part of the pair's two vectors.
+        let slots: Vec<Option<PairMut<'_>>> = match recording.then(|| self.anderson.slot(n)).flatten() {
+            Some((df, kdx)) => df.chunks_mut(BLOCK).zip(kdx.chunks_mut(BLOCK)).map(Some).collect(),
+            None => (0..n.div_ceil(BLOCK)).map(|_| None).collect(),
+        };
         let sums: Vec<([f64; 3], f64)> = (
             self.total_direct.par_chunks_mut(BLOCK),
             self.total_spread.par_chunks_mut(BLOCK),
-            self.residual_change.par_chunks_mut(BLOCK),
+            slots.into_par_iter(),
             self.unshot.par_chunks_mut(BLOCK),
         )
             .into_par_iter()
             .enumerate()
-            .map(|(block, (td, ts, rc, un))| {
+            .map(|(block, (td, ts, mut slot, un))| {
                 let (mut absorbed, mut residual) = ([0.0f64; 3], 0.0f64);
                 for i in 0..td.len() {
                     let p = block * BLOCK + i;
+                    let (rho, spread) = (d.rho(p), Self::spread_onto(d, recv, p));
                     for c in 0..3 {
                         let direct = recv[p * nb][c];
-                        let r = direct + spread[p][c];
+                        let r = direct + spread[c];
                         td[i][c] += direct;
-                        ts[i][c] += spread[p][c];
-                        let reflected = r * rho[p][c];
-                        rc[i][c] = reflected - send[p][c];
+                        ts[i][c] += spread[c];
+                        let reflected = r * rho[c];
+                        if let Some((df, kdx)) = slot.as_mut() {
+                            df[i][c] = to_half(reflected - send[p][c]);
+                            kdx[i][c] = to_half(reflected);
+                        }
                         un[i][c] = un[i][c] - send[p][c] + reflected;
                         absorbed[c] += (r - reflected) as f64;
                         residual += un[i][c].abs() as f64;
@@ -520,21 +536,24 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
         let (d, s, nb) = (self.d, self.s, self.d.nb);
         let v = &d.v;
         let present = s.absent_mask();
-        for ((sh, e), &k) in self.shoot.iter_mut().zip(&s.emitted_power).zip(&d.share) {
+        for (p, sh) in self.shoot.iter_mut().enumerate() {
+            let (e, k) = (s.emitted_power(p), d.share(p));
             *sh = [e[0] * k, e[1] * k, e[2] * k, 0.0];
         }
         self.gather_base(present)?;
         if let Some(o) = &s.overlay {
             add_ends(&o.gather, nb, &self.shoot, 1.0, None, &mut self.recv);
         }
-        self.spread();
         self.first_bounce_directional();
-        let inv_pi = 1.0 / std::f32::consts::PI;
+        let (inv_pi, recv) = (1.0 / std::f32::consts::PI, &self.recv);
         Ok((0..v.patch_count())
+            .into_par_iter()
             .map(|p| {
-                let kd = if d.area_eff[p] > 0.0 { inv_pi / d.area_eff[p] } else { 0.0 };
+                let (area_eff, rho) = (d.area_eff(p), d.rho(p));
+                let kd = if area_eff > 0.0 { inv_pi / area_eff } else { 0.0 };
                 let ks = if v.patch_area[p] > 0.0 { inv_pi / v.patch_area[p] } else { 0.0 };
-                [0, 1, 2].map(|c| d.rho[p][c] * (self.recv[p * nb][c] * kd + self.spread[p][c] * ks))
+                let spread = Self::spread_onto(d, recv, p);
+                [0, 1, 2].map(|c| rho[c] * (recv[p * nb][c] * kd + spread[c] * ks))
             })
             .collect())
     }
@@ -579,14 +598,21 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
             }
         }
         bal.converged = self.residual_total <= d.opts.tolerance * s.emitted_total();
-        let (area_eff, rho, emit) = (&d.area_eff, &d.rho, &s.emit);
+        // The solution is made in the room the loop's vectors leave, each
+        // freed once nothing below reads it (`memory.rs` counts the loop's
+        // vectors, not these beside them). A still's secant pairs steer no
+        // later frame.
+        self.send = Vec::new();
+        let history = std::mem::replace(&mut self.anderson, Anderson::new(0));
+        let history = if d.v.sequence.is_some() { history } else { Anderson::new(0) };
         let (total_direct, total_spread) = (&self.total_direct, &self.total_spread);
         let inv_pi = 1.0 / std::f32::consts::PI;
         let radiance: Vec<[f32; 3]> = (0..n)
             .map(|p| {
-                let kd = if area_eff[p] > 0.0 { inv_pi / area_eff[p] } else { 0.0 };
+                let (area_eff, rho, emit) = (d.area_eff(p), d.rho(p), s.emit(p));
+                let kd = if area_eff > 0.0 { inv_pi / area_eff } else { 0.0 };
                 let ks = if v.patch_area[p] > 0.0 { inv_pi / v.patch_area[p] } else { 0.0 };
-                [0, 1, 2].map(|c| emit[p][c] + rho[p][c] * (total_direct[p][c] * kd + total_spread[p][c] * ks))
+                [0, 1, 2].map(|c| emit[c] + rho[c] * (total_direct[p][c] * kd + total_spread[p][c] * ks))
             })
             .collect();
         let received: Vec<[f32; 3]> =
@@ -600,6 +626,7 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
                 if got > 0.0 { (u[0].abs() + u[1].abs() + u[2].abs()) / got } else { 0.0 }
             })
             .collect();
+        (self.total_direct, self.total_spread, self.unshot) = (Vec::new(), Vec::new(), Vec::new());
         let direct = match d.opts.split_direct {
             true => Some(self.first_bounce()?),
             false => None,
@@ -629,7 +656,7 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
                 chain: self.warm.carry().map_or(0, |c| c.chain + 1),
                 sent: self.sent_total,
                 received: self.received_total,
-                emitted: s.emitted_power.clone(),
+                emitted: s.emitted_powers(),
                 overlay: s.overlay.as_ref().map(|o| o.gather.clone()),
             })
         });
@@ -645,11 +672,17 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
             surface_emission: s.surface_emission.clone(),
             surface_reflectance: d.surface_reflectance.clone(),
             surface_specular: d.surface_specular.clone(),
-            history: self.anderson,
+            history,
             carry,
             frame,
         })
     }
+}
+
+/// The RGB lanes of a four-lane row.
+#[inline]
+fn rgb(x: [f32; 4]) -> [f32; 3] {
+    [x[0], x[1], x[2]]
 }
 
 /// The frame's overlay ends of patch `q` as `(other, weight, direction)`,

@@ -92,7 +92,7 @@ impl<'s> WarmStart<'s> {
             .and_then(|st| st.carry.as_deref())
             .filter(|c| d.nd.is_none() && emitted_total > 0.0 && c.distributor == d.id && c.chain < MAX_SPARSE_CHAIN);
         if let Some(c) = carry
-            && let Some(send) = d.sparse_jump(c, frame, &s.emitted_power, s.absent_mask())
+            && let Some(send) = d.sparse_jump(c, frame, &s.emitted_powers(), s.absent_mask())
         {
             return Self::SparseJump { carry: c, send };
         }
@@ -132,9 +132,9 @@ impl Distributor<'_> {
         }
         (0..n)
             .map(|p| {
-                let e = s.emitted_power[p];
+                let e = s.emitted_power(p);
                 let r = start.received[source[p] as usize];
-                let rho = self.rho[p];
+                let rho = self.rho(p);
                 let on = e[0] + e[1] + e[2] > 0.0 || s.linked[p] > 0.0;
                 if on { [e[0] + rho[0] * r[0], e[1] + rho[1] * r[1], e[2] + rho[2] * r[2], 0.0] } else { [0.0; 4] }
             })

@@ -15,7 +15,7 @@
 use std::fmt;
 
 use crate::archive::{ArchiveSummary, CHUNK_ENDS, layout::tag};
-use crate::distribute::memory::{StateShape, state_bytes};
+use crate::distribute::memory::{StateShape, kept_patch_bytes, patch_bytes, state_bytes};
 use crate::memory::{Bytes, MemoryBudget};
 
 /// Bytes per link end a window's buffers hold for the columns (`LOTH`,
@@ -88,6 +88,8 @@ pub struct MemoryPlan {
     pub budget: MemoryBudget,
     /// Planned resident bytes, by part.
     pub parts: Vec<(&'static str, u64)>,
+    /// The archive's patches (for the per-patch figures the plan states).
+    pub patches: u64,
 }
 
 /// Bytes of some parts in all.
@@ -110,7 +112,14 @@ impl fmt::Display for MemoryPlan {
                 write!(f, "link ends streamed from disk in windows of {window_ends} ends, {in_flight} held at once")?
             }
         }
-        write!(f, ", {} planned of a budget of {}", Bytes(self.total()), self.budget)?;
+        write!(f, ", {} planned of a budget of {} (", Bytes(self.total()), self.budget)?;
+        for (i, (name, b)) in self.parts.iter().filter(|p| p.1 > 0).enumerate() {
+            write!(f, "{}{name} {}", if i > 0 { ", " } else { "" }, Bytes(*b))?;
+            if *name == DISTRIBUTION && self.patches > 0 {
+                write!(f, ", {} bytes a patch", b / self.patches)?;
+            }
+        }
+        write!(f, "; {} bytes a patch in all)", self.total() / self.patches.max(1))?;
         if self.cache_bytes == 0 && self.frames > 1 {
             write!(f, ", no sample cache (every frame traces all its image samples)")?;
         }
@@ -163,13 +172,14 @@ impl fmt::Display for BudgetError {
 
 impl std::error::Error for BudgetError {}
 
-/// The distribution's state for the archive `s` summarises.
-fn distribution_bytes(s: &ArchiveSummary, job: &RenderJob) -> u64 {
+/// The distribution's state for the archive `s` summarises at its peak,
+/// and what of it is still held once a frame is solved.
+fn distribution_bytes(s: &ArchiveSummary, job: &RenderJob) -> (u64, u64) {
     let b = &s.build;
     let (p, e) = (b.patch_count as u64, b.link_end_count);
     let nd = s.section_count(tag::NONDIFFUSE_PATCHES);
     let buckets = if job.buckets && b.max_bucket > 0 { b.max_bucket as u64 + 1 } else { 1 };
-    state_bytes(&StateShape {
+    let shape = StateShape {
         patches: p,
         buckets,
         anderson_depth: job.anderson_depth as u64,
@@ -179,12 +189,16 @@ fn distribution_bytes(s: &ArchiveSummary, job: &RenderJob) -> u64 {
         // Entries (u32) and factors (f32), as records: the sections may be compressed.
         table_bytes: 4 * (s.section_count(tag::PROTOTYPE_DIRECTIONS) + s.section_count(tag::PROTOTYPE_FACTORS)),
         max_delta_records: s.max_delta_records,
-    })
+    };
+    let peak = state_bytes(&shape);
+    // Glossy light and a sequence's overlays are held throughout.
+    (peak, peak - p * (patch_bytes(&shape) - kept_patch_bytes(&shape)))
 }
 
-/// The renderer's own memory: images, vertex and patch radiance,
-/// primitives and their BVH (the sample cache apart).
-fn renderer_bytes(s: &ArchiveSummary, job: &RenderJob) -> u64 {
+/// The renderer's own memory: images, primitives and their BVH (the
+/// sample cache apart); and vertex and patch radiance, made once the
+/// frame's light is solved.
+fn renderer_bytes(s: &ArchiveSummary, job: &RenderJob) -> (u64, u64) {
     let pixels = job.width as u64 * job.height as u64;
     let b = &s.build;
     // Per pixel: the image and its direct part (12 each), the encoded
@@ -194,23 +208,36 @@ fn renderer_bytes(s: &ArchiveSummary, job: &RenderJob) -> u64 {
     // make it; patch radiance and the gather's per-patch reflected light.
     let radiance = b.vertex_count as u64 * (12 * 4 + 32) + b.patch_count as u64 * 12 * 4;
     let primitives = b.primitive_count as u64 * 320;
-    images + radiance + primitives
+    (images + primitives, radiance)
 }
+
+/// The distribution's part of a plan.
+const DISTRIBUTION: &str = "distribution";
 
 /// The part of a plan that the image size and samples set.
 const IMAGES: &str = "images and radiance";
 
 /// Plans rendering `job` from the archive `s` summarises within `budget`.
 pub fn plan(s: &ArchiveSummary, job: &RenderJob, budget: MemoryBudget) -> Result<MemoryPlan, BudgetError> {
-    let distribution = distribution_bytes(s, job);
-    let renderer = renderer_bytes(s, job);
+    let (distribution, kept) = distribution_bytes(s, job);
+    let (images, radiance) = renderer_bytes(s, job);
+    // A single frame's radiance is made in the room its distribution's
+    // loop left (`distribute::memory`): the peak is the larger of the two
+    // phases. Frames after the first solve their light beside the last
+    // frame's radiance: both count.
+    let reused = match job.frames {
+        1 => radiance.min(distribution - kept),
+        _ => 0,
+    };
+    let renderer = images + radiance - reused;
     let pixels = job.width as u64 * job.height as u64;
     // The cache pays off only when a later frame reuses the samples.
     let cache = match job.frames > 1 {
         true => super::sample_cache_bytes(pixels, (job.samples_per_axis as u64).pow(2)).min(MAX_CACHE),
         false => 0,
     };
-    let fixed = [("distribution", distribution), (IMAGES, renderer)];
+    let fixed = [(DISTRIBUTION, distribution), (IMAGES, renderer)];
+    let patches = s.build.patch_count as u64;
     let with = |mut parts: Vec<(&'static str, u64)>| {
         parts.extend(fixed);
         parts
@@ -226,6 +253,7 @@ pub fn plan(s: &ArchiveSummary, job: &RenderJob, budget: MemoryBudget) -> Result
                 frames: job.frames,
                 budget,
                 parts,
+                patches,
             });
         }
     }
@@ -268,5 +296,5 @@ pub fn plan(s: &ArchiveSummary, job: &RenderJob, budget: MemoryBudget) -> Result
     parts.push((WINDOWS, in_flight * one_window(window)));
     parts.push(("sample cache", cache));
     let access = LinkAccess::Streamed { window_ends: window as usize, in_flight: in_flight as usize };
-    Ok(MemoryPlan { access, cache_bytes: cache, frames: job.frames, budget, parts })
+    Ok(MemoryPlan { access, cache_bytes: cache, frames: job.frames, budget, parts, patches })
 }
