@@ -23,7 +23,12 @@
 #      installed by the script, daemons on loopback, stopped by their PIDs),
 #      when run as root (apt and the munge user need it; skipped with a note
 #      otherwise; ILLUMNET_SKIP_SLURM=1 skips it);
-#   6. a short smoke run of each fuzz target, when cargo-fuzz is installed
+#   6. the page of `illumnet serve` in headless Chromium over WebDriver
+#      (tools/browser/test.sh: Debian's chromium and chromium-driver,
+#      installed by tools/browser/install.sh, processes stopped by their
+#      PIDs), when run as root or with them installed (skipped with a note
+#      otherwise; ILLUMNET_SKIP_BROWSER=1 skips it);
+#   7. a short smoke run of each fuzz target, when cargo-fuzz is installed
 #      (tools/fuzz; skipped with a note otherwise).
 # Each step prints how long it took (CI must stay under 30 minutes).
 set -euo pipefail
@@ -63,6 +68,13 @@ elif [[ $EUID -eq 0 ]]; then
     step "slurm frame farm" env ILLUMNET="$bin" FARM_MPI_RANKS=$mpi_ranks bash tools/slurm/test-frame-farm.sh
 else
     echo "tools/test.sh: not root: Slurm frame farm skipped (tools/slurm/README.md)"
+fi
+if [[ ${ILLUMNET_SKIP_BROWSER:-} == 1 ]]; then
+    echo "tools/test.sh: ILLUMNET_SKIP_BROWSER=1: browser test skipped"
+elif [[ $EUID -eq 0 ]] || bash tools/browser/install.sh >/dev/null 2>&1; then
+    step "browser: illumnet serve's page in headless Chromium" env ILLUMNET="$bin" bash tools/browser/test.sh
+else
+    echo "tools/test.sh: not root and Chromium not installed: browser test skipped (tools/browser/install.sh)"
 fi
 if [[ -x tools/fuzz ]] && command -v cargo-fuzz >/dev/null 2>&1; then
     step "fuzz smoke" tools/fuzz smoke

@@ -25,10 +25,10 @@ function shader(type, src) {
 }
 const program = gl.createProgram();
 gl.attachShader(program, shader(gl.VERTEX_SHADER, `#version 300 es
-in vec3 position; in uint patch; uniform mat4 mvp; uniform sampler2D radiance;
+in vec3 position; in uint patch_id; uniform mat4 mvp; uniform sampler2D radiance;
 flat out vec3 colour;
 void main() {
-  ivec2 at = ivec2(int(patch) % ${TEX_W}, int(patch) / ${TEX_W});
+  ivec2 at = ivec2(int(patch_id) % ${TEX_W}, int(patch_id) / ${TEX_W});
   colour = texelFetch(radiance, at, 0).rgb;
   gl_Position = mvp * vec4(position, 1.0);
 }`));
@@ -62,7 +62,7 @@ async function loadMesh() {
     else gl.vertexAttribPointer(at, size, gl.FLOAT, false, 0, 0);
   };
   put("position", positions, 3, false);
-  put("patch", patches, 1, true);
+  put("patch_id", patches, 1, true);
   vertexCount = n;
 }
 
@@ -157,7 +157,12 @@ window.addEventListener("resize", draw);
 // ---------------------------------------------------------------- controls
 
 let socket;
-const send = (request) => socket.send(JSON.stringify(request));
+// Latency: from a change sent to its light drawn (window.illumnet.latencies, ms).
+state.latencies = [];
+const send = (request) => {
+  if (request.op !== "save" && !state.sentAt) state.sentAt = performance.now();
+  socket.send(JSON.stringify(request));
+};
 
 function slider(parent, label, min, max, step, value, onInput) {
   const row = document.createElement("div");
@@ -201,12 +206,12 @@ function buildControls() {
       // Intensity scales the archive's emission; colour keeps the intensity.
       const e = { scale: 1, tint: s.emission.map((x) => x / Math.max(...s.emission)), peak: Math.max(...s.emission) };
       const push = () => send({ op: "set", target: `${s.name}.emission`, value: e.tint.map((x) => x * e.peak * e.scale) });
-      slider(emitters, `${s.name} ×`, 0, 4, 0.01, 1, (x) => { e.scale = x; push(); }).dataset.surface = s.name;
+      slider(emitters, `${s.name} ×`, 0, 4, "any", 1, (x) => { e.scale = x; push(); }).dataset.surface = s.name;
       colour(emitters, `${s.name} colour`, s.emission, (v) => { e.tint = v; push(); });
     }
     for (let c = 0; c < 3; c++) {
       const name = `${s.name} ${"RGB"[c]}`;
-      const input = slider(surfaces, name, 0, 1, 0.01, s.reflectance[c], () => {
+      const input = slider(surfaces, name, 0, 1, "any", s.reflectance[c], () => {
         const value = [0, 1, 2].map((k) => Number(surfaces.querySelector(`[data-albedo="${s.name}/${k}"]`).value));
         send({ op: "set", target: `${s.name}.reflectance`, value });
       });
@@ -242,6 +247,10 @@ function connect() {
       state.radiance = new Float32Array(m.data.slice(16, 16 + n * 12));
       uploadRadiance();
       draw();
+      if (state.sentAt) {
+        state.latencies.push(performance.now() - state.sentAt);
+        state.sentAt = 0;
+      }
       return;
     }
     const msg = JSON.parse(m.data);

@@ -4,7 +4,10 @@
 # Cornell box and the fan room, starts `illumnet serve` for each and
 # chromedriver, runs tools/browser/test_serve.py against them, and stops
 # every process it started by its PID (never by name).
-#   ILLUMNET=path/to/illumnet bash tools/browser/test.sh
+#   ILLUMNET=path/to/illumnet bash tools/browser/test.sh [--bench]
+# --bench: instead of the test, the latency benchmark (bench_serve.py:
+# change to drawn, median of 20 changes; record it in docs/PERFORMANCE.md;
+# BENCH_SCREENSHOT=PATH also saves the Cornell box's page as a PNG).
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 prog=tools/browser/test.sh
@@ -31,8 +34,11 @@ stop() {
 }
 trap stop EXIT
 
-"$bin" build -q scenes/cornell_box.toml --quality draft -o "$work/cornell.inet" >/dev/null
-"$bin" build -q scenes/fan_room.toml --quality draft -o "$work/fan.inet" >/dev/null
+# The test at draft quality (fast); the benchmark at the build's defaults.
+quality=(--quality draft)
+[[ ${1:-} != --bench ]] || quality=()
+"$bin" build -q scenes/cornell_box.toml "${quality[@]}" -o "$work/cornell.inet" >/dev/null
+"$bin" build -q scenes/fan_room.toml "${quality[@]}" -o "$work/fan.inet" >/dev/null
 
 start_serve() { # archive log -> prints the page URL
     "$bin" serve --port 0 "$1" >"$2" 2>&1 &
@@ -56,6 +62,11 @@ for i in $(seq 300); do
     curl -fs "http://127.0.0.1:$port/status" >/dev/null 2>&1 && break
     sleep 0.1
 done
+if [[ ${1:-} == --bench ]]; then
+    python3 tools/browser/bench_serve.py --webdriver "http://127.0.0.1:$port" --page "$cornell" --fan-page "$fan" \
+        ${BENCH_SCREENSHOT:+--screenshot "$BENCH_SCREENSHOT"}
+    exit
+fi
 python3 tools/browser/test_serve.py --webdriver "http://127.0.0.1:$port" --page "$cornell" --fan-page "$fan" ||
     die "the page test failed (serve logs: $(tail -n 3 "$work"/*.log))"
 say "passed"

@@ -18,14 +18,19 @@ import json
 import struct
 import sys
 import time
+import urllib.error
 import urllib.request
 
 
 def call(method, url, body=None):
     data = None if body is None else json.dumps(body).encode()
     req = urllib.request.Request(url, data=data, method=method, headers={"Content-Type": "application/json"})
-    with urllib.request.urlopen(req, timeout=120) as r:
-        return json.loads(r.read().decode() or "null")
+    try:
+        with urllib.request.urlopen(req, timeout=120) as r:
+            return json.loads(r.read().decode() or "null")
+    except urllib.error.HTTPError as e:
+        # WebDriver's error: the script's exception, a missing element…
+        fail(f"{method} {url}: {e.code}: {e.read().decode(errors='replace')[:600]}")
 
 
 class Browser:
@@ -51,6 +56,12 @@ class Browser:
                 return v
             time.sleep(0.05)
         fail(f"timed out waiting for {what}; page error: {self.js('return window.illumnet.lastError || null')}")
+
+    def screenshot(self, path):
+        import base64
+        png = call("GET", f"{self.base}/session/{self.session}/screenshot")["value"]
+        with open(path, "wb") as f:
+            f.write(base64.b64decode(png))
 
     def close(self):
         call("DELETE", f"{self.base}/session/{self.session}")
