@@ -40,15 +40,20 @@ fn build_cornell_box(dir: &Path) -> std::path::PathBuf {
     archive
 }
 
-fn serve(archive: &Path) -> Server {
+fn serve(archive: &Path, renders: &Path) -> Server {
     let mut child = Command::new(env!("CARGO_BIN_EXE_illumnet"))
-        .args(["serve", "--port", "0"])
+        .args(["serve", "--port", "0", "--render-dir"])
+        .arg(renders)
         .arg(archive)
         .stdout(Stdio::piped())
         .spawn()
         .unwrap();
     let mut line = String::new();
-    BufReader::new(child.stdout.take().unwrap()).read_line(&mut line).unwrap();
+    let mut out = BufReader::new(child.stdout.take().unwrap());
+    out.read_line(&mut line).unwrap();
+    // Keep reading what it prints (a render's summary): a closed pipe
+    // would end it.
+    std::thread::spawn(move || std::io::copy(&mut out, &mut std::io::sink()));
     let address = line.split("http://").nth(1).and_then(|r| r.split('/').next()).unwrap_or_else(|| panic!("{line}"));
     Server { child, url: format!("ws://{address}/ws") }
 }
@@ -92,7 +97,7 @@ async fn send(ws: &mut Socket, text: &str) {
 async fn a_page_relights_the_cornell_box() {
     let dir = tempfile::tempdir().unwrap();
     let archive = build_cornell_box(dir.path());
-    let server = serve(&archive);
+    let server = serve(&archive, &dir.path().join("renders"));
     let (mut a, _) = tokio_tungstenite::connect_async(&server.url).await.unwrap();
     let scene = next_json(&mut a).await;
     assert_eq!(scene["type"], "scene");
@@ -235,4 +240,32 @@ async fn a_page_relights_the_cornell_box() {
         let (x, y) = (on(wall, &two, 0), on(wall, &halved, 0));
         assert!(y < x, "{wall}'s red: {x:.4} → {y:.4}: the red wall reflects less onto it");
     }
+
+    // "render": the view asked for, with the light set, is the render
+    // command's image byte for byte.
+    let c = &scene["camera"];
+    let view = serde_json::json!({ "op": "render", "camera": {
+        "position": [c["position"][0].as_f64().unwrap() + 0.1, c["position"][1], c["position"][2]],
+        "look_at": c["look_at"], "up": c["up"], "fov_y_deg": 35.5, "width": 48, "height": 40 } });
+    send(&mut a, &view.to_string()).await;
+    let rendered = loop {
+        let j = next_json(&mut a).await;
+        if j["type"] == "rendered" {
+            break j;
+        }
+        assert_ne!(j["type"], "error", "{j}");
+    };
+    let name = rendered["url"].as_str().unwrap().rsplit('/').next().unwrap().to_string();
+    let served = std::fs::read(dir.path().join("renders").join(&name)).unwrap();
+    let mut args: Vec<String> =
+        rendered["args"].as_array().unwrap().iter().map(|a| a.as_str().unwrap().to_string()).collect();
+    let o = args.iter().position(|a| a == "-o").unwrap();
+    args[o + 1] = dir.path().join("cli.png").display().to_string();
+    assert!(args.iter().filter(|a| *a == "--set").count() == 2, "{args:?}");
+    let out = Command::new(env!("CARGO_BIN_EXE_illumnet")).args(&args).output().unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let cli = std::fs::read(dir.path().join("cli.png")).unwrap();
+    assert!(served == cli, "the page's render differs from `{}`", rendered["command"]);
+    let image = image::load_from_memory(&served).unwrap();
+    assert_eq!((image.width(), image.height()), (48, 40));
 }

@@ -94,20 +94,24 @@ function resetCamera() {
   draw();
 }
 
-function matrix() {
-  const eye = [
+function eye() {
+  return [
     cam.target[0] + cam.distance * Math.cos(cam.pitch) * Math.sin(cam.yaw),
     cam.target[1] + cam.distance * Math.sin(cam.pitch),
     cam.target[2] + cam.distance * Math.cos(cam.pitch) * Math.cos(cam.yaw),
   ];
-  const f = norm(sub(cam.target, eye));
+}
+
+function matrix() {
+  const e = eye();
+  const f = norm(sub(cam.target, e));
   const s = norm(cross(f, [0, 1, 0]));
   const u = cross(s, f);
   const aspect = canvas.width / canvas.height;
   const t = 1 / Math.tan((cam.fov * Math.PI) / 360);
   const near = cam.distance * 0.01, far = cam.distance * 100;
   const dot = (a, b) => a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
-  const view = [s[0], u[0], -f[0], 0, s[1], u[1], -f[1], 0, s[2], u[2], -f[2], 0, -dot(s, eye), -dot(u, eye), dot(f, eye), 1];
+  const view = [s[0], u[0], -f[0], 0, s[1], u[1], -f[1], 0, s[2], u[2], -f[2], 0, -dot(s, e), -dot(u, e), dot(f, e), 1];
   const proj = [t / aspect, 0, 0, 0, 0, t, 0, 0, 0, 0, (far + near) / (near - far), -1, 0, 0, (2 * far * near) / (near - far), 0];
   const m = new Array(16).fill(0);
   for (let c = 0; c < 4; c++) for (let r = 0; r < 4; r++) for (let k = 0; k < 4; k++) m[c * 4 + r] += proj[k * 4 + r] * view[c * 4 + k];
@@ -232,6 +236,13 @@ $("exposure").addEventListener("input", (e) => {
 $("reset-view").onclick = () => resetCamera();
 $("reset").onclick = () => { send({ op: "reset" }); buildControls(); };
 $("save").onclick = () => send({ op: "save" });
+// The render command's image of this view, with the light shown.
+$("render").onclick = () => {
+  const c = state.scene.camera;
+  $("rendered").textContent = "rendering…";
+  socket.send(JSON.stringify({ op: "render", camera: {
+    position: eye(), look_at: cam.target, up: [0, 1, 0], fov_y_deg: cam.fov, width: c.width, height: c.height } }));
+};
 
 // ---------------------------------------------------------------- server
 
@@ -271,6 +282,19 @@ function connect() {
       a.href = URL.createObjectURL(new Blob([msg.toml], { type: "text/plain" }));
       a.download = "light.toml";
       a.click();
+    } else if (msg.type === "rendered") {
+      state.rendered = msg;
+      const out = $("rendered");
+      out.textContent = "";
+      const link = document.createElement("a");
+      link.href = msg.url;
+      link.target = "_blank";
+      const img = document.createElement("img");
+      img.src = msg.url;
+      link.append(img);
+      const code = document.createElement("code");
+      code.textContent = msg.command;
+      out.append(link, code);
     } else if (msg.type === "error") {
       $("error").textContent = msg.message;
       state.lastError = msg.message;

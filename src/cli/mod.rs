@@ -168,6 +168,18 @@ fn report(e: &anyhow::Error) -> String {
     out
 }
 
+/// Runs `illumnet render` with the command line `args` (without the
+/// program's name), quietly: `serve`'s "render" button runs the very
+/// command a user would, so that its image is that command's.
+pub(crate) fn run_render(args: &[String]) -> anyhow::Result<()> {
+    let cli = Cli::try_parse_from(std::iter::once("illumnet".to_string()).chain(args.iter().cloned()))
+        .map_err(|e| anyhow::anyhow!("{e}"))?;
+    match cli.command {
+        Command::Render(command) => render::run(command, &illumnet::progress::NoProgress),
+        _ => anyhow::bail!("not a render command"),
+    }
+}
+
 /// Runs the CLI; errors print as `illumnet: error: …` and exit with the
 /// code of their kind (`exit.rs`, README).
 pub fn main() -> ExitCode {

@@ -67,6 +67,7 @@ if [[ ${1:-} == --bench ]]; then
         ${BENCH_SCREENSHOT:+--screenshot "$BENCH_SCREENSHOT"}
     exit
 fi
-python3 tools/browser/test_serve.py --webdriver "http://127.0.0.1:$port" --page "$cornell" --fan-page "$fan" ||
+python3 tools/browser/test_serve.py --webdriver "http://127.0.0.1:$port" --page "$cornell" --fan-page "$fan" \
+    --illumnet "$bin" ||
     die "the page test failed (serve logs: $(tail -n 3 "$work"/*.log))"
 say "passed"

@@ -10,7 +10,9 @@ lamp's intensity control set to 2× makes every patch's radiance 2.00× the
 first (to the solver's tolerance: the light is linear in emission) and the
 canvas brighter; the red wall's reflectance halved with its sliders takes
 more than half of the red wall's red light and some red from the walls
-near it. On the fan room's page (when given): the frame slider at 30 shows
+near it; the "render" button's image, shown in the page, is the render
+command's (run with the command line it reports) byte for byte, when
+--illumnet is given. On the fan room's page (when given): the frame slider at 30 shows
 frame 30, its radiance differing from frame 0's. Exit 0 only if all hold.
 """
 import argparse
@@ -65,6 +67,9 @@ class Browser:
 
     def close(self):
         call("DELETE", f"{self.base}/session/{self.session}")
+
+
+ILLUMNET = None
 
 
 def fail(message):
@@ -155,6 +160,30 @@ def cornell(b, page):
         if not y < x:
             fail(f"{wall}'s red light {x:.4f} → {y:.4f}: the red wall reflects less onto it")
     print(f"test_serve.py: red wall halved ({want}…): its red {before:.2f} → {after:.2f}; the walls near it lost red")
+    if ILLUMNET:
+        render_button(b, page)
+
+
+def render_button(b, page):
+    """The "render" button: the page shows the image, which is the render
+    command's for that view and light, byte for byte."""
+    import subprocess
+    import tempfile
+    b.js("document.getElementById('render').click()")
+    r = b.wait("return window.illumnet.rendered", "the render button's image", timeout=300)
+    b.wait("const i = document.querySelector('#rendered img'); return i && i.complete && i.naturalWidth > 0",
+           "the rendered image shown")
+    with urllib.request.urlopen(page.rstrip("/") + r["url"], timeout=60) as f:
+        served = f.read()
+    args = list(r["args"])
+    with tempfile.TemporaryDirectory() as d:
+        args[args.index("-o") + 1] = f"{d}/cli.png"
+        subprocess.run([ILLUMNET, "-q"] + args, check=True, stdout=subprocess.DEVNULL)
+        with open(f"{d}/cli.png", "rb") as f:
+            cli = f.read()
+    if served != cli:
+        fail(f"the page's render differs from `{r['command']}`")
+    print(f"test_serve.py: render button: {len(served)} bytes, identical to the render command's")
 
 
 def fan_room(b, page):
@@ -176,7 +205,10 @@ def main():
     ap.add_argument("--webdriver", required=True)
     ap.add_argument("--page", required=True)
     ap.add_argument("--fan-page")
+    ap.add_argument("--illumnet", help="the binary, to run the render button's command line")
     a = ap.parse_args()
+    global ILLUMNET
+    ILLUMNET = a.illumnet
     b = Browser(a.webdriver)
     try:
         cornell(b, a.page)

@@ -44,6 +44,10 @@ pub struct ServeCommand {
     /// change the light (a warning says so).
     #[arg(long, default_value = "127.0.0.1")]
     bind: IpAddr,
+    /// Where the page's "render" button writes its images (default: a
+    /// temporary directory, removed when the server stops).
+    #[arg(long, value_name = "DIR")]
+    render_dir: Option<PathBuf>,
 }
 
 /// What every connection shares.
@@ -53,6 +57,11 @@ struct Shared {
     solved: watch::Receiver<Option<Arc<Solved>>>,
     scene: String,
     mesh: Vec<u8>,
+    /// The archive's path, as given.
+    path: PathBuf,
+    /// Where renders go, and how many were made.
+    renders: PathBuf,
+    rendered: std::sync::atomic::AtomicU64,
 }
 
 /// Runs `illumnet serve` until interrupted.
@@ -62,12 +71,27 @@ pub fn run(command: ServeCommand) -> Result<()> {
     let desk =
         Arc::new(Desk { wanted: Mutex::new(Wanted { version: 1, ..Default::default() }), changed: Condvar::new() });
     let (tx, rx) = watch::channel(None);
+    let temporary = match &command.render_dir {
+        Some(_) => None,
+        None => Some(tempfile::Builder::new().prefix("illumnet-serve-").tempdir()?),
+    };
+    let renders = match (&command.render_dir, &temporary) {
+        (Some(d), _) => {
+            std::fs::create_dir_all(d).with_context(|| format!("--render-dir {}", d.display()))?;
+            d.clone()
+        }
+        (None, Some(t)) => t.path().to_path_buf(),
+        (None, None) => unreachable!("a temporary directory is made when none is given"),
+    };
     let shared = Arc::new(Shared {
         archive: archive.clone(),
         desk: desk.clone(),
         solved: rx,
         scene: scene_message(&archive),
         mesh: mesh::mesh_bytes(&v),
+        path: command.archive.clone(),
+        renders,
+        rendered: Default::default(),
     });
     let solver = {
         let (archive, desk) = (archive.clone(), desk.clone());
@@ -78,6 +102,7 @@ pub fn run(command: ServeCommand) -> Result<()> {
     let runtime = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build()?;
     let result = runtime.block_on(serve(command.bind, command.port, shared));
     drop(solver); // detached: it ends with the process
+    drop(temporary);
     result
 }
 
@@ -88,6 +113,7 @@ async fn serve(bind: IpAddr, port: u16, shared: Arc<Shared>) -> Result<()> {
         .route("/app.js", get(|| async { ([(header::CONTENT_TYPE, "text/javascript; charset=utf-8")], SCRIPT) }))
         .route("/mesh.bin", get(mesh_bin))
         .route("/patch-surfaces.bin", get(patch_surfaces))
+        .route("/renders/{name}", get(render_file))
         .route("/ws", get(upgrade))
         .with_state(shared);
     let address = SocketAddr::new(bind, port);
@@ -121,6 +147,64 @@ async fn patch_surfaces(State(shared): State<Arc<Shared>>) -> impl IntoResponse 
     ([(header::CONTENT_TYPE, "application/octet-stream")], bytes)
 }
 
+/// An image the "render" button made (`render-N.png` only).
+async fn render_file(
+    axum::extract::Path(name): axum::extract::Path<String>,
+    State(shared): State<Arc<Shared>>,
+) -> axum::response::Response {
+    let valid = name
+        .strip_prefix("render-")
+        .and_then(|n| n.strip_suffix(".png"))
+        .is_some_and(|n| !n.is_empty() && n.bytes().all(|b| b.is_ascii_digit()));
+    match valid.then(|| std::fs::read(shared.renders.join(&name))) {
+        Some(Ok(bytes)) => ([(header::CONTENT_TYPE, "image/png")], bytes).into_response(),
+        _ => (axum::http::StatusCode::NOT_FOUND, "no such render").into_response(),
+    }
+}
+
+/// Renders `view` with the light and frame of `wanted` by running the
+/// `render` command itself (its image is then the command line's, bit
+/// for bit); the answer names the image and the command.
+fn render_view(shared: &Shared, view: protocol::View, wanted: &Wanted) -> String {
+    let n = shared.rendered.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
+    let name = format!("render-{n}.png");
+    let out = shared.renders.join(&name);
+    let point = |p: [f32; 3]| format!("{},{},{}", p[0], p[1], p[2]);
+    let mut args: Vec<String> = vec!["render".into(), shared.path.display().to_string(), "-o".into()];
+    args.push(out.display().to_string());
+    for (flag, value) in [
+        ("--camera-position", point(view.position)),
+        ("--look-at", point(view.look_at)),
+        ("--up", point(view.up)),
+        ("--fov", view.fov_y_deg.to_string()),
+        ("--size", format!("{}x{}", view.width, view.height)),
+    ] {
+        args.extend([flag.to_string(), value]);
+    }
+    if shared.archive.view().sequence.is_some() {
+        args.extend(["--frames".to_string(), wanted.frame.to_string()]);
+    }
+    for s in wanted.sets.args() {
+        args.extend(["--set".to_string(), s]);
+    }
+    let started = std::time::Instant::now();
+    let command = std::iter::once("illumnet".to_string())
+        .chain(args.iter().map(|a| if a.contains(' ') { format!("'{a}'") } else { a.clone() }))
+        .collect::<Vec<_>>()
+        .join(" ");
+    match super::run_render(&args) {
+        Ok(()) => serde_json::json!({
+            "type": "rendered",
+            "url": format!("/renders/{name}"),
+            "args": args,
+            "command": command,
+            "seconds": started.elapsed().as_secs_f64(),
+        })
+        .to_string(),
+        Err(e) => error(format!("render: {e:#}")),
+    }
+}
+
 async fn upgrade(ws: WebSocketUpgrade, State(shared): State<Arc<Shared>>) -> impl IntoResponse {
     ws.max_message_size(protocol::MAX_MESSAGE).on_upgrade(move |socket| connection(socket, shared))
 }
@@ -148,7 +232,14 @@ async fn connection(mut socket: WebSocket, shared: Arc<Shared>) {
             }
             incoming = socket.recv() => {
                 let reply = match incoming {
-                    Some(Ok(Message::Text(text))) => answer(&shared, &text),
+                    Some(Ok(Message::Text(text))) => match protocol::decode(&text) {
+                        Ok(Request::Render(view)) => {
+                            // On a thread of its own: this page waits, the others do not.
+                            let (shared, wanted) = (shared.clone(), shared.desk.wanted.lock().unwrap_or_else(std::sync::PoisonError::into_inner).clone());
+                            tokio::task::spawn_blocking(move || render_view(&shared, view, &wanted)).await.ok()
+                        }
+                        _ => answer(&shared, &text),
+                    },
                     Some(Ok(Message::Binary(_))) => Some(error("binary messages are not requests")),
                     Some(Ok(_)) => None, // pings, pongs
                     Some(Err(_)) | None => return,
@@ -198,6 +289,7 @@ fn answer(shared: &Shared, text: &str) -> Option<String> {
         }
         Request::Frame(f) => wanted.frame = f,
         Request::Reset => wanted.sets = Sets::default(),
+        Request::Render(_) => return Some(error("render: answered by the connection")),
     }
     wanted.version += 1;
     shared.desk.changed.notify_one();

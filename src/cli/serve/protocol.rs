@@ -24,6 +24,22 @@ pub enum Request {
     /// The `--set` values of the current light, as a file `render
     /// --set-file` reads.
     Save,
+    /// A full-quality image of this view (the `render` command's, with
+    /// the current light and frame).
+    Render(View),
+}
+
+/// A camera as the page sends it (checked: finite, a field of view in
+/// (0, 180) degrees, 1 to 4096 pixels a side, eye away from the target).
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct View {
+    pub position: [f32; 3],
+    pub look_at: [f32; 3],
+    pub up: [f32; 3],
+    pub fov_y_deg: f32,
+    pub width: u32,
+    pub height: u32,
 }
 
 /// The JSON shape of a request (`op` says which).
@@ -34,6 +50,7 @@ enum Wire {
     Frame { frame: u64 },
     Reset,
     Save,
+    Render { camera: View },
 }
 
 /// Decodes one text message (the page sends no binary ones).
@@ -58,6 +75,23 @@ pub fn decode(text: &str) -> Result<Request, String> {
         Wire::Frame { frame } => Request::Frame(u32::try_from(frame).map_err(|_| format!("frame {frame}: too large"))?),
         Wire::Reset => Request::Reset,
         Wire::Save => Request::Save,
+        Wire::Render { camera: c } => {
+            let numbers = c.position.iter().chain(&c.look_at).chain(&c.up).chain([&c.fov_y_deg]);
+            if !numbers.into_iter().all(|x| x.is_finite()) {
+                return Err("render: the camera's numbers must be finite".into());
+            }
+            if !(c.fov_y_deg > 0.0 && c.fov_y_deg < 180.0) {
+                return Err(format!("render: field of view {} degrees, not in (0, 180)", c.fov_y_deg));
+            }
+            if !(1..=4096).contains(&c.width) || !(1..=4096).contains(&c.height) {
+                return Err(format!("render: {}x{} pixels: each side 1 to 4096", c.width, c.height));
+            }
+            let d: f32 = (0..3).map(|k| (c.position[k] - c.look_at[k]).powi(2)).sum();
+            if d.sqrt() < 1e-6 * (1.0 + c.position.iter().map(|x| x.abs()).fold(0.0, f32::max)) {
+                return Err("render: the camera looks at its own position".into());
+            }
+            Request::Render(c)
+        }
     })
 }
 
@@ -112,6 +146,16 @@ mod tests {
         assert_eq!(decode(r#"{"op":"frame","frame":30}"#), Ok(Request::Frame(30)));
         assert_eq!(decode(r#"{"op":"reset"}"#), Ok(Request::Reset));
         assert_eq!(decode(r#"{"op":"save"}"#), Ok(Request::Save));
+        let view = r#"{"op":"render","camera":{"position":[0,1,2],"look_at":[0,1,0],"up":[0,1,0],"fov_y_deg":40,"width":64,"height":48}}"#;
+        assert!(matches!(decode(view), Ok(Request::Render(View { width: 64, height: 48, .. }))));
+        for (bad, says) in [
+            (view.replace("40", "180"), "field of view"),
+            (view.replace("64", "0"), "each side"),
+            (view.replace("[0,1,2]", "[0,1,0]"), "own position"),
+            (view.replace(",\"height\":48", ""), "not a request"),
+        ] {
+            assert!(decode(&bad).unwrap_err().contains(says), "{bad}");
+        }
     }
 
     #[test]
