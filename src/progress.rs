@@ -20,6 +20,12 @@ pub trait Progress: Sync {
     /// [`Progress::finish`], so a long wait is never silent. Ignored by
     /// default.
     fn busy(&self, _stage: &str) {}
+    /// Whether the work should stop at its next clean point (a newer
+    /// request superseded it: `illumnet serve`); work that can, checks it
+    /// between steps and returns a cancellation error. Never, by default.
+    fn cancelled(&self) -> bool {
+        false
+    }
 }
 
 /// Progress sink that ignores every event.

@@ -27,8 +27,12 @@ impl Drop for Server {
 }
 
 fn build_cornell_box(dir: &Path) -> std::path::PathBuf {
-    let archive = dir.join("c.inet");
-    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/cornell_box.toml");
+    build(dir, "cornell_box")
+}
+
+fn build(dir: &Path, name: &str) -> std::path::PathBuf {
+    let archive = dir.join(format!("{name}.inet"));
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join(format!("scenes/{name}.toml"));
     let out = Command::new(env!("CARGO_BIN_EXE_illumnet"))
         .args(["build", "-q", "--quality", "draft"])
         .arg(&scene)
@@ -268,4 +272,69 @@ async fn a_page_relights_the_cornell_box() {
     assert!(served == cli, "the page's render differs from `{}`", rendered["command"]);
     let image = image::load_from_memory(&served).unwrap();
     assert_eq!((image.width(), image.height()), (48, 40));
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_page_scrubs_the_fan_room_to_the_light_render_solves() {
+    let dir = tempfile::tempdir().unwrap();
+    let archive = build(dir.path(), "fan_room");
+    let server = serve(&archive, &dir.path().join("renders"));
+    let (mut a, _) = tokio_tungstenite::connect_async(&server.url).await.unwrap();
+    assert_eq!(next_json(&mut a).await["frames"], 60);
+    let (first, zero) = next_solution(&mut a).await;
+    send(&mut a, r#"{"op":"frame","frame":30}"#).await;
+    let (status, page) = next_solution(&mut a).await;
+    assert_eq!(status["frame"], 30);
+    assert!(status["version"].as_u64() > first["version"].as_u64());
+    // What `render --frames 30` solves: frame 30 alone, cold. The page's
+    // came warm from frame 0's: the same light to the solver's tolerance.
+    let opened = illumnet::archive::Archive::open(&archive).unwrap();
+    let want = illumnet::distribute::distribute_frame(
+        &opened.view(),
+        30,
+        &illumnet::distribute::DistributeOptions::default(),
+        &illumnet::progress::NoProgress,
+    )
+    .unwrap();
+    let present = illumnet::archive::InetView::primitive_spans(&opened.view());
+    let v = opened.view();
+    let peak = want.radiance.iter().flatten().fold(0.0f32, |m, &x| m.max(x));
+    let (mut diff, mut total, mut absent) = (0.0f64, 0.0f64, 0);
+    for (p, (got, want)) in page.iter().zip(&want.radiance).enumerate() {
+        if !present[v.patch_primitive[p] as usize].contains(30) {
+            assert_eq!(*got, [-1.0; 3], "patch {p} is absent from frame 30: the page hides it");
+            absent += 1;
+            continue;
+        }
+        for c in 0..3 {
+            assert!(
+                (got[c] - want[c]).abs() <= 2e-3 * peak + 1e-2 * want[c],
+                "patch {p}: {} against {}",
+                got[c],
+                want[c]
+            );
+            diff += (got[c] - want[c]).abs() as f64;
+            total += want[c] as f64;
+        }
+    }
+    assert!(diff / total < 1e-3, "frame 30 against render's: relative L1 {:.2e}", diff / total);
+    assert!(absent > 0, "the fan room's frame 30 hides the blades of other frames");
+    assert!(page != zero, "frame 30's light is frame 0's");
+
+    // A scrub: five frames asked at once. The solves they supersede are
+    // cancelled or never started; the last one asked is the one shown.
+    for f in 40..45 {
+        send(&mut a, &format!(r#"{{"op":"frame","frame":{f}}}"#)).await;
+    }
+    let last = status["version"].as_u64().unwrap() + 5;
+    let mut shown = Vec::new();
+    loop {
+        let (s, _) = next_solution(&mut a).await;
+        shown.push(s["frame"].as_u64().unwrap());
+        if s["version"].as_u64() == Some(last) {
+            assert_eq!(s["frame"], 44);
+            break;
+        }
+    }
+    assert!(shown.len() <= 2, "frames solved and shown for one scrub: {shown:?}");
 }

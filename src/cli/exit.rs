@@ -174,7 +174,7 @@ pub fn code(err: &anyhow::Error) -> u8 {
         if let Some(e) = cause.downcast_ref::<DistributeError>() {
             return match e {
                 DistributeError::Archive(a) => archive_code(a),
-                DistributeError::TooLarge(_) | DistributeError::Unsupported(_) => FAILURE,
+                DistributeError::TooLarge(_) | DistributeError::Unsupported(_) | DistributeError::Cancelled => FAILURE,
                 DistributeError::NotFinite { .. } => RESULT,
                 _ => BAD_INPUT,
             };

@@ -44,6 +44,10 @@ pub enum DistributeError {
     /// The archive holds something the distribution cannot use (found
     /// when a frame's delta is decoded, or by a check open does not make).
     Archive(ArchiveError),
+    /// Stopped between two iterations because the caller asked
+    /// ([`crate::progress::Progress::cancelled`]): a newer request made
+    /// this one's light useless.
+    Cancelled,
 }
 
 impl fmt::Display for DistributeError {
@@ -66,6 +70,7 @@ impl fmt::Display for DistributeError {
                  what its checks bound: please report it, with the archive"
             ),
             Self::Archive(e) => e.fmt(f),
+            Self::Cancelled => write!(f, "the distribution was cancelled (a newer request superseded it)"),
         }
     }
 }

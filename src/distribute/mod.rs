@@ -600,6 +600,10 @@ impl<'a> Distributor<'a> {
         let mut iteration = step::Iteration::new(self, &setup, warm, start);
         progress.start("distributing light", 0);
         while iteration.wants_step() {
+            if progress.cancelled() {
+                progress.finish();
+                return Err(DistributeError::Cancelled);
+            }
             iteration.step()?;
             progress.advance(1);
         }

@@ -1,15 +1,15 @@
 //! The one thread that solves the light for `serve`: it waits for the
 //! wanted state (the `--set` values and the frame) to change, solves it
 //! warm-started from the last solution, and publishes the result to every
-//! page. Changes that arrive during a solve are not queued: the next solve
-//! takes the state as it is then (the last change wins).
+//! page. A change that arrives during a solve cancels it at its next
+//! iteration, and changes are not queued: the next solve takes the state
+//! as it is then (the last change wins).
 
 use std::sync::{Condvar, Mutex};
 use std::time::Instant;
 
 use illumnet::archive::Archive;
-use illumnet::distribute::{DistributeOptions, Distributor, Lighting, Solution};
-use illumnet::progress::NoProgress;
+use illumnet::distribute::{DistributeError, DistributeOptions, Distributor, Lighting, Solution};
 
 use super::mesh;
 use super::protocol::Sets;
@@ -42,6 +42,22 @@ pub struct Desk {
     pub changed: Condvar,
 }
 
+/// The solve of one wanted state, as progress: cancelled as soon as the
+/// pages want another (its light would be drawn over at once).
+struct Superseded<'d> {
+    desk: &'d Desk,
+    version: u64,
+}
+
+impl illumnet::progress::Progress for Superseded<'_> {
+    fn start(&self, _: &str, _: u64) {}
+    fn advance(&self, _: u64) {}
+    fn finish(&self) {}
+    fn cancelled(&self) -> bool {
+        self.desk.wanted.lock().is_ok_and(|w| w.version != self.version)
+    }
+}
+
 /// The lighting `sets` make of the archive's (checked as `render --set`
 /// checks it).
 pub fn lighting(archive: &Archive, sets: &Sets) -> anyhow::Result<Lighting> {
@@ -66,12 +82,20 @@ pub fn run(archive: &Archive, desk: &Desk, mut publish: impl FnMut(Solved) -> bo
             w.clone()
         };
         let t = Instant::now();
+        let superseded = Superseded { desk, version: wanted.version };
         let solved = lighting(archive, &wanted.sets)
             .and_then(|l| Ok(Distributor::new(&v, &opts, &l)?))
-            .and_then(|d| Ok(d.frame(wanted.frame, last.as_ref(), &NoProgress)?));
+            .map(|d| d.frame(wanted.frame, last.as_ref(), &superseded));
         let seconds = t.elapsed().as_secs_f64();
         done = Some(wanted.version);
         let message = match solved {
+            // A newer state is wanted: solve that instead.
+            Ok(Err(DistributeError::Cancelled)) => continue,
+            Ok(Err(e)) => Err(anyhow::Error::new(e)),
+            Ok(Ok(s)) => Ok(s),
+            Err(e) => Err(e),
+        };
+        let message = match message {
             Ok(s) => {
                 let message = solved_message(&v, &wanted, &s, seconds);
                 last = Some(s);
