@@ -37,6 +37,7 @@ def main():
     ap.add_argument("--page", required=True)
     ap.add_argument("--fan-page")
     ap.add_argument("--changes", type=int, default=20)
+    ap.add_argument("--extra-page", help="a page of another archive (BENCH_ARCHIVE): its first emitter")
     ap.add_argument("--screenshot", help="also save the Cornell box's page as this PNG")
     a = ap.parse_args()
     b = Browser(a.webdriver)
@@ -45,6 +46,9 @@ def main():
                 lambda b, i: b.js(SET, 'input[data-surface="light"]', str(1.0 + 0.5 * ((i + 1) % 2))), a.changes)
         if a.screenshot:
             b.screenshot(a.screenshot)
+        if a.extra_page:
+            measure(b, a.extra_page, "extra archive, first emitter's intensity",
+                    lambda b, i: b.js(SET, "input[data-surface]", str(1.0 + 0.5 * ((i + 1) % 2))), a.changes)
         if a.fan_page:
             measure(b, a.fan_page, "fan room, frame scrub",
                     lambda b, i: b.js(SET, "#frame", str((7 * (i + 1)) % 60)), a.changes)

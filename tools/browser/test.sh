@@ -7,7 +7,8 @@
 #   ILLUMNET=path/to/illumnet bash tools/browser/test.sh [--bench]
 # --bench: instead of the test, the latency benchmark (bench_serve.py:
 # change to drawn, median of 20 changes; record it in docs/PERFORMANCE.md;
-# BENCH_SCREENSHOT=PATH also saves the Cornell box's page as a PNG).
+# BENCH_SCREENSHOT=PATH also saves the Cornell box's page as a PNG;
+# BENCH_ARCHIVE=A.inet also measures A's first emitter; BENCH_CHANGES=N).
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 prog=tools/browser/test.sh
@@ -63,8 +64,14 @@ for i in $(seq 300); do
     sleep 0.1
 done
 if [[ ${1:-} == --bench ]]; then
+    extra=
+    if [[ -n ${BENCH_ARCHIVE:-} ]]; then
+        extra=$(start_serve "$BENCH_ARCHIVE" "$work/extra.log")
+        [[ -n $extra ]] || die "illumnet serve did not start on $BENCH_ARCHIVE: $(cat "$work/extra.log")"
+    fi
     python3 tools/browser/bench_serve.py --webdriver "http://127.0.0.1:$port" --page "$cornell" --fan-page "$fan" \
-        ${BENCH_SCREENSHOT:+--screenshot "$BENCH_SCREENSHOT"}
+        ${BENCH_SCREENSHOT:+--screenshot "$BENCH_SCREENSHOT"} ${extra:+--extra-page "$extra"} \
+        --changes "${BENCH_CHANGES:-20}"
     exit
 fi
 python3 tools/browser/test_serve.py --webdriver "http://127.0.0.1:$port" --page "$cornell" --fan-page "$fan" \
