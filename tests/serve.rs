@@ -45,21 +45,32 @@ fn build(dir: &Path, name: &str) -> std::path::PathBuf {
 }
 
 fn serve(archive: &Path, renders: &Path) -> Server {
+    serve_with(archive, renders, &[]).0
+}
+
+/// The server, and what it printed before its URL.
+fn serve_with(archive: &Path, renders: &Path, extra: &[&str]) -> (Server, String) {
     let mut child = Command::new(env!("CARGO_BIN_EXE_illumnet"))
         .args(["serve", "--port", "0", "--render-dir"])
         .arg(renders)
+        .args(extra)
         .arg(archive)
         .stdout(Stdio::piped())
         .spawn()
         .unwrap();
     let mut line = String::new();
+    let mut before = String::new();
     let mut out = BufReader::new(child.stdout.take().unwrap());
-    out.read_line(&mut line).unwrap();
+    while !line.starts_with("serving on ") {
+        before.push_str(&line);
+        line.clear();
+        assert!(out.read_line(&mut line).unwrap() > 0, "the server stopped: {before}");
+    }
     // Keep reading what it prints (a render's summary): a closed pipe
     // would end it.
     std::thread::spawn(move || std::io::copy(&mut out, &mut std::io::sink()));
     let address = line.split("http://").nth(1).and_then(|r| r.split('/').next()).unwrap_or_else(|| panic!("{line}"));
-    Server { child, url: format!("ws://{address}/ws") }
+    (Server { child, url: format!("ws://{address}/ws") }, before)
 }
 
 /// The next text message, as JSON.
@@ -337,4 +348,28 @@ async fn a_page_scrubs_the_fan_room_to_the_light_render_solves() {
         }
     }
     assert!(shown.len() <= 2, "frames solved and shown for one scrub: {shown:?}");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn under_a_small_budget_the_page_gets_the_same_light_streamed() {
+    let dir = tempfile::tempdir().unwrap();
+    let archive = build_cornell_box(dir.path());
+    let (mapped, said) = serve_with(&archive, &dir.path().join("r1"), &[]);
+    assert!(!said.contains("streamed"), "{said}");
+    let (streamed, said) = serve_with(&archive, &dir.path().join("r2"), &["--memory-budget", "16M"]);
+    assert!(said.contains("streamed"), "under 16M the link ends are streamed: {said}");
+    let mut light = Vec::new();
+    for server in [&mapped, &streamed] {
+        let (mut ws, _) = tokio_tungstenite::connect_async(&server.url).await.unwrap();
+        assert_eq!(next_json(&mut ws).await["type"], "scene");
+        light.push(next_solution(&mut ws).await.1);
+    }
+    assert!(light[0] == light[1], "streamed link ends give other light");
+    // Below what any plan needs: refused before work, exit 6.
+    let out = Command::new(env!("CARGO_BIN_EXE_illumnet"))
+        .args(["serve", "--port", "0", "--memory-budget", "1M"])
+        .arg(&archive)
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(6), "{}", String::from_utf8_lossy(&out.stderr));
 }

@@ -48,6 +48,8 @@ pub struct ServeCommand {
     /// temporary directory, removed when the server stops).
     #[arg(long, value_name = "DIR")]
     render_dir: Option<PathBuf>,
+    #[command(flatten)]
+    budget: super::common::BudgetArgs,
 }
 
 /// What every connection shares.
@@ -62,11 +64,14 @@ struct Shared {
     /// Where renders go, and how many were made.
     renders: PathBuf,
     rendered: std::sync::atomic::AtomicU64,
+    /// `--memory-budget`, in bytes, given to the render button's renders
+    /// too.
+    budget: Option<u64>,
 }
 
 /// Runs `illumnet serve` until interrupted.
 pub fn run(command: ServeCommand) -> Result<()> {
-    let archive = Arc::new(opened(&command.archive, Archive::open(&command.archive))?);
+    let archive = Arc::new(open_within_budget(&command.archive, command.budget.memory_budget)?);
     let v = archive.view();
     let desk =
         Arc::new(Desk { wanted: Mutex::new(Wanted { version: 1, ..Default::default() }), changed: Condvar::new() });
@@ -92,6 +97,7 @@ pub fn run(command: ServeCommand) -> Result<()> {
         path: command.archive.clone(),
         renders,
         rendered: Default::default(),
+        budget: command.budget.memory_budget,
     });
     let solver = {
         let (archive, desk) = (archive.clone(), desk.clone());
@@ -104,6 +110,39 @@ pub fn run(command: ServeCommand) -> Result<()> {
     drop(solver); // detached: it ends with the process
     drop(temporary);
     result
+}
+
+/// The archive opened as a render of its camera's view would be within
+/// `budget` (the link ends mapped, or streamed when they do not fit: each
+/// solve is then slower, and says so in its time); refused before work
+/// when even that cannot fit.
+fn open_within_budget(path: &std::path::Path, budget: Option<u64>) -> Result<Archive> {
+    use illumnet::render::plan;
+    let summary = opened(path, Archive::summary(path))?;
+    let job = plan::RenderJob {
+        width: summary.camera.width,
+        height: summary.camera.height,
+        samples_per_axis: 1,
+        frames: 1,
+        keep_images: false,
+        anderson_depth: illumnet::distribute::DistributeOptions::default().anderson_depth as u32,
+        buckets: true,
+        threads: rayon::current_num_threads() as u32,
+    };
+    let budget = super::common::memory_budget(budget);
+    let memory = plan::plan(&summary, &job, budget)?;
+    let archive = match memory.access {
+        plan::LinkAccess::Mapped => opened(path, Archive::open(path))?,
+        plan::LinkAccess::Streamed { window_ends, in_flight } => {
+            let a = opened(path, Archive::open_streamed(path, window_ends))?;
+            if let Some(stream) = a.link_stream() {
+                stream.limit_windows_in_flight(in_flight);
+            }
+            a
+        }
+    };
+    println!("memory: {memory}");
+    Ok(archive)
 }
 
 /// Listens and answers until interrupted.
@@ -186,6 +225,9 @@ fn render_view(shared: &Shared, view: protocol::View, wanted: &Wanted) -> String
     }
     for s in wanted.sets.args() {
         args.extend(["--set".to_string(), s]);
+    }
+    if let Some(b) = shared.budget {
+        args.extend(["--memory-budget".to_string(), b.to_string()]);
     }
     let started = std::time::Instant::now();
     let command = std::iter::once("illumnet".to_string())
