@@ -307,6 +307,24 @@ async fn a_page_scrubs_the_fan_room_to_the_light_render_solves() {
         &illumnet::progress::NoProgress,
     )
     .unwrap();
+    // `render --patch-radiance` writes that solution.
+    let bin = dir.path().join("r30.bin");
+    let run = |frames: &str| {
+        Command::new(env!("CARGO_BIN_EXE_illumnet"))
+            .args(["render", "-q", "--frames", frames, "--shading", "inet", "--samples", "1", "--size", "8x6"])
+            .arg(&archive)
+            .arg("-o")
+            .arg(dir.path().join("x_%02d.png"))
+            .arg("--patch-radiance")
+            .arg(&bin)
+            .output()
+            .unwrap()
+    };
+    assert!(run("30").status.success());
+    let written: Vec<f32> =
+        std::fs::read(&bin).unwrap().chunks_exact(4).map(|c| f32::from_le_bytes(c.try_into().unwrap())).collect();
+    assert!(written == want.radiance.iter().flatten().copied().collect::<Vec<_>>(), "--patch-radiance");
+    assert_eq!(run("29..31").status.code(), Some(3), "--patch-radiance of two frames is refused");
     let present = illumnet::archive::InetView::primitive_spans(&opened.view());
     let v = opened.view();
     let peak = want.radiance.iter().flatten().fold(0.0f32, |m, &x| m.max(x));

@@ -221,6 +221,16 @@ function buildControls() {
       });
       input.dataset.albedo = `${s.name}/${c}`;
     }
+    if (Math.max(...s.specular) > 0) {
+      // A glossy surface's k_s: what `--set NAME.specular` changes.
+      for (let c = 0; c < 3; c++) {
+        const input = slider(surfaces, `${s.name} kₛ ${"RGB"[c]}`, 0, 1, "any", s.specular[c], () => {
+          const value = [0, 1, 2].map((k) => Number(surfaces.querySelector(`[data-specular="${s.name}/${k}"]`).value));
+          send({ op: "set", target: `${s.name}.specular`, value });
+        });
+        input.dataset.specular = `${s.name}/${c}`;
+      }
+    }
   }
   const frame = $("frame");
   frame.max = scene.frames - 1;

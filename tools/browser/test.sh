@@ -75,6 +75,6 @@ if [[ ${1:-} == --bench ]]; then
     exit
 fi
 python3 tools/browser/test_serve.py --webdriver "http://127.0.0.1:$port" --page "$cornell" --fan-page "$fan" \
-    --illumnet "$bin" ||
+    --illumnet "$bin" --fan-archive "$work/fan.inet" ||
     die "the page test failed (serve logs: $(tail -n 3 "$work"/*.log))"
 say "passed"

@@ -13,7 +13,9 @@ more than half of the red wall's red light and some red from the walls
 near it; the "render" button's image, shown in the page, is the render
 command's (run with the command line it reports) byte for byte, when
 --illumnet is given. On the fan room's page (when given): the frame slider at 30 shows
-frame 30, its radiance differing from frame 0's. Exit 0 only if all hold.
+frame 30, its radiance differing from frame 0's and equal to `render
+--frames 30`'s solution (`--patch-radiance`) to the solver's tolerance.
+Exit 0 only if all hold.
 """
 import argparse
 import json
@@ -70,6 +72,7 @@ class Browser:
 
 
 ILLUMNET = None
+FAN_ARCHIVE = None
 
 
 def fail(message):
@@ -197,7 +200,39 @@ def fan_room(b, page):
     thirty = b.js(RADIANCE)
     if thirty == first:
         fail("frame 30's light is frame 0's")
-    print("test_serve.py: the fan room scrubbed to frame 30")
+    if not (ILLUMNET and FAN_ARCHIVE):
+        print("test_serve.py: the fan room scrubbed to frame 30")
+        return
+    # What `render --frames 30` solves (frame 30 alone, cold; the page's
+    # came warm from frame 0's): the same light to the solver's tolerance.
+    import subprocess
+    import tempfile
+    with tempfile.TemporaryDirectory() as d:
+        subprocess.run([ILLUMNET, "render", "-q", FAN_ARCHIVE, "--frames", "30", "--shading", "inet", "--samples", "1",
+                        "--size", "16x12", "-o", f"{d}/x.png", "--patch-radiance", f"{d}/r.bin"],
+                       check=True, stdout=subprocess.DEVNULL)
+        with open(f"{d}/r.bin", "rb") as f:
+            data = f.read()
+    want = struct.unpack(f"<{len(data) // 4}f", data)
+    if len(want) != len(thirty):
+        fail(f"render wrote {len(want) // 3} patches, the page has {len(thirty) // 3}")
+    peak = max(want)
+    diff = total = 0.0
+    hidden = 0
+    for p in range(len(want) // 3):
+        if thirty[3 * p] < 0:
+            hidden += 1
+            continue
+        for c in range(3):
+            x, y = want[3 * p + c], thirty[3 * p + c]
+            if abs(y - x) > 2e-3 * peak + 1e-2 * x:
+                fail(f"frame 30, patch {p}: the page shows {y}, render solved {x}")
+            diff += abs(y - x)
+            total += x
+    if not diff / total < 1e-3 or hidden == 0:
+        fail(f"frame 30 against render's: relative L1 {diff / total:.2e}, {hidden} patches hidden")
+    print(f"test_serve.py: the fan room at frame 30 is render --frames 30's light (relative L1 {diff / total:.1e}; "
+          f"{hidden} absent patches hidden)")
 
 
 def main():
@@ -206,9 +241,10 @@ def main():
     ap.add_argument("--page", required=True)
     ap.add_argument("--fan-page")
     ap.add_argument("--illumnet", help="the binary, to run the render button's command line")
+    ap.add_argument("--fan-archive", help="the fan room's archive, to solve frame 30 with `render`")
     a = ap.parse_args()
-    global ILLUMNET
-    ILLUMNET = a.illumnet
+    global ILLUMNET, FAN_ARCHIVE
+    ILLUMNET, FAN_ARCHIVE = a.illumnet, a.fan_archive
     b = Browser(a.webdriver)
     try:
         cornell(b, a.page)

@@ -106,6 +106,9 @@ pub fn render_frames(
         illumnet::scratch::pause_point("write");
         setup.archive.check_unchanged()?;
         write_frame(setup, renderer, &frame)?;
+        if let Some(path) = setup.extras.patch_radiance {
+            write_patch_radiance(path, &solution.radiance)?;
+        }
         previous = Some(solution);
         if keep_images {
             images.push(image);
@@ -115,6 +118,21 @@ pub fn render_frames(
         skips.print();
     }
     Ok(images)
+}
+
+/// `--patch-radiance`: the radiance per patch as little-endian `f32` RGB,
+/// written whole or not at all.
+fn write_patch_radiance(path: &std::path::Path, radiance: &[[f32; 3]]) -> Result<()> {
+    use std::io::Write;
+    illumnet::scratch::write_atomic(path, |w| {
+        for r in radiance {
+            for c in r {
+                w.write_all(&c.to_le_bytes())?;
+            }
+        }
+        Ok(())
+    })
+    .map_err(|e| anyhow::Error::new(crate::cli::exit::IoFailure(format!("--patch-radiance {}: {e}", path.display()))))
 }
 
 /// What `--skip-done` found of the frames' files.

@@ -31,6 +31,7 @@ use illumnet::render::{self, RenderOptions, plan};
 
 use super::camera::{self, RenderCameras};
 use super::common::{BudgetArgs, memory_budget, opened};
+use super::exit::bail_input;
 use summary::{Totals, print_summary};
 
 pub use explain::FalseColour;
@@ -67,6 +68,11 @@ pub struct RenderCommand {
     /// Also write the rendered frames side by side as one PNG, 10 per row.
     #[arg(long, value_name = "SHEET.png")]
     contact_sheet: Option<PathBuf>,
+    /// Also write the solved light per patch: outgoing radiance as
+    /// little-endian `f32` R, G, B per patch in patch order, nothing else
+    /// (one frame only): for tools that compare solutions.
+    #[arg(long, value_name = "FILE")]
+    patch_radiance: Option<PathBuf>,
     #[command(flatten)]
     render: RenderArgs,
     #[command(flatten)]
@@ -97,6 +103,7 @@ pub fn run(command: RenderCommand, progress: &dyn Progress) -> Result<()> {
         skip_done,
         gif,
         contact_sheet,
+        patch_radiance,
         render: mut settings,
         budget,
         camera,
@@ -114,6 +121,7 @@ pub fn run(command: RenderCommand, progress: &dyn Progress) -> Result<()> {
         error_scale: explain.error_scale,
         skip_done,
         team: None,
+        patch_radiance: patch_radiance.as_deref(),
     };
     let go_with = |settings: RenderArgs, extras: Extras<'_>, progress: &dyn Progress| {
         RenderCameras::new(&camera).and_then(|cameras| {
@@ -159,6 +167,8 @@ pub struct Extras<'a> {
     /// `--mpi`: the processes sharing the distribution; rank 0 alone
     /// prints and writes.
     pub team: Option<&'a dyn distribute::Team>,
+    /// `--patch-radiance`: where the frame's per-patch radiance goes.
+    pub patch_radiance: Option<&'a Path>,
 }
 
 impl Extras<'_> {
@@ -229,6 +239,9 @@ pub fn render(
             println!("no frames to render: {} has none for this task", frames.unwrap_or_default());
         }
         return Ok(());
+    }
+    if extras.patch_radiance.is_some() && frame_plan.range.len() != 1 {
+        bail_input!("--patch-radiance writes one frame's light: give one frame (--frames N)");
     }
     let (width, height) = frame_plan.largest;
     let job = plan::RenderJob {
