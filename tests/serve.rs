@@ -391,3 +391,31 @@ async fn under_a_small_budget_the_page_gets_the_same_light_streamed() {
         .unwrap();
     assert_eq!(out.status.code(), Some(6), "{}", String::from_utf8_lossy(&out.stderr));
 }
+
+#[test]
+fn stopped_by_a_signal_the_server_removes_its_temporary_renders() {
+    let dir = tempfile::tempdir().unwrap();
+    let archive = build_cornell_box(dir.path());
+    let mut child = Command::new(env!("CARGO_BIN_EXE_illumnet"))
+        .args(["serve", "--port", "0"])
+        .arg(&archive)
+        .stdout(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut out = BufReader::new(child.stdout.take().unwrap());
+    let (mut line, mut renders) = (String::new(), None);
+    while !line.starts_with("serving on ") {
+        line.clear();
+        assert!(out.read_line(&mut line).unwrap() > 0);
+        if let Some(rest) = line.strip_prefix("renders go to ") {
+            renders = Some(std::path::PathBuf::from(rest.trim_end().trim_end_matches(" (removed at exit)")));
+        }
+    }
+    let renders = renders.expect("the server says where renders go");
+    assert!(renders.is_dir());
+    // SAFETY: kill(2) on our own child's PID.
+    assert_eq!(unsafe { libc::kill(child.id() as i32, libc::SIGTERM) }, 0);
+    let status = child.wait().unwrap();
+    assert_eq!(status.code(), Some(130));
+    assert!(!renders.exists(), "{} left behind", renders.display());
+}

@@ -21,17 +21,33 @@ bin=$(realpath "${ILLUMNET:?set ILLUMNET to an illumnet binary}")
 bash tools/browser/install.sh
 work=$(mktemp -d)
 pids=()
+# A process's descendants (Chromium's processes under chromedriver).
+descendants() { # pid
+    local c
+    for c in $(pgrep -P "$1" 2>/dev/null); do
+        echo "$c"
+        descendants "$c"
+    done
+}
 stop() {
     local p
+    # Chromium's processes, by PID, should chromedriver leave any behind.
+    for p in "${pids[@]}"; do
+        pids+=($(descendants "$p"))
+    done
     for p in "${pids[@]}"; do
         kill "$p" 2>/dev/null || true
     done
     for p in "${pids[@]}"; do
         wait "$p" 2>/dev/null || true
-        [[ ! -e /proc/$p ]] || [[ $(awk '{print $3}' "/proc/$p/stat" 2>/dev/null) == Z ]] ||
-            say "warning: process $p still runs"
+        if [[ -e /proc/$p && $(awk '{print $3}' "/proc/$p/stat" 2>/dev/null) != Z ]]; then
+            say "FAILED: process $p still runs after SIGTERM"
+            kill -KILL "$p" 2>/dev/null || true
+            left=1
+        fi
     done
     rm -rf "$work"
+    [[ -z ${left:-} ]] || exit 1
 }
 trap stop EXIT
 
@@ -41,7 +57,9 @@ quality=(--quality draft)
 "$bin" build -q scenes/cornell_box.toml "${quality[@]}" -o "$work/cornell.inet" >/dev/null
 "$bin" build -q scenes/fan_room.toml "${quality[@]}" -o "$work/fan.inet" >/dev/null
 
-start_serve() { # archive log -> prints the page URL
+# Starts `illumnet serve` on an archive and sets `url` to its page (in this
+# shell, not a subshell: its PID is recorded for stop).
+start_serve() { # archive log
     "$bin" serve --port 0 "$1" >"$2" 2>&1 &
     pids+=($!)
     local i
@@ -49,12 +67,13 @@ start_serve() { # archive log -> prints the page URL
         grep -q '^serving on ' "$2" && break
         sleep 0.1
     done
-    sed -n 's/^serving on \(http:[^ ]*\).*/\1/p' "$2" | head -n 1
+    url=$(sed -n 's/^serving on \(http:[^ ]*\).*/\1/p' "$2" | head -n 1)
+    [[ -n $url ]] || die "illumnet serve did not start: $(cat "$2")"
 }
-cornell=$(start_serve "$work/cornell.inet" "$work/cornell.log")
-[[ -n $cornell ]] || die "illumnet serve did not start: $(cat "$work/cornell.log")"
-fan=$(start_serve "$work/fan.inet" "$work/fan.log")
-[[ -n $fan ]] || die "illumnet serve did not start: $(cat "$work/fan.log")"
+start_serve "$work/cornell.inet" "$work/cornell.log"
+cornell=$url
+start_serve "$work/fan.inet" "$work/fan.log"
+fan=$url
 
 port=$((20000 + RANDOM % 20000))
 chromedriver --port=$port >"$work/chromedriver.log" 2>&1 &
@@ -66,8 +85,8 @@ done
 if [[ ${1:-} == --bench ]]; then
     extra=
     if [[ -n ${BENCH_ARCHIVE:-} ]]; then
-        extra=$(start_serve "$BENCH_ARCHIVE" "$work/extra.log")
-        [[ -n $extra ]] || die "illumnet serve did not start on $BENCH_ARCHIVE: $(cat "$work/extra.log")"
+        start_serve "$BENCH_ARCHIVE" "$work/extra.log"
+        extra=$url
     fi
     python3 tools/browser/bench_serve.py --webdriver "http://127.0.0.1:$port" --page "$cornell" --fan-page "$fan" \
         ${BENCH_SCREENSHOT:+--screenshot "$BENCH_SCREENSHOT"} ${extra:+--extra-page "$extra"} \

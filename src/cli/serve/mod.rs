@@ -88,6 +88,7 @@ pub fn run(command: ServeCommand) -> Result<()> {
         (None, Some(t)) => t.path().to_path_buf(),
         (None, None) => unreachable!("a temporary directory is made when none is given"),
     };
+    println!("renders go to {}{}", renders.display(), if temporary.is_some() { " (removed at exit)" } else { "" });
     let shared = Arc::new(Shared {
         archive: archive.clone(),
         desk: desk.clone(),
@@ -106,6 +107,24 @@ pub fn run(command: ServeCommand) -> Result<()> {
         })?
     };
     let runtime = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build()?;
+    // Interrupted or terminated: the temporary renders go with it.
+    // (The handlers are in place before the URL is printed.)
+    let cleanup = temporary.as_ref().map(|t| t.path().to_path_buf());
+    let (mut interrupt, mut terminate) = {
+        use tokio::signal::unix::{SignalKind, signal};
+        let _in_runtime = runtime.enter();
+        (signal(SignalKind::interrupt())?, signal(SignalKind::terminate())?)
+    };
+    runtime.spawn(async move {
+        tokio::select! {
+            _ = interrupt.recv() => {}
+            _ = terminate.recv() => {}
+        }
+        if let Some(dir) = &cleanup {
+            let _ = std::fs::remove_dir_all(dir);
+        }
+        std::process::exit(130);
+    });
     let result = runtime.block_on(serve(command.bind, command.port, shared));
     drop(solver); // detached: it ends with the process
     drop(temporary);
