@@ -2,38 +2,20 @@
 //! mapped archive bit for bit, whatever the window size, and a file cut or
 //! rewritten under a running distribution is an error, not a crash.
 
+mod common;
 use std::path::{Path, PathBuf};
 
 use illumnet::archive::{self, Archive, layout::tag};
-use illumnet::bake::{self, BuildSettings};
 use illumnet::distribute::{DistributeOptions, Distributor, Lighting, Solution};
 use illumnet::progress::NoProgress;
 use illumnet::scene::{BuildHints, Scene};
-
-fn scene_file(name: &str) -> Scene {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes").join(name);
-    Scene::from_file(&path).unwrap()
-}
-
-/// Builds `scene` (a sequence when animated) at `hints` into `dir`.
-fn write(scene: &Scene, hints: BuildHints, dir: &Path) -> PathBuf {
-    let mut settings = BuildSettings::resolve(scene, hints);
-    settings.prototype_library = None;
-    let contents = match scene.frame_count() > 1 {
-        true => bake::build_sequence(scene, &settings, &NoProgress).unwrap().contents,
-        false => bake::build(scene, &settings, &NoProgress).unwrap().0,
-    };
-    let path = dir.join("scene.inet");
-    archive::write(&path, &contents).unwrap();
-    path
-}
 
 /// The Cornell box at coarse settings (more than one 2¹⁶-end chunk of
 /// link ends, so windows of a few hundred ends are hundreds), written
 /// into `dir`.
 fn coarse_cornell_box(dir: &Path) -> PathBuf {
     let hints = BuildHints { patch_size: Some(0.1), frequency: Some(6), ray_spacing: Some(0.02), buckets: None };
-    write(&Scene::cornell_box(), hints, dir)
+    common::write_scene(&Scene::cornell_box(), hints, dir)
 }
 
 /// Every frame of the archive, each warm-started from the last, as one
@@ -80,7 +62,7 @@ fn streamed_link_ends_give_the_mapped_light_bit_for_bit() {
     ];
     for (name, h) in cases {
         let dir = tempfile::tempdir().unwrap();
-        let path = write(&scene_file(name), h, dir.path());
+        let path = common::write_scene(&common::scene_file(name), h, dir.path());
         let mapped = Archive::open(&path).unwrap();
         let want = solve_all(&mapped);
         let ends = mapped.view().link_end_count();
@@ -158,7 +140,7 @@ fn a_streamed_sequence_reads_its_frames_from_disk_and_notices_changes() {
     // or cut off under a render is an error.
     let dir = tempfile::tempdir().unwrap();
     let hints = BuildHints { patch_size: Some(0.4), frequency: Some(4), ray_spacing: Some(0.06), buckets: None };
-    let path = write(&scene_file("fan_room.toml"), hints, dir.path());
+    let path = common::write_scene(&common::scene_file("fan_room.toml"), hints, dir.path());
     let mapped = Archive::open(&path).unwrap();
     let a = Archive::open_streamed(&path, 1000).unwrap();
     let delt = Archive::summary(&path).unwrap().sections.iter().find(|e| e.tag == tag::DELTAS).unwrap().stored_length;

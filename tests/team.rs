@@ -7,15 +7,15 @@
 //! process's light bit for bit in every test run; `tools/mpi/test.sh`
 //! runs the same with Open MPI.
 
+mod common;
 use std::ops::Range;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::sync::{Barrier, Mutex};
 
-use illumnet::archive::{self, Archive};
-use illumnet::bake::{self, BuildSettings};
+use illumnet::archive::Archive;
 use illumnet::distribute::{DistributeOptions, Distributor, Lighting, Solution, Team};
 use illumnet::progress::NoProgress;
-use illumnet::scene::{BuildHints, Scene};
+use illumnet::scene::BuildHints;
 
 /// What the members of a thread team share.
 struct Hub {
@@ -101,24 +101,6 @@ impl Team for Member<'_> {
     }
 }
 
-fn scene_file(name: &str) -> Scene {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes").join(name);
-    Scene::from_file(&path).unwrap()
-}
-
-/// Builds `scene` (a sequence when animated) at `hints` into `dir`.
-fn write(scene: &Scene, hints: BuildHints, dir: &Path) -> PathBuf {
-    let mut settings = BuildSettings::resolve(scene, hints);
-    settings.prototype_library = None;
-    let contents = match scene.frame_count() > 1 {
-        true => bake::build_sequence(scene, &settings, &NoProgress).unwrap().contents,
-        false => bake::build(scene, &settings, &NoProgress).unwrap().0,
-    };
-    let path = dir.join("scene.inet");
-    archive::write(&path, &contents).unwrap();
-    path
-}
-
 /// Every frame of `a`, each warm-started from the last, as one
 /// distributor (in `team`, when given) does them; and the bytes it
 /// received from the team.
@@ -191,7 +173,7 @@ fn a_team_of_any_size_gives_one_process_light_bit_for_bit() {
     ];
     for (name, h) in cases {
         let dir = tempfile::tempdir().unwrap();
-        let path = write(&scene_file(name), h, dir.path());
+        let path = common::write_scene(&common::scene_file(name), h, dir.path());
         let (want, none) = solve_all(&Archive::open(&path).unwrap(), None);
         assert_eq!(none, 0, "{name}: one process exchanges nothing");
         // Mapped with 1 to 4 members; streamed in windows of a few

@@ -13,6 +13,26 @@ use illumnet::scene::{BuildHints, Scene};
 pub const CAMERA: &str =
     "[camera]\nposition = [0.5, 0.5, -3.0]\nlook_at = [0.5, 0.5, 0.0]\nfov_y_deg = 40\nwidth = 16\nheight = 16\n";
 
+/// A scene of `scenes/`, read from its file.
+pub fn scene_file(name: &str) -> Scene {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes").join(name);
+    Scene::from_file(&path).unwrap()
+}
+
+/// Builds `scene` (a sequence when animated) at `hints` into
+/// `dir/scene.inet`.
+pub fn write_scene(scene: &Scene, hints: BuildHints, dir: &Path) -> std::path::PathBuf {
+    let mut settings = BuildSettings::resolve(scene, hints);
+    settings.prototype_library = None;
+    let contents = match scene.frame_count() > 1 {
+        true => bake::build_sequence(scene, &settings, &NoProgress).unwrap().contents,
+        false => bake::build(scene, &settings, &NoProgress).unwrap().0,
+    };
+    let path = dir.join("scene.inet");
+    archive::write(&path, &contents).unwrap();
+    path
+}
+
 pub fn scene(toml: &str) -> Scene {
     Scene::from_toml(toml, Path::new("test.toml"), Path::new(".")).unwrap_or_else(|e| panic!("{e}"))
 }
