@@ -33,33 +33,11 @@ fn solve_all(a: &Archive) -> Vec<Solution> {
     out
 }
 
-fn assert_same(mapped: &[Solution], streamed: &[Solution], what: &str) {
-    assert_eq!(mapped.len(), streamed.len());
-    for (k, (m, s)) in mapped.iter().zip(streamed).enumerate() {
-        assert_eq!(m.balance.iterations, s.balance.iterations, "{what} frame {k}");
-        assert_eq!(m.balance.ends_gathered, s.balance.ends_gathered, "{what} frame {k}");
-        assert!(m.radiance == s.radiance, "{what} frame {k}: radiance differs");
-        assert!(m.direct == s.direct, "{what} frame {k}: first bounce differs");
-        let dir = |x: &Solution| x.directional.as_ref().map(|d| d.radiance.clone());
-        assert!(dir(m) == dir(s), "{what} frame {k}: directional radiance differs");
-    }
-}
-
 #[test]
 fn streamed_link_ends_give_the_mapped_light_bit_for_bit() {
     // Windows of a few hundred ends cut patches' rows at every kind of
     // boundary (chunks of 65 536 ends, bucket runs, patches with no ends).
-    let hints = |p: f32, f: u32, r: f32| BuildHints {
-        patch_size: Some(p),
-        frequency: Some(f),
-        ray_spacing: Some(r),
-        buckets: None,
-    };
-    let cases = [
-        ("cornell_box.toml", hints(0.1, 6, 0.02)),
-        ("glossy_floor.toml", hints(0.25, 5, 0.03)),
-        ("fan_room.toml", hints(0.4, 4, 0.06)),
-    ];
+    let cases = common::coarse_scenes();
     for (name, h) in cases {
         let dir = tempfile::tempdir().unwrap();
         let path = common::write_scene(&common::scene_file(name), h, dir.path());
@@ -71,7 +49,7 @@ fn streamed_link_ends_give_the_mapped_light_bit_for_bit() {
             let s = streamed.link_stream().expect("streamed");
             assert!(window > ends || s.window_count() > 1, "{name}: {} windows", s.window_count());
             assert_eq!(s.ends(), ends);
-            assert_same(&want, &solve_all(&streamed), &format!("{name} in windows of {window}"));
+            common::assert_same_light(&want, &solve_all(&streamed), &format!("{name} in windows of {window}"));
             // The gather's workers each hold one window's buffers, the
             // other passes two: no more were ever made.
             let most = rayon::current_num_threads().max(2) * s.window_capacity() * 10;
@@ -185,7 +163,7 @@ fn a_pass_holds_no_more_windows_than_its_limit_whatever_the_workers() {
             s.limit_windows_in_flight(limit);
             assert!(s.window_count() > 4 * limit, "{} windows", s.window_count());
             assert_eq!(s.windows_in_flight(), limit);
-            assert_same(&want, &solve_all(&streamed), &format!("{limit} windows at a time on 4 workers"));
+            common::assert_same_light(&want, &solve_all(&streamed), &format!("{limit} windows at a time on 4 workers"));
             assert!(s.pooled_buffers() <= limit.max(2), "{} windows' buffers made", s.pooled_buffers());
         }
     });

@@ -15,7 +15,6 @@ use std::sync::{Barrier, Mutex};
 use illumnet::archive::Archive;
 use illumnet::distribute::{DistributeOptions, Distributor, Lighting, Solution, Team};
 use illumnet::progress::NoProgress;
-use illumnet::scene::BuildHints;
 
 /// What the members of a thread team share.
 struct Hub {
@@ -146,31 +145,9 @@ fn solve_in_team(path: &Path, members: usize, window: Option<usize>) -> Vec<(Vec
     })
 }
 
-fn assert_same(one: &[Solution], team: &[Solution], what: &str) {
-    assert_eq!(one.len(), team.len());
-    for (k, (m, s)) in one.iter().zip(team).enumerate() {
-        assert_eq!(m.balance, s.balance, "{what} frame {k}: energy balance differs");
-        assert!(m.radiance == s.radiance, "{what} frame {k}: radiance differs");
-        assert!(m.received == s.received, "{what} frame {k}: received power differs");
-        assert!(m.residual == s.residual, "{what} frame {k}: residual differs");
-        assert!(m.direct == s.direct, "{what} frame {k}: first bounce differs");
-        assert!(m.directional == s.directional, "{what} frame {k}: directional radiance differs");
-    }
-}
-
 #[test]
 fn a_team_of_any_size_gives_one_process_light_bit_for_bit() {
-    let hints = |p: f32, f: u32, r: f32| BuildHints {
-        patch_size: Some(p),
-        frequency: Some(f),
-        ray_spacing: Some(r),
-        buckets: None,
-    };
-    let cases = [
-        ("cornell_box.toml", hints(0.1, 6, 0.02)),
-        ("glossy_floor.toml", hints(0.25, 5, 0.03)),
-        ("fan_room.toml", hints(0.4, 4, 0.06)),
-    ];
+    let cases = common::coarse_scenes();
     for (name, h) in cases {
         let dir = tempfile::tempdir().unwrap();
         let path = common::write_scene(&common::scene_file(name), h, dir.path());
@@ -182,7 +159,7 @@ fn a_team_of_any_size_gives_one_process_light_bit_for_bit() {
             let what = format!("{name}, {members} members, windows {window:?}");
             let got = solve_in_team(&path, members, window);
             for (rank, (solutions, received)) in got.iter().enumerate() {
-                assert_same(&want, solutions, &format!("{what}, member {rank}"));
+                common::assert_same_light(&want, solutions, &format!("{what}, member {rank}"));
                 assert_eq!(*received > 0, members > 1, "{what}, member {rank}: {received} bytes received");
             }
         }

@@ -107,3 +107,35 @@ pub fn coarse_box_archive(out: &Path) {
     let (contents, _) = bake::build(&scene, &settings, &NoProgress).unwrap();
     std::fs::write(out, archive::write_to_vec(&contents).unwrap()).unwrap();
 }
+
+/// Three scenes at coarse settings whose link ends span several 2¹⁶-end
+/// chunks (a still, a glossy scene, a sequence), for tests that cut the
+/// ends into windows or ranges.
+pub fn coarse_scenes() -> [(&'static str, BuildHints); 3] {
+    let hints = |p: f32, f: u32, r: f32| BuildHints {
+        patch_size: Some(p),
+        frequency: Some(f),
+        ray_spacing: Some(r),
+        buckets: None,
+    };
+    [
+        ("cornell_box.toml", hints(0.1, 6, 0.02)),
+        ("glossy_floor.toml", hints(0.25, 5, 0.03)),
+        ("fan_room.toml", hints(0.4, 4, 0.06)),
+    ]
+}
+
+/// Asserts two runs of frames reached the same light bit for bit: energy
+/// balance (iterations and ends gathered included), radiance, received
+/// power, residual, first bounce and directional radiance.
+pub fn assert_same_light(want: &[Solution], got: &[Solution], what: &str) {
+    assert_eq!(want.len(), got.len(), "{what}: frames");
+    for (k, (m, s)) in want.iter().zip(got).enumerate() {
+        assert_eq!(m.balance, s.balance, "{what} frame {k}: energy balance differs");
+        assert!(m.radiance == s.radiance, "{what} frame {k}: radiance differs");
+        assert!(m.received == s.received, "{what} frame {k}: received power differs");
+        assert!(m.residual == s.residual, "{what} frame {k}: residual differs");
+        assert!(m.direct == s.direct, "{what} frame {k}: first bounce differs");
+        assert!(m.directional == s.directional, "{what} frame {k}: directional radiance differs");
+    }
+}
