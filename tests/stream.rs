@@ -172,7 +172,7 @@ fn a_pass_holds_no_more_windows_than_its_limit_whatever_the_workers() {
 #[test]
 fn the_least_a_streamed_render_needs_does_not_grow_with_the_cores() {
     use illumnet::memory::{BudgetSource, MemoryBudget};
-    use illumnet::render::plan::{LinkAccess, RenderJob, plan};
+    use illumnet::render::plan::{LinkAccess, RenderJob, plan_with};
     let dir = tempfile::tempdir().unwrap();
     let path = coarse_cornell_box(dir.path());
     let mut summary = Archive::summary(&path).unwrap();
@@ -191,10 +191,15 @@ fn the_least_a_streamed_render_needs_does_not_grow_with_the_cores() {
     };
     let budget = |bytes| MemoryBudget { bytes, source: BudgetSource::Given };
     // The least, from the refusal of a budget far too small: the same on
-    // 2 and on 64 workers.
+    // 2 and on 64 workers, spilling or not (the windows below are planned
+    // without spilling).
     let (runs, ends) = (summary.section_count(tag::LINK_RUNS), summary.build.link_end_count);
+    let plan = |s: &_, j: &_, b| plan_with(s, j, b, false);
     let least = |threads| plan(&summary, &job(threads), budget(1 << 20)).unwrap_err().needed();
     assert_eq!(least(2), least(64));
+    let spilled = |threads| plan_with(&summary, &job(threads), budget(1 << 20), true).unwrap_err().needed();
+    assert_eq!(spilled(2), spilled(64));
+    assert!(spilled(2) < least(2), "spilling needs less: {} against {}", spilled(2), least(2));
     for (threads, extra_windows, want) in [(64, 0, 2), (64, 3, 5), (2, 3, 2), (4, 100, 4)] {
         // A smallest window: (2¹⁶ + 2 × 2¹⁶ ends) × 7 bytes, and its runs
         // (planned at twice the archive's mean per end).

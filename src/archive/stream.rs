@@ -286,6 +286,14 @@ impl LinkStream {
         self.pool.lock().map_or(0, |p| p.len())
     }
 
+    /// Frees the buffers kept between passes (the next pass makes its own):
+    /// for the memory a render shades in once a frame's light is solved.
+    pub fn release_buffers(&self) {
+        if let Ok(mut pool) = self.pool.lock() {
+            *pool = Vec::new();
+        }
+    }
+
     /// Heap held now by buffers kept between passes.
     pub fn pooled_bytes(&self) -> usize {
         self.pool.lock().map_or(0, |p| p.iter().map(Buffers::bytes).sum())

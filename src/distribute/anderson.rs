@@ -26,8 +26,11 @@
 //! archives with non-diffuse patches iterate plainly.
 
 use std::collections::VecDeque;
+use std::path::{Path, PathBuf};
 
 use rayon::prelude::*;
+
+use super::spill::PatchVec;
 
 /// One value of a secant pair, stored as bfloat16: the upper half of the
 /// f32 (its range, 8 bits of mantissa). The pairs only steer the step (the
@@ -51,11 +54,12 @@ fn from_half(h: Half) -> f32 {
 
 /// One secant pair, per patch, RGB (6 bytes a vector): how the residual
 /// changed (`Δf = K·Δx − Δx`) and what the step reflected (`Δx + Δf =
-/// K·Δx`, the only combination of `Δx` the mixing uses).
-type Pair = (Vec<[Half; 3]>, Vec<[Half; 3]>);
+/// K·Δx`, the only combination of `Δx` the mixing uses). In memory, or in
+/// scratch files under a tight memory budget (`spill.rs`).
+type Pair = (PatchVec<[Half; 3]>, PatchVec<[Half; 3]>);
 
-/// A pair's two vectors (or a block of them) to write: `(Δf, K·Δx)`.
-pub(super) type PairMut<'a> = (&'a mut [[Half; 3]], &'a mut [[Half; 3]]);
+/// A pair's two vectors to write: `(Δf, K·Δx)`.
+pub(super) type PairMut<'a> = (&'a mut PatchVec<[Half; 3]>, &'a mut PatchVec<[Half; 3]>);
 
 /// Secant history and the mixing step.
 pub struct Anderson {
@@ -69,27 +73,46 @@ pub struct Anderson {
     /// zeroed page by page when first touched (a tenth of a distribution's
     /// time before).
     spare: Vec<Pair>,
+    /// Where the pairs are kept when not in memory.
+    spill: Option<PathBuf>,
 }
 
-/// The history, without the spare buffers.
+/// The history, without the spare buffers. A spilled history is copied to
+/// new scratch files; one that cannot be (the disk full) is dropped: it
+/// only steers the steps, and the next write to the directory fails the
+/// distribution with the system's error.
 impl Clone for Anderson {
     fn clone(&self) -> Self {
-        Self { depth: self.depth, pairs: self.pairs.clone(), pending: None, spare: Vec::new() }
+        let pairs: std::io::Result<VecDeque<Pair>> =
+            self.pairs.iter().map(|(a, b)| Ok((a.try_clone()?, b.try_clone()?))).collect();
+        let pairs = pairs.unwrap_or_default();
+        Self { depth: self.depth, pairs, pending: None, spare: Vec::new(), spill: self.spill.clone() }
     }
 }
 
-/// Equal histories, whatever buffers each keeps spare.
+/// Equal histories, whatever buffers each keeps spare and wherever they
+/// are kept.
 impl PartialEq for Anderson {
     fn eq(&self, other: &Self) -> bool {
-        (self.depth, &self.pairs) == (other.depth, &other.pairs)
+        let same = |(a, b): (&Pair, &Pair)| a.0.same_as(&b.0).unwrap_or(false) && a.1.same_as(&b.1).unwrap_or(false);
+        self.depth == other.depth
+            && self.pairs.len() == other.pairs.len()
+            && self.pairs.iter().zip(&other.pairs).all(same)
     }
 }
 
 impl Anderson {
-    /// Keeps at most `depth` pairs (at most [`MAX_DEPTH`]).
+    /// Keeps at most `depth` pairs (at most [`MAX_DEPTH`]) in memory.
     pub fn new(depth: usize) -> Self {
+        Self::new_in(depth, None)
+    }
+
+    /// Keeps at most `depth` pairs, in memory or, given `spill`, in
+    /// scratch files in that directory.
+    pub fn new_in(depth: usize, spill: Option<&Path>) -> Self {
         let depth = depth.min(MAX_DEPTH);
-        Self { depth, pairs: VecDeque::with_capacity(depth + 1), pending: None, spare: Vec::new() }
+        let spill = spill.map(Path::to_path_buf);
+        Self { depth, pairs: VecDeque::with_capacity(depth + 1), pending: None, spare: Vec::new(), spill }
     }
 
     /// Whether this history can steer a problem of `n` patches with `depth`
@@ -111,25 +134,31 @@ impl Anderson {
     }
 
     /// Buffers for the pair of the step under way, `(Δf, K·Δx)` for `n`
-    /// patches, written by the step's reflection (no vector of its own);
-    /// `None` without acceleration. Once the history is full, the oldest
-    /// pair's buffers are reused: the step that mixed with it is done, and
-    /// the step is then either kept ([`Self::commit`]), which would drop
-    /// that pair anyway, or the whole history is ([`Self::reset`]).
-    pub fn slot(&mut self, n: usize) -> Option<PairMut<'_>> {
+    /// patches, written whole by the step's reflection (no vector of its
+    /// own); `None` without acceleration. Once the history is full, the
+    /// oldest pair's buffers are reused: the step that mixed with it is
+    /// done, and the step is then either kept ([`Self::commit`]), which
+    /// would drop that pair anyway, or the whole history is
+    /// ([`Self::reset`]). Fails only when a scratch file cannot be made.
+    pub fn slot(&mut self, n: usize) -> std::io::Result<Option<PairMut<'_>>> {
         if self.depth == 0 {
-            return None;
+            return Ok(None);
         }
         if self.pending.is_none() {
-            let mut pair = match self.pairs.len() >= self.depth {
-                true => self.pairs.pop_front().expect("depth > 0"),
-                false => self.spare.pop().unwrap_or_default(),
+            let pair = match self.pairs.len() >= self.depth {
+                true => self.pairs.pop_front(),
+                false => self.spare.pop(),
             };
-            pair.0.resize(n, [0; 3]);
-            pair.1.resize(n, [0; 3]);
+            let pair = match pair {
+                Some(p) if p.0.len() == n => p,
+                _ => {
+                    let spill = self.spill.as_deref();
+                    (PatchVec::zeroed(n, spill)?, PatchVec::zeroed(n, spill)?)
+                }
+            };
             self.pending = Some(pair);
         }
-        self.pending.as_mut().map(|(df, kdx)| (&mut df[..], &mut kdx[..]))
+        Ok(self.pending.as_mut().map(|(df, kdx)| (df, kdx)))
     }
 
     /// Keeps the pair [`Self::slot`] handed out as the newest.
@@ -143,12 +172,17 @@ impl Anderson {
     /// `df` (`K·sent − sent`).
     #[cfg(test)]
     pub fn record(&mut self, sent: &[[f32; 3]], df: &[[f32; 3]]) {
-        if let Some((d, k)) = self.slot(sent.len()) {
-            for p in 0..sent.len() {
-                for c in 0..3 {
-                    d[p][c] = to_half(df[p][c]);
-                    k[p][c] = to_half(sent[p][c] + df[p][c]);
-                }
+        if let Some((d, k)) = self.slot(sent.len()).unwrap() {
+            let mut buf = Vec::new();
+            for block in d.blocks_mut(sent.len()) {
+                block.with(false, &mut buf, |d| (0..sent.len()).for_each(|p| d[p] = df[p].map(to_half))).unwrap();
+            }
+            for block in k.blocks_mut(sent.len()) {
+                block
+                    .with(false, &mut buf, |k| {
+                        (0..sent.len()).for_each(|p| k[p] = [0, 1, 2].map(|c| to_half(sent[p][c] + df[p][c])))
+                    })
+                    .unwrap();
             }
             self.commit();
         }
@@ -156,25 +190,31 @@ impl Anderson {
 
     /// What to send for residual `f`: the mixed step, or `f` itself while
     /// there is no history (or a band's least-squares system is singular).
-    pub fn step(&self, f: &[[f32; 3]], send: &mut [[f32; 3]]) {
+    /// Fails only when spilled pairs cannot be read back.
+    pub fn step(&self, f: &[[f32; 3]], send: &mut [[f32; 3]]) -> std::io::Result<()> {
         let m = self.pairs.len();
         if m == 0 {
             send.copy_from_slice(f);
-            return;
+            return Ok(());
         }
         // Normal equations A γ = b of min ‖f − Σ γ_i Δf_i‖², all bands at
         // once (lane c = band c): one pass over the patches in parallel
         // chunks, partial sums in f64 added in chunk order (deterministic).
         let terms = m * (m + 1) / 2 + m;
-        let partial: Vec<Vec<[f64; 3]>> = (0..f.len().div_ceil(CHUNK))
+        let partial: std::io::Result<Vec<Vec<[f64; 3]>>> = (0..f.len().div_ceil(CHUNK))
             .into_par_iter()
             .map(|k| {
                 let range = k * CHUNK..((k + 1) * CHUNK).min(f.len());
+                let mut bufs: [Vec<[Half; 3]>; MAX_DEPTH] = Default::default();
+                let mut dfs: [&[[Half; 3]]; MAX_DEPTH] = [&[]; MAX_DEPTH];
+                for ((pair, buf), df) in self.pairs.iter().zip(&mut bufs).zip(&mut dfs) {
+                    *df = pair.0.range(range.clone(), buf)?;
+                }
                 let mut acc = vec![[0.0f64; 3]; terms];
                 let mut d = [[0.0f64; 3]; MAX_DEPTH];
-                for p in range {
-                    for (i, pair) in self.pairs.iter().enumerate() {
-                        d[i] = pair.0[p].map(|h| from_half(h) as f64);
+                for p in range.clone() {
+                    for i in 0..m {
+                        d[i] = dfs[i][p - range.start].map(|h| from_half(h) as f64);
                     }
                     let mut t = 0;
                     for i in 0..m {
@@ -190,11 +230,11 @@ impl Anderson {
                         t += 1;
                     }
                 }
-                acc
+                Ok(acc)
             })
             .collect();
         let mut sums = vec![[0.0f64; 3]; terms];
-        for chunk in &partial {
+        for chunk in &partial? {
             for (s, x) in sums.iter_mut().zip(chunk) {
                 for c in 0..3 {
                     s[c] += x[c];
@@ -222,19 +262,26 @@ impl Anderson {
             }
         }
         let pairs = &self.pairs;
-        send.par_chunks_mut(CHUNK).enumerate().for_each(|(k, out)| {
+        send.par_chunks_mut(CHUNK).enumerate().try_for_each(|(k, out)| {
+            let range = k * CHUNK..k * CHUNK + out.len();
+            let mut bufs: [Vec<[Half; 3]>; MAX_DEPTH] = Default::default();
+            let mut kdxs: [&[[Half; 3]]; MAX_DEPTH] = [&[]; MAX_DEPTH];
+            for ((pair, buf), kdx) in pairs.iter().zip(&mut bufs).zip(&mut kdxs) {
+                *kdx = pair.1.range(range.clone(), buf)?;
+            }
             for (i, o) in out.iter_mut().enumerate() {
                 let p = k * CHUNK + i;
                 let mut v = f[p];
-                for (g, (_, kdx)) in gamma.iter().zip(pairs) {
+                for (g, kdx) in gamma.iter().zip(&kdxs[..m]) {
                     for c in 0..3 {
-                        v[c] -= g[c] * from_half(kdx[p][c]);
+                        v[c] -= g[c] * from_half(kdx[i][c]);
                     }
                 }
                 // Subnormal floats would slow the gather by orders of magnitude.
                 *o = v.map(|x| if x.abs() < f32::MIN_POSITIVE { 0.0 } else { x });
             }
-        });
+            Ok(())
+        })
     }
 }
 
@@ -296,7 +343,7 @@ mod tests {
         let mut f: Vec<[f32; 3]> = e.iter().map(|&v| [v; 3]).collect();
         let mut send = vec![[0.0f32; 3]; 3];
         for it in 1..200 {
-            anderson.step(&f, &mut send);
+            anderson.step(&f, &mut send).unwrap();
             let kd: Vec<[f32; 3]> =
                 (0..3).map(|r| [0, 1, 2].map(|c| (0..3).map(|j| k[r][j] * send[j][c]).sum())).collect();
             let df: Vec<[f32; 3]> = (0..3).map(|r| [0, 1, 2].map(|c| kd[r][c] - send[r][c])).collect();
@@ -335,7 +382,7 @@ mod tests {
         a.record(&zero, &zero);
         let f = vec![[1.0, 2.0, 3.0]; 4];
         let mut send = vec![[9.0f32; 3]; 4];
-        a.step(&f, &mut send);
+        a.step(&f, &mut send).unwrap();
         assert_eq!(send, f);
     }
 }

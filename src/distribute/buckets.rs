@@ -155,12 +155,12 @@ impl<'a> Rings<'a> {
     /// to the caller). Computed where it is used, per patch, so that no
     /// vector of it is kept.
     #[inline]
-    pub fn spread_onto(&self, recv: &[[f32; 4]], buckets: usize, q: usize) -> [f32; 4] {
-        let mut acc = [0.0f32; 4];
+    pub fn spread_onto(&self, recv: &[[f32; 3]], buckets: usize, q: usize) -> [f32; 3] {
+        let mut acc = [0.0f32; 3];
         for k in 1..buckets {
             self.weighted(k, q, |p, w| {
                 let r = recv[p * buckets + k];
-                for c in 0..4 {
+                for c in 0..3 {
                     acc[c] += r[c] * w;
                 }
             });
@@ -169,7 +169,7 @@ impl<'a> Rings<'a> {
     }
 
     /// [`Self::spread_onto`] of every patch into `out`.
-    pub fn spread(&self, recv: &[[f32; 4]], buckets: usize, out: &mut [[f32; 4]]) {
+    pub fn spread(&self, recv: &[[f32; 3]], buckets: usize, out: &mut [[f32; 3]]) {
         out.par_chunks_mut(512).enumerate().for_each(|(block, chunk)| {
             for (i, o) in chunk.iter_mut().enumerate() {
                 *o = self.spread_onto(recv, buckets, block * 512 + i);
@@ -218,12 +218,11 @@ mod tests {
         assert_eq!(rings.ring(1, 0).len(), 3, "corner");
         // Arbitrary received light in every bucket.
         let n = 63;
-        let recv: Vec<[f32; 4]> =
-            (0..n * 4).map(|i| [((i * 37) % 11) as f32 + 0.5, (i % 5) as f32, 1.0, 0.0]).collect();
-        let mut out = vec![[0.0; 4]; n];
+        let recv: Vec<[f32; 3]> = (0..n * 4).map(|i| [((i * 37) % 11) as f32 + 0.5, (i % 5) as f32, 1.0]).collect();
+        let mut out = vec![[0.0; 3]; n];
         rings.spread(&recv, 4, &mut out);
         // Uniform light stays uniform, borders included.
-        let flat: Vec<[f32; 4]> = (0..n * 4).map(|i| if i % 4 == 0 { [0.0; 4] } else { [1.0; 4] }).collect();
+        let flat: Vec<[f32; 3]> = (0..n * 4).map(|i| if i % 4 == 0 { [0.0; 3] } else { [1.0; 3] }).collect();
         rings.spread(&flat, 4, &mut out);
         for o in &out {
             assert!((o[0] - 3.0).abs() < 1e-5, "{o:?}");

@@ -44,6 +44,14 @@ pub enum DistributeError {
     /// The archive holds something the distribution cannot use (found
     /// when a frame's delta is decoded, or by a check open does not make).
     Archive(ArchiveError),
+    /// A scratch file of the spilled state (`Distributor::spill_in`)
+    /// could not be made, written or read back.
+    Scratch {
+        /// The scratch directory.
+        dir: std::path::PathBuf,
+        /// The system's error.
+        source: std::io::Error,
+    },
     /// Stopped between two iterations because the caller asked
     /// ([`crate::progress::Progress::cancelled`]): a newer request made
     /// this one's light useless.
@@ -70,6 +78,12 @@ impl fmt::Display for DistributeError {
                  what its checks bound: please report it, with the archive"
             ),
             Self::Archive(e) => e.fmt(f),
+            Self::Scratch { dir, source } => write!(
+                f,
+                "the distribution's scratch file in {} (where a tight --memory-budget keeps its secant pairs \
+                 and totals): {source}",
+                dir.display()
+            ),
             Self::Cancelled => write!(f, "the distribution was cancelled (a newer request superseded it)"),
         }
     }
@@ -79,6 +93,7 @@ impl std::error::Error for DistributeError {
     fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
         match self {
             Self::Archive(e) => Some(e),
+            Self::Scratch { source, .. } => Some(source),
             _ => None,
         }
     }

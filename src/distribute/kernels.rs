@@ -58,6 +58,14 @@ pub(super) trait StateRows: Copy {
     /// # Safety
     /// `i < self.patches()`.
     unsafe fn lanes(self, i: usize) -> [f32; 4];
+
+    /// Patch `i`'s lanes, bounds checked (away from the inner loops).
+    #[inline]
+    fn row(self, i: usize) -> [f32; 4] {
+        assert!(i < self.patches(), "patch {i} of {}", self.patches());
+        // SAFETY: `i < self.patches()`, just checked.
+        unsafe { self.lanes(i) }
+    }
 }
 
 impl StateRows for &[[f32; 4]] {
@@ -97,6 +105,7 @@ impl PackedRgb {
     }
 
     /// Copies the RGB of `state` (one entry per patch) in.
+    #[cfg(test)]
     pub(super) fn fill(&mut self, state: &[[f32; 4]]) {
         assert_eq!(self.rgb.len(), 3 * state.len() + 1, "one packed patch per state entry");
         self.rgb[..3 * state.len()].par_chunks_mut(3 * BLOCK).zip(state.par_chunks(BLOCK)).for_each(|(to, from)| {
@@ -109,6 +118,13 @@ impl PackedRgb {
     /// The packed rows, for the gather.
     pub(super) fn rows(&self) -> Packed<'_> {
         Packed(&self.rgb)
+    }
+
+    /// The RGB of each block of [`BLOCK`] patches (three floats a patch,
+    /// the padding apart), to write in parallel.
+    pub(super) fn blocks_mut(&mut self) -> rayon::slice::ChunksMut<'_, f32> {
+        let n = self.rgb.len() - 1;
+        self.rgb[..n].par_chunks_mut(3 * BLOCK)
     }
 }
 
@@ -140,10 +156,10 @@ impl StateRows for Packed<'_> {
 /// an overlay's 32) and the weight's storage: f32 (overlays) or the
 /// archive's one-byte counts (`LCNT`), which convert to the same f32.
 #[inline(always)]
-pub(super) fn weighted_sum<I: Copy + Into<u32>, W: Copy + Into<f32>>(
+pub(super) fn weighted_sum<I: Copy + Into<u32>, W: Copy + Into<f32>, S: StateRows>(
     other: Bounded<'_, I>,
     weight: &[W],
-    shoot: &[[f32; 4]],
+    shoot: S,
 ) -> [f32; 4] {
     let mut acc = [[0.0f32; 4]; 4];
     accumulate(&mut acc, other, weight, shoot);
@@ -198,7 +214,7 @@ fn reduce(acc: &[[f32; 4]; 4]) -> [f32; 4] {
 /// to their owners' slots of `out` (`buckets` slots for each of the
 /// window's patches). Serial: escapes are rare (none in the scenes we
 /// ship).
-fn add_escapes(w: &LinkWindow<'_>, buckets: usize, present: Option<&[bool]>, shoot: &[[f32; 4]], out: &mut [[f32; 4]]) {
+fn add_escapes(w: &LinkWindow<'_>, buckets: usize, present: Option<&[bool]>, shoot: Packed<'_>, out: &mut [[f32; 3]]) {
     let offsets = w.runs.link_offsets();
     // The escapes of the window's rows (a narrowed window's columns hold
     // other patches' ends too).
@@ -213,10 +229,10 @@ fn add_escapes(w: &LinkWindow<'_>, buckets: usize, present: Option<&[bool]>, sho
             continue;
         }
         let Some((_, other, bucket)) = w.ends_of(q).find(|e| e.0 + w.first_end == end) else { continue };
-        let s = shoot[other as usize];
+        let s = shoot.row(other as usize);
         let k = if buckets > 1 { bucket as usize } else { 0 };
         let r = &mut out[(q - w.patches.start) * buckets + k];
-        for c in 0..4 {
+        for c in 0..3 {
             r[c] += x.weight * s[c];
         }
     }
@@ -227,10 +243,10 @@ fn add_escapes(w: &LinkWindow<'_>, buckets: usize, present: Option<&[bool]>, sho
 /// workers when `parallel`, else on this thread (a window of a streamed
 /// pass, whose workers each take whole windows).
 fn for_blocks(
-    out: &mut [[f32; 4]],
+    out: &mut [[f32; 3]],
     per_patch: usize,
     parallel: bool,
-    f: impl Fn(usize, &mut [[f32; 4]]) + Sync + Send,
+    f: impl Fn(usize, &mut [[f32; 3]]) + Sync + Send,
 ) {
     let size = BLOCK * per_patch;
     if parallel {
@@ -252,18 +268,17 @@ pub(super) fn gather(
     w: &LinkWindow<'_>,
     buckets: usize,
     present: Option<&[bool]>,
-    (shoot, packed): (&[[f32; 4]], Packed<'_>),
-    out: &mut [[f32; 4]],
+    packed: Packed<'_>,
+    out: &mut [[f32; 3]],
     parallel: bool,
 ) {
-    assert_eq!(packed.patches(), shoot.len(), "the packed state is the state's");
     assert_eq!(out.len(), w.patches.len() * buckets, "one slot per patch of the window and bucket");
     let base = w.patches.start;
     let counts = w.weight.counts();
     for_blocks(out, buckets, parallel, |first, out| {
         for (i, r) in out.chunks_exact_mut(buckets).enumerate() {
             let q = base + first + i;
-            r.fill([0.0; 4]);
+            r.fill([0.0; 3]);
             if present.is_some_and(|p| !p[q]) {
                 continue;
             }
@@ -303,7 +318,7 @@ pub(super) fn gather(
             }
         }
     });
-    add_escapes(w, buckets, present, shoot, out);
+    add_escapes(w, buckets, present, packed, out);
 }
 
 /// What non-diffuse senders send along link ends ([`add_ends`]): a plain
@@ -325,13 +340,13 @@ pub(super) struct DirectionalSenders<'a> {
 /// bucket slot of `recv` (a sparse gather: owners without ends cost one
 /// offset comparison per bucket), and, given the non-diffuse senders,
 /// what they send along the ends.
-pub(super) fn add_ends(
+pub(super) fn add_ends<S: StateRows + Sync>(
     ends: &Ends,
     buckets: usize,
-    shoot: &[[f32; 4]],
+    shoot: S,
     sign: f32,
     nd: Option<DirectionalSenders<'_>>,
-    recv: &mut [[f32; 4]],
+    recv: &mut [[f32; 3]],
 ) {
     recv.par_chunks_mut(BLOCK * buckets).enumerate().for_each(|(block, out)| {
         let first = block * BLOCK;
@@ -343,7 +358,8 @@ pub(super) fn add_ends(
                     continue;
                 }
                 let acc = weighted_sum(ends.bounded().slice(run.clone()), &ends.weight[run.clone()], shoot);
-                for c in 0..4 {
+                // RGB: a packed state's fourth lane is another patch's red.
+                for c in 0..3 {
                     slot[c] += sign * acc[c];
                 }
                 if let Some(nd) = nd {
@@ -351,7 +367,7 @@ pub(super) fn add_ends(
                         let j = nd.nd_of[ends.other[e] as usize];
                         if j != u32::MAX {
                             let p = nd.phi[j as usize * nd.directions + (ends.direction[e] ^ 1) as usize];
-                            for c in 0..4 {
+                            for c in 0..3 {
                                 slot[c] += sign * ends.weight[e] * p[c];
                             }
                         }
@@ -366,11 +382,11 @@ pub(super) fn add_ends(
 /// frame: what they received through the correction list of non-diffuse
 /// senders, which holds frame 0's ends (the diffuse gathers skip absent
 /// patches already), and what a mixed step would have them send.
-pub(super) fn silence_absent(present: Option<&[bool]>, buckets: usize, recv: &mut [[f32; 4]]) {
+pub(super) fn silence_absent(present: Option<&[bool]>, buckets: usize, recv: &mut [[f32; 3]]) {
     if let Some(present) = present {
         for (p, r) in recv.chunks_exact_mut(buckets).enumerate() {
             if !present[p] {
-                r.fill([0.0; 4]);
+                r.fill([0.0; 3]);
             }
         }
     }
@@ -617,38 +633,38 @@ mod tests {
             let all = LinkRuns::checked(&offsets, &run_offsets, &runs, 1).unwrap();
             LinkWindow::checked(patches, &ids[ends], weights, &[], all).unwrap()
         };
-        let mut want = vec![[0.0f64; 4]; n * 2];
+        let mut want = vec![[0.0f64; 3]; n * 2];
         for (q, row) in rows.iter().enumerate() {
             for &(k, o, w) in row {
-                for c in 0..4 {
+                for c in 0..3 {
                     want[q * 2 + k as usize][c] += w as f64 * shoot[o as usize][c] as f64;
                 }
             }
         }
-        let close = |got: &[[f32; 4]], want: &[[f64; 4]]| {
+        let close = |got: &[[f32; 3]], want: &[[f64; 3]]| {
             for (got, want) in got.iter().zip(want) {
-                for c in 0..4 {
+                for c in 0..3 {
                     assert!((got[c] as f64 - want[c]).abs() <= 1e-5 * want[c].abs().max(1.0), "{got:?} vs {want:?}");
                 }
             }
         };
         let mut packed = PackedRgb::new(n);
         packed.fill(&shoot);
-        let state = (&shoot[..], packed.rows());
-        let mut recv = vec![[9.0f32; 4]; n * 2]; // overwritten, not added to
+        let state = packed.rows();
+        let mut recv = vec![[9.0f32; 3]; n * 2]; // overwritten, not added to
         gather(&window(0..n), 2, None, state, &mut recv, true);
         close(&recv, &want);
         // The same in three windows.
-        let mut split = vec![[0.0f32; 4]; n * 2];
+        let mut split = vec![[0.0f32; 3]; n * 2];
         for w in [0..2, 2..65_000, 65_000..n] {
             let out = &mut split[w.start * 2..w.end * 2];
             gather(&window(w), 2, None, state, out, false);
         }
         assert_eq!(split, recv, "windows give the same sums in any windows");
         // One bucket: each patch's light in its one slot.
-        let mut one = vec![[0.0f32; 4]; n];
+        let mut one = vec![[0.0f32; 3]; n];
         gather(&window(0..n), 1, None, state, &mut one, true);
-        let merged: Vec<[f64; 4]> = want.chunks(2).map(|b| std::array::from_fn(|c| b[0][c] + b[1][c])).collect();
+        let merged: Vec<[f64; 3]> = want.chunks(2).map(|b| std::array::from_fn(|c| b[0][c] + b[1][c])).collect();
         close(&one, &merged);
         // The decoded ids are the other patches.
         assert_eq!(window(0..n).other_ids(), other);

@@ -26,6 +26,9 @@ pub struct StateShape {
     pub table_bytes: u64,
     /// The most delta records a frame of the sequence has.
     pub max_delta_records: u64,
+    /// Whether the secant pairs and received totals are kept in scratch
+    /// files instead of memory (`Distributor::spill_in`).
+    pub spill: bool,
 }
 
 /// Bytes of one patch's share of the rings a bucketed gather spreads light
@@ -36,26 +39,46 @@ fn ring_bytes(buckets: u64) -> u64 {
     (2..buckets).map(|k| 4 + 4 * (2 * k * k + 2 * k + 1)).sum()
 }
 
-/// Per patch: what the distributor keeps for the archive (surface (4),
-/// linked (f64, 8), in_base (1), the rings; the non-diffuse index (4)
-/// when there are non-diffuse patches).
-/// Reflectance, emission, link shares and effective areas are not kept
-/// per patch: they come from the surface tables and the archive's patch
-/// columns where they are used. (The gather's runs are the archive's,
-/// `LRUN`, counted with it.)
+/// Per patch: what the distributor keeps for the archive (linked (f64,
+/// 8), in_base (1), the rings; the non-diffuse index (4) when there are
+/// non-diffuse patches).
+/// Surfaces, reflectance, emission, link shares, back-face shares and
+/// effective areas are not kept per patch: they come from the surface
+/// tables and the archive's patch columns where they are used. (The
+/// gather's runs are the archive's, `LRUN`, counted with it.)
 fn distributor_bytes(s: &StateShape) -> u64 {
-    4 + 8 + 1 + if s.nondiffuse_slots > 0 { 4 } else { 0 } + ring_bytes(s.buckets.max(1))
+    8 + 1 + if s.nondiffuse_slots > 0 { 4 } else { 0 } + ring_bytes(s.buckets.max(1))
 }
 
 /// Per patch: a frame's iteration: unshot, send and the two received
 /// totals (RGB, 12 each; what the rings spread onto a patch is computed
-/// where it is used, not kept), shoot ([f32; 4], 16: the kernels read it
-/// so), the gather's packed RGB (12),
-/// received per bucket (16 each), Anderson's secant pairs (two bfloat16
+/// where it is used, not kept), what it shoots (RGB packed, 12: the
+/// gathers read it so),
+/// received per bucket (RGB, 12 each), Anderson's secant pairs (two bfloat16
 /// RGB vectors, 12 a pair; the step's change of the residual is written
 /// straight into its pair, no vector of its own).
+/// Spilled, the totals and the pairs are not in memory.
 fn iteration_bytes(s: &StateShape) -> u64 {
-    4 * 12 + 16 + 12 + 16 * s.buckets.max(1) + 12 * s.anderson_depth
+    3 * 12 + 12 * s.buckets.max(1) + in_memory(s, spilled_patch_bytes(s))
+}
+
+/// `bytes` when the state is in memory, else nothing.
+fn in_memory(s: &StateShape, bytes: u64) -> u64 {
+    if s.spill { 0 } else { bytes }
+}
+
+/// Per patch: what a spilled iteration keeps in its scratch files instead
+/// of memory: the two received totals (24) and the secant pairs (12 a
+/// pair).
+fn spilled_patch_bytes(s: &StateShape) -> u64 {
+    24 + 12 * s.anderson_depth
+}
+
+/// Bytes the scratch files of a spilled distribution hold at most (a
+/// sequence's previous frame keeps its pairs too; 0 unspilled).
+pub fn spilled_bytes(s: &StateShape) -> u64 {
+    let pairs = if s.sequence { 12 * s.anderson_depth } else { 0 };
+    if s.spill { s.patches * (spilled_patch_bytes(s) + pairs) } else { 0 }
 }
 
 /// Per patch: a solution: radiance, received, first bounce (12 each),
@@ -65,16 +88,16 @@ const SOLUTION: u64 = 40;
 /// Bytes a patch of the distribution's state holds at its peak, field by
 /// field. A still's peak is its loop: its solution is made as the loop's
 /// vectors are freed (`step.rs`, `finish`: send and the secant pairs
-/// first, 12 + 12·depth, before radiance and received, 24, are made, and
-/// the rest before the first bounce). A sequence holds the frame's setup,
-/// its warm start and the running totals, and the previous frame's
-/// solution with its secant pairs, beside it: counted in full.
+/// first, 12 + 12·depth in memory, before the first bounce, 12; the
+/// gather's buffers before received and the residual, 16; the unshot
+/// power before the radiance, 12). A sequence holds the frame's setup, its warm
+/// start and the running totals, and the previous frame's solution with
+/// its secant pairs, beside it: counted in full.
 pub fn patch_bytes(s: &StateShape) -> u64 {
     let (nb, depth) = (s.buckets.max(1), s.anderson_depth);
     let (distributor, iteration) = (distributor_bytes(s), iteration_bytes(s));
     if !s.sequence {
-        let finishing = (iteration + 24).saturating_sub(12 + 12 * depth);
-        return distributor + iteration.max(finishing);
+        return distributor + iteration;
     }
     // A frame's linked weights (8) and presence (2); the warm guess (16);
     // the totals carried to the next frame (24, and 24 per bucket); a
@@ -82,7 +105,7 @@ pub fn patch_bytes(s: &StateShape) -> u64 {
     // frame's solution and secant pairs.
     let carry = 24 + 24 * nb;
     let solution = SOLUTION + carry + 16;
-    distributor + (8 + 2) + iteration + 16 + carry + 2 * solution + 12 * depth
+    distributor + (8 + 2) + iteration + 16 + carry + 2 * solution + in_memory(s, 12 * depth)
 }
 
 /// Bytes a patch of the distribution's state still holds once a still's
@@ -126,7 +149,14 @@ mod tests {
     fn the_estimate_grows_with_every_part_of_the_shape() {
         let base = StateShape { patches: 1000, buckets: 1, anderson_depth: 5, ..Default::default() };
         let b = state_bytes(&base);
-        assert!(b > 1000 * 150 && b < 1000 * 400, "{b} bytes for 1000 patches");
+        assert!(b > 1000 * 120 && b < 1000 * 400, "{b} bytes for 1000 patches");
+        // Spilled: the pairs and totals (24 + 60) leave memory, and the
+        // finish (the solution made beside the loop's vectors) is the peak.
+        let spilled = StateShape { spill: true, ..base };
+        assert_eq!(spilled_bytes(&spilled), 1000 * 84);
+        assert_eq!(spilled_bytes(&base), 0);
+        let (plain, kept) = (patch_bytes(&base), patch_bytes(&spilled));
+        assert!(kept < plain - 60 && kept <= 96, "{plain} → {kept} bytes a patch");
         for more in [
             StateShape { patches: 2000, ..base },
             StateShape { buckets: 4, ..base },

@@ -45,8 +45,10 @@ mod nondiffuse;
 mod overlay;
 pub mod reference;
 mod setup;
+mod spill;
 mod step;
 pub mod team;
+mod totals;
 mod warm;
 
 pub use anderson::MAX_DEPTH as MAX_ANDERSON_DEPTH;
@@ -194,6 +196,16 @@ pub struct Solution {
 }
 
 impl Solution {
+    /// Frees what only a later frame's warm start reads: the received
+    /// power ([`Self::received`] is empty after), the secant history and
+    /// the carried totals. For a solution no frame will start from, before
+    /// it is shaded (a render's last frame): 12 bytes a patch and more.
+    pub fn release_warm_start(&mut self) {
+        self.received = Vec::new();
+        self.history = anderson::Anderson::new(0);
+        self.carry = None;
+    }
+
     /// The frame solved.
     pub fn frame(&self) -> u32 {
         self.frame
@@ -275,6 +287,27 @@ fn share_and_area(v: &InetView<'_>, opts: &DistributeOptions, p: usize) -> (f32,
         (if h > 0.0 { 1.0 / h } else { 0.0 }, if h > 0.0 && hx > 0.0 { a * h / hx } else { a })
     } else {
         (if hx > 0.0 { 1.0 / hx } else { 0.0 }, a)
+    }
+}
+
+/// Each patch's surface, through its primitive: nothing per patch is kept
+/// for what the archive's two columns give.
+#[derive(Clone, Copy)]
+struct PatchSurfaces<'a> {
+    patch_primitive: &'a [u32],
+    primitives: &'a [crate::archive::layout::PrimitiveRecord],
+}
+
+impl PatchSurfaces<'_> {
+    /// Patch `p`'s surface.
+    #[inline]
+    fn of(&self, p: usize) -> usize {
+        self.primitives[self.patch_primitive[p] as usize].surface as usize
+    }
+
+    /// Patches.
+    fn len(&self) -> usize {
+        self.patch_primitive.len()
     }
 }
 
@@ -380,9 +413,6 @@ pub struct Distributor<'a> {
     id: u64,
     v: InetView<'a>,
     opts: DistributeOptions,
-    /// Per patch, the share of its power that meets back faces
-    /// (`PBAK · share`; empty for files without `PBAK`).
-    back_share: Vec<f32>,
     linked: Vec<f64>,
     /// Whether light is sorted into buckets (and spread, §3.4).
     use_buckets: bool,
@@ -390,7 +420,7 @@ pub struct Distributor<'a> {
     in_base: Vec<bool>,
     nb: usize,
     rings: Option<buckets::Rings<'a>>,
-    patch_surface: Vec<u32>,
+    patch_surface: PatchSurfaces<'a>,
     emission_fixed: Vec<bool>,
     /// The lighting's emitted radiance and `k_d` per surface.
     surface_emission: Vec<[f32; 3]>,
@@ -417,9 +447,23 @@ pub struct Distributor<'a> {
     exchanged_bytes: std::sync::atomic::AtomicU64,
     exchange_ns: std::sync::atomic::AtomicU64,
     exchanges: std::sync::atomic::AtomicU64,
+    /// Where an iteration keeps its secant pairs and received totals when
+    /// not in memory ([`Self::spill_in`]).
+    spill: Option<std::path::PathBuf>,
 }
 
 impl<'a> Distributor<'a> {
+    /// Keeps each frame's Anderson secant pairs and received totals in
+    /// unnamed scratch files in `dir` instead of memory (`spill.rs`): 84
+    /// bytes a patch fewer at the default depth, for a few sequential
+    /// passes over them per iteration. The solutions are the same, bit for
+    /// bit. A render under a tight memory budget asks for it
+    /// ([`crate::render::plan::MemoryPlan::spill`]).
+    pub fn spill_in(mut self, dir: &std::path::Path) -> Self {
+        self.spill = Some(dir.to_path_buf());
+        self
+    }
+
     /// Prepares `v` with `lighting` (one entry per surface).
     pub fn new(v: &InetView<'a>, opts: &DistributeOptions, lighting: &Lighting) -> Result<Self, DistributeError> {
         Self::new_in(v, opts, lighting, None)
@@ -453,7 +497,7 @@ impl<'a> Distributor<'a> {
             ),
             false => None,
         };
-        let patch_surface = v.patch_primitive.iter().map(|&p| v.primitives[p as usize].surface).collect();
+        let patch_surface = PatchSurfaces { patch_primitive: v.patch_primitive, primitives: v.primitives };
         let emission_fixed = lighting.emission_fixed.clone();
         if let Some(r) = v.reflectance
             && (r.patches.len() as u64) * (v.directions.len() as u64) >= u32::MAX as u64
@@ -487,10 +531,6 @@ impl<'a> Distributor<'a> {
             id: NEXT_ID.fetch_add(1, std::sync::atomic::Ordering::Relaxed),
             v: *v,
             opts: *opts,
-            back_share: match v.patch_back_hits {
-                Some(b) => b.iter().enumerate().map(|(p, &b)| b as f32 * share_and_area(v, opts, p).0).collect(),
-                None => Vec::new(),
-            },
             linked,
             use_buckets,
             in_base,
@@ -511,6 +551,7 @@ impl<'a> Distributor<'a> {
             exchanged_bytes: Default::default(),
             exchange_ns: Default::default(),
             exchanges: Default::default(),
+            spill: None,
         })
     }
 
@@ -546,11 +587,11 @@ impl<'a> Distributor<'a> {
     /// Gives the other members of the team what this one's receivers got
     /// (`recv`, `nb` slots a patch), and takes theirs: after it every
     /// member's `recv` is whole.
-    fn share_received(&self, recv: &mut [[f32; 4]]) {
+    fn share_received(&self, recv: &mut [[f32; 3]]) {
         let Some(t) = self.team.filter(|t| t.size() > 1) else { return };
         use std::sync::atomic::Ordering::Relaxed;
         let started = std::time::Instant::now();
-        let per_patch = self.nb * 4;
+        let per_patch = self.nb * 3;
         t.share_f32(bytemuck::cast_slice_mut(recv), &team::scaled(&self.parts, per_patch));
         let own = self.own_receivers().len();
         let bytes = ((self.v.patch_count() - own) * per_patch * 4) as u64;
@@ -563,7 +604,14 @@ impl<'a> Distributor<'a> {
     /// is kept that the surface tables give).
     #[inline]
     fn rho(&self, p: usize) -> [f32; 3] {
-        self.surface_reflectance[self.patch_surface[p] as usize]
+        self.surface_reflectance[self.patch_surface.of(p)]
+    }
+
+    /// The share of patch `p`'s power that meets back faces (`PBAK ·
+    /// share`; `None` for files without `PBAK`).
+    #[inline]
+    fn back_share(&self, p: usize) -> Option<f32> {
+        self.v.patch_back_hits.map(|b| b[p] as f32 * self.share(p))
     }
 
     /// Share of patch `p`'s power each of its link ends carries.
@@ -597,7 +645,7 @@ impl<'a> Distributor<'a> {
     ) -> Result<Solution, DistributeError> {
         let setup = self.setup(frame)?;
         let warm = warm::WarmStart::choose(self, &setup, frame, start);
-        let mut iteration = step::Iteration::new(self, &setup, warm, start);
+        let mut iteration = step::Iteration::new(self, &setup, warm, start)?;
         progress.start("distributing light", 0);
         while iteration.wants_step() {
             if progress.cancelled() {

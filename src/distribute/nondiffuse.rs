@@ -47,7 +47,7 @@
 use rayon::prelude::*;
 
 use super::kernels::{
-    BATCH, BLOCK, DirectionalSenders, LANES, Lanes, TableColumns, gather_table_columns, scatter_table_rows,
+    BATCH, BLOCK, DirectionalSenders, LANES, Lanes, StateRows, TableColumns, gather_table_columns, scatter_table_rows,
 };
 use crate::archive::{ArchiveError, Columns, InetView, LinkRows, ReflectanceView};
 
@@ -217,7 +217,7 @@ impl<'a> NonDiffuse<'a> {
 
     /// Adds what non-diffuse senders send along their directions to `recv`
     /// (bucketed as the main gather, `nb` buckets per patch).
-    pub fn gather_corrections(&self, nb: usize, use_buckets: bool, phi: &[[f32; 4]], recv: &mut [[f32; 4]]) {
+    pub fn gather_corrections(&self, nb: usize, use_buckets: bool, phi: &[[f32; 4]], recv: &mut [[f32; 3]]) {
         recv.par_chunks_mut(BLOCK * nb).enumerate().for_each(|(block, out)| {
             let first = block * BLOCK;
             for (i, r) in out.chunks_exact_mut(nb).enumerate() {
@@ -227,7 +227,7 @@ impl<'a> NonDiffuse<'a> {
                     let s = phi[corr.slot[e] as usize];
                     let w = corr.weight[e];
                     let slot = &mut r[if use_buckets { corr.bucket[e] as usize } else { 0 }];
-                    for c in 0..4 {
+                    for c in 0..3 {
                         slot[c] += w * s[c];
                     }
                 }
@@ -245,9 +245,9 @@ impl<'a> NonDiffuse<'a> {
     /// [`BATCH`] at a time: each table entry read is applied to all of them,
     /// so the table (megabytes) streams from memory once per batch instead
     /// of once per patch, and the inner loop is 24 independent lanes.
-    pub fn step(
+    pub fn step<S: StateRows + Sync>(
         &self,
-        shoot: &[[f32; 4]],
+        shoot: S,
         phi: &[[f32; 4]],
         extra: &ExtraEnds<'_>,
         phi_next: &mut [[f32; 4]],
@@ -273,7 +273,7 @@ impl<'a> NonDiffuse<'a> {
                     for b in 0..len {
                         let q = self.patches[first + b] as usize;
                         let mut add = |other: u32, w: f32, d: u32| {
-                            let mut s = shoot[other as usize];
+                            let mut s = shoot.row(other as usize);
                             let j = self.nd_of[other as usize];
                             if j != u32::MAX {
                                 let p = phi[self.slot(j, d ^ 1)];

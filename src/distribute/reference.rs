@@ -182,8 +182,8 @@ impl<'a> Balance<'a> {
         let direct = (0..n).map(|q| recv[q * buckets]).collect();
         let spread = match &self.rings {
             Some(r) => {
-                let wide: Vec<[f32; 4]> = recv.iter().map(|x| [x[0] as f32, x[1] as f32, x[2] as f32, 0.0]).collect();
-                let mut out = vec![[0.0f32; 4]; n];
+                let wide: Vec<[f32; 3]> = recv.iter().map(|x| x.map(|c| c as f32)).collect();
+                let mut out = vec![[0.0f32; 3]; n];
                 r.spread(&wide, buckets, &mut out);
                 out.iter().map(|x| [x[0] as f64, x[1] as f64, x[2] as f64]).collect()
             }

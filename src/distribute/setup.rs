@@ -18,7 +18,7 @@ pub(super) struct FrameSetup<'d> {
     pub surface_emission: Vec<[f32; 3]>,
     /// Each patch's surface (the distributor's), and its area: what a
     /// patch emits is its surface's, so nothing per patch is kept for it.
-    patch_surface: &'d [u32],
+    patch_surface: super::PatchSurfaces<'d>,
     patch_area: &'d [f32],
     /// The frame's link changes against frame 0 (sequences only).
     pub overlay: Option<Overlay>,
@@ -45,7 +45,7 @@ impl FrameSetup<'_> {
     pub fn emit(&self, p: usize) -> [f32; 3] {
         match self.presence.as_ref().is_some_and(|f| !f.patch(p)) {
             true => [0.0; 3],
-            false => self.surface_emission[self.patch_surface[p] as usize],
+            false => self.surface_emission[self.patch_surface.of(p)],
         }
     }
 
@@ -116,7 +116,7 @@ impl<'a> Distributor<'a> {
         let mut setup = FrameSetup {
             presence,
             surface_emission,
-            patch_surface: &self.patch_surface,
+            patch_surface: self.patch_surface,
             patch_area: v.patch_area,
             overlay,
             linked,

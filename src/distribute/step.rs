@@ -13,9 +13,11 @@
 
 use rayon::prelude::*;
 
-use super::anderson::{Anderson, PairMut, to_half};
-use super::kernels::{BLOCK, PackedRgb, add_ends, gather, silence_absent};
+use super::anderson::{Anderson, Half, to_half};
+use super::kernels::{BLOCK, PackedRgb, StateRows, add_ends, gather, silence_absent};
 use super::setup::FrameSetup;
+use super::spill::{BlockMut, PatchVec, scratch_error};
+use super::totals;
 use super::warm::{Carry, WarmStart};
 use super::{DirectionalRadiance, DistributeError, Distributor, EnergyBalance, Solution};
 use crate::archive::Columns;
@@ -39,7 +41,8 @@ struct Glossy {
     phi: Vec<[f32; 4]>,
     /// Whether `phi` is still to be shot.
     unsent: bool,
-    /// Per patch, `shoot` summed over the steps since the last table step.
+    /// Per patch, what it shot (`send · U_p/H_p`) summed over the steps
+    /// since the last table step.
     shot: Vec<[f32; 4]>,
     /// A bound on the power the arrivals since the last table step will
     /// reflect into directions: `k_s` times the largest albedo of the
@@ -64,17 +67,17 @@ pub(super) struct Iteration<'d, 'f, 's> {
     /// What this step sends: the residual itself, the warm guess first, or
     /// Anderson's mixed step.
     send: Vec<[f32; 3]>,
-    /// `send` per link end (`send · U_p/H_p`).
-    shoot: Vec<[f32; 4]>,
-    /// `shoot`'s RGB packed for the gather of frame 0's links.
+    /// `send` per link end (`send · U_p/H_p`), what the gathers read: RGB
+    /// packed, 12 bytes a patch.
     packed: PackedRgb,
     /// Received per patch and bucket.
-    recv: Vec<[f32; 4]>,
+    recv: Vec<[f32; 3]>,
     /// Received power over the iterations: what hit the patch itself
     /// (bucket 0, whose density follows the patch's hit count) and what
-    /// was spread onto it.
-    total_direct: Vec<[f32; 3]>,
-    total_spread: Vec<[f32; 3]>,
+    /// was spread onto it. Touched once per step, block by block: spilled
+    /// to a scratch file with the secant pairs under a tight budget.
+    total_direct: PatchVec<[f32; 3]>,
+    total_spread: PatchVec<[f32; 3]>,
     /// Totals over the iterations, for the next frame's sparse jump
     /// (diffuse sequences only; empty otherwise).
     carrying: bool,
@@ -97,9 +100,17 @@ pub(super) struct Iteration<'d, 'f, 's> {
 }
 
 impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
-    /// The state before the first step of frame `s`, started as `warm`.
-    pub fn new(d: &'d Distributor<'d>, s: &'f FrameSetup<'d>, warm: WarmStart<'s>, start: Option<&Solution>) -> Self {
+    /// The state before the first step of frame `s`, started as `warm`
+    /// (it fails only when a scratch file for the spilled state cannot be
+    /// made).
+    pub fn new(
+        d: &'d Distributor<'d>,
+        s: &'f FrameSetup<'d>,
+        warm: WarmStart<'s>,
+        start: Option<&Solution>,
+    ) -> Result<Self, DistributeError> {
         let n = d.v.patch_count();
+        let spill = d.spill.as_deref();
         let nb = d.nb;
         let carrying = d.nd.is_none() && d.v.sequence.is_some();
         // A warm start also starts from the previous frame's secant pairs:
@@ -107,7 +118,7 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
         // and its slowest mode is this frame's too.
         let anderson = match start {
             Some(st) if warm.first_send().is_some() && st.history.fits(n, d.opts.anderson_depth) => st.history.clone(),
-            _ => Anderson::new(if d.nd.is_none() || d.opts.defer_glossy { d.opts.anderson_depth } else { 0 }),
+            _ => Anderson::new_in(if d.nd.is_none() || d.opts.defer_glossy { d.opts.anderson_depth } else { 0 }, spill),
         };
         let glossy = d.nd.as_ref().map(|x| {
             let nn = x.patches.len() * x.n;
@@ -121,17 +132,17 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
                 pending: vec![[0.0; 3]; x.patches.len()],
             }
         });
-        Self {
+        let totals = || PatchVec::zeroed(n, spill).map_err(|e| scratch_error(spill, e));
+        Ok(Self {
             d,
             s,
             warm,
             unshot: (0..n).map(|p| rgb(s.emitted_power(p))).collect(),
             send: vec![[0.0; 3]; n],
-            shoot: vec![[0.0; 4]; n],
             packed: PackedRgb::new(n),
-            recv: vec![[0.0; 4]; n * nb],
-            total_direct: vec![[0.0; 3]; n],
-            total_spread: vec![[0.0; 3]; n],
+            recv: vec![[0.0; 3]; n * nb],
+            total_direct: totals()?,
+            total_spread: totals()?,
             carrying,
             sent_total: vec![[0.0; 3]; if carrying { n } else { 0 }],
             received_total: vec![[0.0; 3]; if carrying { n * nb } else { 0 }],
@@ -141,7 +152,7 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
             residual_total: s.emitted_total(),
             diffuse_residual: s.emitted_total(),
             last_mixed: false,
-        }
+        })
     }
 
     /// Whether the residual is within tolerance.
@@ -159,7 +170,7 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
     pub fn step(&mut self) -> Result<(), DistributeError> {
         let warm_jump = self.bal.iterations == 0 && self.warm.first_send().is_some();
         let converged = self.converged();
-        self.choose_send(warm_jump, converged);
+        self.choose_send(warm_jump, converged)?;
         self.last_mixed = !warm_jump && !converged && self.anderson.pairs() > 0;
         // Directional light shot this step does not come from `send`: the
         // step's change of the residual is no secant pair of the diffuse map.
@@ -178,7 +189,7 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
         // The step's secant pair, unless it mixed in light that `send`
         // did not make (the warm jump's, a table step's).
         let recording = !warm_jump && !injected;
-        self.reflect(recording);
+        self.reflect(recording)?;
         let previous_diffuse = std::mem::replace(&mut self.diffuse_residual, self.residual_total);
         self.reflect_directional();
         if let Some(g) = &self.glossy {
@@ -197,11 +208,14 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
 
     /// Sets `send`: the warm start's first send, the residual (a plain
     /// step), or Anderson's mix.
-    fn choose_send(&mut self, warm_jump: bool, converged: bool) {
+    fn choose_send(&mut self, warm_jump: bool, converged: bool) -> Result<(), DistributeError> {
         match self.warm.first_send() {
             Some(g) if warm_jump => self.send.iter_mut().zip(g).for_each(|(s, g)| *s = rgb(*g)),
             _ if converged => self.send.copy_from_slice(&self.unshot),
-            _ => self.anderson.step(&self.unshot, &mut self.send),
+            _ => {
+                let spill = self.d.spill.as_deref();
+                self.anderson.step(&self.unshot, &mut self.send).map_err(|e| scratch_error(spill, e))?
+            }
         }
         // A mixed step may hand absent patches (present in an earlier
         // frame of the history) something to send: they send nothing.
@@ -210,27 +224,27 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
                 *s = [0.0; 3];
             }
         }
+        Ok(())
     }
 
-    /// `shoot = send · share` per patch; the shares of ends that link
-    /// nowhere have escaped. Per-patch passes run in parallel blocks; their
-    /// sums are added in block order, so the result does not depend on the
-    /// threads.
+    /// `shoot = send · share` per patch (into `packed`); the shares of
+    /// ends that link nowhere have escaped. Per-patch passes run in
+    /// parallel blocks; their sums are added in block order, so the result
+    /// does not depend on the threads.
     fn shoot(&mut self) {
         let (d, linked, send) = (self.d, &self.s.linked, &self.send);
-        let back_share = &self.d.back_share;
         let lost: Vec<[[f64; 3]; 2]> = self
-            .shoot
-            .par_chunks_mut(BLOCK)
+            .packed
+            .blocks_mut()
             .enumerate()
             .map(|(block, out)| {
                 // [escaped, into back faces]
                 let mut sum = [[0.0f64; 3]; 2];
-                for (i, sh) in out.iter_mut().enumerate() {
+                for (i, sh) in out.chunks_exact_mut(3).enumerate() {
                     let p = block * BLOCK + i;
                     let s = d.share(p);
                     let unlinked = 1.0 - linked[p] * s as f64;
-                    let back = back_share.get(p).map_or(0.0, |&b| (b as f64).min(unlinked).max(0.0));
+                    let back = d.back_share(p).map_or(0.0, |b| (b as f64).min(unlinked).max(0.0));
                     for c in 0..3 {
                         sh[c] = send[p][c] * s;
                         sum[0][c] += send[p][c] as f64 * (unlinked - back);
@@ -298,10 +312,10 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
     fn gather_sparse(&mut self, c: &Carry) {
         let (nb, s) = (self.d.nb, self.s);
         for (r, t) in self.recv.iter_mut().zip(&c.received) {
-            *r = [t[0] as f32, t[1] as f32, t[2] as f32, 0.0];
+            *r = t.map(|c| c as f32);
         }
         if let Some(o) = &s.overlay {
-            add_ends(&o.gather, nb, &self.shoot, 1.0, None, &mut self.recv);
+            add_ends(&o.gather, nb, self.packed.rows(), 1.0, None, &mut self.recv);
         }
         if let Some(e) = &c.overlay {
             let shoot_e: Vec<[f32; 4]> = c
@@ -313,7 +327,7 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
                     [x[0] as f32 * s, x[1] as f32 * s, x[2] as f32 * s, 0.0]
                 })
                 .collect();
-            add_ends(e, nb, &shoot_e, -1.0, None, &mut self.recv);
+            add_ends(e, nb, &shoot_e[..], -1.0, None, &mut self.recv);
         }
         silence_absent(s.absent_mask(), nb, &mut self.recv);
         self.bal.ends_gathered += [s.overlay.as_ref().map(|o| &o.gather), c.overlay.as_ref()]
@@ -323,11 +337,11 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
             .sum::<u64>();
     }
 
-    /// Gathers `shoot` over frame 0's links into `recv`, window by window.
+    /// Gathers what patches shoot (`packed`) over frame 0's links into
+    /// `recv`, window by window.
     fn gather_base(&mut self, present: Option<&[bool]>) -> Result<(), DistributeError> {
         let (d, nb) = (self.d, self.d.nb);
-        self.packed.fill(&self.shoot);
-        let (shoot, recv) = ((&self.shoot[..], self.packed.rows()), &mut self.recv);
+        let (shoot, recv) = (self.packed.rows(), &mut self.recv);
         // Resident ends are one window, split over the workers; streamed
         // windows are each one worker's, unless fewer are held at once
         // than there are workers (few windows, or a budget with room for
@@ -371,7 +385,7 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
         // that made it.
         let nd_phi = d.nd.as_ref().zip(self.glossy.as_ref()).filter(|(_, g)| g.unsent).map(|(x, g)| (x, &g.phi[..]));
         if let Some(o) = &s.overlay {
-            add_ends(&o.gather, nb, &self.shoot, 1.0, nd_phi.map(|(x, phi)| x.senders(phi)), &mut self.recv);
+            add_ends(&o.gather, nb, self.packed.rows(), 1.0, nd_phi.map(|(x, phi)| x.senders(phi)), &mut self.recv);
         }
         if let Some((x, phi)) = nd_phi {
             x.gather_corrections(nb, d.use_buckets, phi, &mut self.recv);
@@ -384,10 +398,10 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
     /// Light that arrived at patch `p`'s rings in wide buckets, spread
     /// onto it (§3.4): computed where it is used, not kept.
     #[inline]
-    fn spread_onto(d: &Distributor<'_>, recv: &[[f32; 4]], p: usize) -> [f32; 4] {
+    fn spread_onto(d: &Distributor<'_>, recv: &[[f32; 3]], p: usize) -> [f32; 3] {
         match &d.rings {
             Some(rings) if d.use_buckets => rings.spread_onto(recv, d.nb, p),
-            _ => [0.0; 4],
+            _ => [0.0; 3],
         }
     }
 
@@ -417,8 +431,10 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
     fn reflect_directional(&mut self) {
         let (Some(x), Some(g)) = (self.d.nd.as_ref(), self.glossy.as_mut()) else { return };
         let nb = self.d.nb;
-        for (t, s) in g.shot.iter_mut().zip(&self.shoot) {
-            for c in 0..4 {
+        let shoot = self.packed.rows();
+        for (p, t) in g.shot.iter_mut().enumerate() {
+            let s = shoot.row(p);
+            for c in 0..3 {
                 t[c] += s[c];
             }
         }
@@ -436,7 +452,7 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
         }
         g.waiting = 0.0;
         let overlay_ends = overlay_ends(self.s);
-        let totals = x.step(&g.shot, &g.phi, &overlay_ends, &mut g.phi_next);
+        let totals = x.step(&g.shot[..], &g.phi, &overlay_ends, &mut g.phi_next);
         std::mem::swap(&mut g.phi, &mut g.phi_next);
         g.shot.fill([0.0; 4]);
         g.unsent = true;
@@ -480,51 +496,70 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
     /// When `recording`, the step's secant pair (the change of the
     /// residual, and what was reflected) goes straight into Anderson's
     /// history.
-    fn reflect(&mut self, recording: bool) {
+    fn reflect(&mut self, recording: bool) -> Result<(), DistributeError> {
         let (d, nb, n) = (self.d, self.d.nb, self.unshot.len());
         let (recv, send) = (&self.recv, &self.send);
-        // Per block of patches, its part of the pair's two vectors.
-        let slots: Vec<Option<PairMut<'_>>> = match recording.then(|| self.anderson.slot(n)).flatten() {
-            Some((df, kdx)) => df.chunks_mut(BLOCK).zip(kdx.chunks_mut(BLOCK)).map(Some).collect(),
+        let spill = d.spill.as_deref();
+        let fail = |e| scratch_error(spill, e);
+        // Per block of patches, its part of the pair's two vectors, and of
+        // the totals.
+        let slot = match recording {
+            true => self.anderson.slot(n).map_err(fail)?,
+            false => None,
+        };
+        type Pair<'a> = Option<(BlockMut<'a, [Half; 3]>, BlockMut<'a, [Half; 3]>)>;
+        let pairs: Vec<Pair<'_>> = match slot {
+            Some((df, kdx)) => df.blocks_mut(BLOCK).into_iter().zip(kdx.blocks_mut(BLOCK)).map(Some).collect(),
             None => (0..n.div_ceil(BLOCK)).map(|_| None).collect(),
         };
-        let sums: Vec<([f64; 3], f64)> = (
-            self.total_direct.par_chunks_mut(BLOCK),
-            self.total_spread.par_chunks_mut(BLOCK),
-            slots.into_par_iter(),
-            self.unshot.par_chunks_mut(BLOCK),
-        )
+        let totals: Vec<_> =
+            self.total_direct.blocks_mut(BLOCK).into_iter().zip(self.total_spread.blocks_mut(BLOCK)).collect();
+        let sums: Result<Vec<([f64; 3], f64)>, std::io::Error> = (totals, pairs, self.unshot.par_chunks_mut(BLOCK))
             .into_par_iter()
             .enumerate()
-            .map(|(block, (td, ts, mut slot, un))| {
+            .map_init(Buffers::default, |b, (block, ((mut td, mut ts), mut pair, un))| {
                 let (mut absorbed, mut residual) = ([0.0f64; 3], 0.0f64);
-                for i in 0..td.len() {
-                    let p = block * BLOCK + i;
-                    let (rho, spread) = (d.rho(p), Self::spread_onto(d, recv, p));
-                    for c in 0..3 {
-                        let direct = recv[p * nb][c];
-                        let r = direct + spread[c];
-                        td[i][c] += direct;
-                        ts[i][c] += spread[c];
-                        let reflected = r * rho[c];
-                        if let Some((df, kdx)) = slot.as_mut() {
-                            df[i][c] = to_half(reflected - send[p][c]);
-                            kdx[i][c] = to_half(reflected);
+                {
+                    let (tdv, tsv) = (td.open(true, &mut b.direct)?, ts.open(true, &mut b.spread)?);
+                    let mut out = match pair.as_mut() {
+                        Some((df, kdx)) => Some((df.open(false, &mut b.df)?, kdx.open(false, &mut b.kdx)?)),
+                        None => None,
+                    };
+                    for i in 0..tdv.len() {
+                        let p = block * BLOCK + i;
+                        let (rho, spread) = (d.rho(p), Self::spread_onto(d, recv, p));
+                        for c in 0..3 {
+                            let direct = recv[p * nb][c];
+                            let r = direct + spread[c];
+                            tdv[i][c] += direct;
+                            tsv[i][c] += spread[c];
+                            let reflected = r * rho[c];
+                            if let Some((df, kdx)) = out.as_mut() {
+                                df[i][c] = to_half(reflected - send[p][c]);
+                                kdx[i][c] = to_half(reflected);
+                            }
+                            un[i][c] = un[i][c] - send[p][c] + reflected;
+                            absorbed[c] += (r - reflected) as f64;
+                            residual += un[i][c].abs() as f64;
                         }
-                        un[i][c] = un[i][c] - send[p][c] + reflected;
-                        absorbed[c] += (r - reflected) as f64;
-                        residual += un[i][c].abs() as f64;
                     }
                 }
-                (absorbed, residual)
+                td.close(&b.direct)?;
+                ts.close(&b.spread)?;
+                if let Some((df, kdx)) = &pair {
+                    df.close(&b.df)?;
+                    kdx.close(&b.kdx)?;
+                }
+                Ok((absorbed, residual))
             })
             .collect();
-        for (a, r) in &sums {
+        for (a, r) in &sums.map_err(fail)? {
             for c in 0..3 {
                 self.bal.absorbed[c] += a[c];
             }
             self.residual_total += r;
         }
+        Ok(())
     }
 
     /// Per patch, the radiance of the emitted light reflected once,
@@ -536,13 +571,16 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
         let (d, s, nb) = (self.d, self.s, self.d.nb);
         let v = &d.v;
         let present = s.absent_mask();
-        for (p, sh) in self.shoot.iter_mut().enumerate() {
-            let (e, k) = (s.emitted_power(p), d.share(p));
-            *sh = [e[0] * k, e[1] * k, e[2] * k, 0.0];
-        }
+        self.packed.blocks_mut().enumerate().for_each(|(block, out)| {
+            for (i, sh) in out.chunks_exact_mut(3).enumerate() {
+                let p = block * BLOCK + i;
+                let (e, k) = (s.emitted_power(p), d.share(p));
+                sh.copy_from_slice(&[e[0] * k, e[1] * k, e[2] * k]);
+            }
+        });
         self.gather_base(present)?;
         if let Some(o) = &s.overlay {
-            add_ends(&o.gather, nb, &self.shoot, 1.0, None, &mut self.recv);
+            add_ends(&o.gather, nb, self.packed.rows(), 1.0, None, &mut self.recv);
         }
         self.first_bounce_directional();
         let (inv_pi, recv) = (1.0 / std::f32::consts::PI, &self.recv);
@@ -559,7 +597,7 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
     }
 
     /// The directional part of [`Self::first_bounce`]: non-diffuse
-    /// patches reflect the emitted light (in `shoot`, with nothing
+    /// patches reflect the emitted light (in `packed`, with nothing
     /// directional arriving) through their tables into `phi_next`, the
     /// per-ray power of their direct highlights. Called after the loop,
     /// when `phi` and `phi_next` are spare.
@@ -567,7 +605,7 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
         let (Some(x), Some(g)) = (self.d.nd.as_ref(), self.glossy.as_mut()) else { return };
         let overlay_ends = overlay_ends(self.s);
         g.phi.fill([0.0; 4]);
-        x.step(&self.shoot, &g.phi, &overlay_ends, &mut g.phi_next);
+        x.step(self.packed.rows(), &g.phi, &overlay_ends, &mut g.phi_next);
         if let Some(present) = self.s.absent_mask() {
             for (k, &q) in x.patches.iter().enumerate() {
                 if !present[q as usize] {
@@ -582,8 +620,6 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
     /// start reuses.
     pub fn finish(mut self, frame: u32) -> Result<Solution, DistributeError> {
         let (d, s) = (self.d, self.s);
-        let v = &d.v;
-        let n = v.patch_count();
         let mut bal = self.bal;
         for u in &self.unshot {
             for c in 0..3 {
@@ -605,32 +641,26 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
         self.send = Vec::new();
         let history = std::mem::replace(&mut self.anderson, Anderson::new(0));
         let history = if d.v.sequence.is_some() { history } else { Anderson::new(0) };
-        let (total_direct, total_spread) = (&self.total_direct, &self.total_spread);
-        let inv_pi = 1.0 / std::f32::consts::PI;
-        let radiance: Vec<[f32; 3]> = (0..n)
-            .map(|p| {
-                let (area_eff, rho, emit) = (d.area_eff(p), d.rho(p), s.emit(p));
-                let kd = if area_eff > 0.0 { inv_pi / area_eff } else { 0.0 };
-                let ks = if v.patch_area[p] > 0.0 { inv_pi / v.patch_area[p] } else { 0.0 };
-                [0, 1, 2].map(|c| emit[c] + rho[c] * (total_direct[p][c] * kd + total_spread[p][c] * ks))
-            })
-            .collect();
-        let received: Vec<[f32; 3]> =
-            (0..n).map(|p| [0, 1, 2].map(|c| total_direct[p][c] + total_spread[p][c])).collect();
-        let residual = self
-            .unshot
-            .iter()
-            .zip(&received)
-            .map(|(u, r)| {
-                let got = r[0] + r[1] + r[2];
-                if got > 0.0 { (u[0].abs() + u[1].abs() + u[2].abs()) / got } else { 0.0 }
-            })
-            .collect();
-        (self.total_direct, self.total_spread, self.unshot) = (Vec::new(), Vec::new(), Vec::new());
+        // The first bounce first, in the loop's gather buffers, which are
+        // then freed; then received power and the residual, which free
+        // the unshot power; the radiance last: the solution is made in the
+        // room the loop's vectors leave, never beside all of them. The
+        // totals are read a block at a time (back from the scratch file
+        // when spilled).
         let direct = match d.opts.split_direct {
             true => Some(self.first_bounce()?),
             false => None,
         };
+        // The first bounce's highlights are in `phi_next`: the gather's
+        // buffers are done.
+        (self.packed, self.recv) = (PackedRgb::default(), Vec::new());
+        let fail = |e| scratch_error(d.spill.as_deref(), e);
+        let totals = (&self.total_direct, &self.total_spread);
+        let (received, residual) = totals::received_and_residual(&self.unshot, totals).map_err(fail)?;
+        self.unshot = Vec::new();
+        let totals = (&self.total_direct, &self.total_spread);
+        let radiance = totals::radiance(d, s, totals).map_err(fail)?;
+        (self.total_direct, self.total_spread) = (PatchVec::Memory(Vec::new()), PatchVec::Memory(Vec::new()));
         let directional = d.nd.as_ref().zip(self.glossy.as_mut()).map(|(x, g)| {
             // `first_bounce` left the highlights' per-ray power in phi_next.
             let direct = match direct {
@@ -677,6 +707,15 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
             frame,
         })
     }
+}
+
+/// One worker's buffers for the blocks of spilled vectors.
+#[derive(Default)]
+struct Buffers {
+    direct: Vec<[f32; 3]>,
+    spread: Vec<[f32; 3]>,
+    df: Vec<[Half; 3]>,
+    kdx: Vec<[Half; 3]>,
 }
 
 /// The RGB lanes of a four-lane row.

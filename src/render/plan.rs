@@ -15,7 +15,7 @@
 use std::fmt;
 
 use crate::archive::{ArchiveSummary, CHUNK_ENDS, layout::tag};
-use crate::distribute::memory::{StateShape, kept_patch_bytes, patch_bytes, state_bytes};
+use crate::distribute::memory::{StateShape, kept_patch_bytes, patch_bytes, spilled_bytes, state_bytes};
 use crate::memory::{Bytes, MemoryBudget};
 
 /// Bytes per link end a window's buffers hold for the columns (`LOTH`,
@@ -90,6 +90,13 @@ pub struct MemoryPlan {
     pub parts: Vec<(&'static str, u64)>,
     /// The archive's patches (for the per-patch figures the plan states).
     pub patches: u64,
+    /// Whether the distribution keeps its secant pairs and received totals
+    /// in scratch files (beside the output) instead of memory: where the
+    /// budget has no room for them (`Distributor::spill_in`).
+    pub spill: bool,
+    /// Bytes those scratch files hold at most (on disk, in the page cache:
+    /// not counted in the parts).
+    pub spilled_bytes: u64,
 }
 
 /// Bytes of some parts in all.
@@ -117,6 +124,9 @@ impl fmt::Display for MemoryPlan {
             write!(f, "{}{name} {}", if i > 0 { ", " } else { "" }, Bytes(*b))?;
             if *name == DISTRIBUTION && self.patches > 0 {
                 write!(f, ", {} bytes a patch", b / self.patches)?;
+                if self.spill {
+                    write!(f, "; its secant pairs and totals, {}, in a scratch file", Bytes(self.spilled_bytes))?;
+                }
             }
         }
         write!(f, "; {} bytes a patch in all)", self.total() / self.patches.max(1))?;
@@ -173,8 +183,9 @@ impl fmt::Display for BudgetError {
 impl std::error::Error for BudgetError {}
 
 /// The distribution's state for the archive `s` summarises at its peak,
-/// and what of it is still held once a frame is solved.
-fn distribution_bytes(s: &ArchiveSummary, job: &RenderJob) -> (u64, u64) {
+/// what of it is still held once a frame is solved, and what it keeps in
+/// scratch files when `spill`.
+fn distribution_bytes(s: &ArchiveSummary, job: &RenderJob, spill: bool) -> (u64, u64, u64) {
     let b = &s.build;
     let (p, e) = (b.patch_count as u64, b.link_end_count);
     let nd = s.section_count(tag::NONDIFFUSE_PATCHES);
@@ -189,10 +200,15 @@ fn distribution_bytes(s: &ArchiveSummary, job: &RenderJob) -> (u64, u64) {
         // Entries (u32) and factors (f32), as records: the sections may be compressed.
         table_bytes: 4 * (s.section_count(tag::PROTOTYPE_DIRECTIONS) + s.section_count(tag::PROTOTYPE_FACTORS)),
         max_delta_records: s.max_delta_records,
+        spill,
     };
     let peak = state_bytes(&shape);
-    // Glossy light and a sequence's overlays are held throughout.
-    (peak, peak - p * (patch_bytes(&shape) - kept_patch_bytes(&shape)))
+    // Glossy light and a sequence's overlays are held throughout. A
+    // render's last frame frees the received power no later frame starts
+    // from (`Solution::release_warm_start`): a still's only frame.
+    let released = if job.frames == 1 && !shape.sequence { 12 * p } else { 0 };
+    let kept = peak - p * (patch_bytes(&shape) - kept_patch_bytes(&shape)) - released;
+    (peak, kept, spilled_bytes(&shape))
 }
 
 /// The renderer's own memory: images, primitives and their BVH (the
@@ -204,9 +220,16 @@ fn renderer_bytes(s: &ArchiveSummary, job: &RenderJob) -> (u64, u64) {
     // Per pixel: the image and its direct part (12 each), the encoded
     // PNG and EXR rows, the shading passes' per-pixel flags and samples.
     let images = pixels * 64 + if job.keep_images { pixels * 12 * job.frames as u64 } else { 0 };
-    // Vertex radiance (interpolated, the gather's) and the f64 sums that
-    // make it; patch radiance and the gather's per-patch reflected light.
-    let radiance = b.vertex_count as u64 * (12 * 4 + 32) + b.patch_count as u64 * 12 * 4;
+    // Radiance, made once the light is solved, at its larger of two
+    // moments (`render::direct::gather`, `render::shade`): the gather's
+    // per-patch reflected light and its direct-free copy (12 each) while
+    // its vertex light is made from them (12 a vertex, and f64 sums for at
+    // most 2¹⁷ vertices at a time, `render::vertex`); then the view's patch
+    // radiance (12) and the gather's vertex light (12) while the view's
+    // vertex radiance is made (12, and the sums).
+    let (p, v) = (b.patch_count as u64, b.vertex_count as u64);
+    let sums = v.min(1 << 17) * 32;
+    let radiance = (24 * p + 12 * v).max(12 * p + 24 * v) + sums;
     let primitives = b.primitive_count as u64 * 320;
     (images + primitives, radiance)
 }
@@ -217,9 +240,27 @@ const DISTRIBUTION: &str = "distribution";
 /// The part of a plan that the image size and samples set.
 const IMAGES: &str = "images and radiance";
 
-/// Plans rendering `job` from the archive `s` summarises within `budget`.
+/// Plans rendering `job` from the archive `s` summarises within `budget`:
+/// the archive mapped whole, else its link ends streamed, else streamed
+/// with the distribution's secant pairs and totals spilled to scratch
+/// files; or, when none fits, what the last would need.
 pub fn plan(s: &ArchiveSummary, job: &RenderJob, budget: MemoryBudget) -> Result<MemoryPlan, BudgetError> {
-    let (distribution, kept) = distribution_bytes(s, job);
+    let mut plan = plan_with(s, job, budget, false);
+    if plan.is_err() {
+        plan = plan_with(s, job, budget, true);
+    }
+    plan
+}
+
+/// [`plan`] with the distribution spilling (`spill`) or not, as the
+/// caller decides.
+pub fn plan_with(
+    s: &ArchiveSummary,
+    job: &RenderJob,
+    budget: MemoryBudget,
+    spill: bool,
+) -> Result<MemoryPlan, BudgetError> {
+    let (distribution, kept, spilled_bytes) = distribution_bytes(s, job, spill);
     let (images, radiance) = renderer_bytes(s, job);
     // A single frame's radiance is made in the room its distribution's
     // loop left (`distribute::memory`): the peak is the larger of the two
@@ -230,6 +271,12 @@ pub fn plan(s: &ArchiveSummary, job: &RenderJob, budget: MemoryBudget) -> Result
         _ => 0,
     };
     let renderer = images + radiance - reused;
+    // Streamed, a single frame's link windows are freed before it is
+    // shaded (`release_buffers`): its radiance is made in their room too.
+    let shading = |windows: u64| match job.frames {
+        1 => images + (kept + radiance).saturating_sub(distribution + windows),
+        _ => renderer,
+    };
     let pixels = job.width as u64 * job.height as u64;
     // The cache pays off only when a later frame reuses the samples.
     let cache = match job.frames > 1 {
@@ -243,8 +290,9 @@ pub fn plan(s: &ArchiveSummary, job: &RenderJob, budget: MemoryBudget) -> Result
         parts
     };
     let fits = |parts: &[(&'static str, u64)]| sum(parts) <= budget.bytes;
-    // Mapped whole, with the cache, then without.
-    for cache in [cache, 0] {
+    // Mapped whole, with the cache, then without (never spilling: a budget
+    // with no room for the state has none for the mapped archive).
+    for cache in [cache, 0].into_iter().filter(|_| !spill) {
         let parts = with(vec![("archive (mapped)", s.file_length), ("sample cache", cache)]);
         if fits(&parts) {
             return Ok(MemoryPlan {
@@ -254,6 +302,8 @@ pub fn plan(s: &ArchiveSummary, job: &RenderJob, budget: MemoryBudget) -> Result
                 budget,
                 parts,
                 patches,
+                spill,
+                spilled_bytes,
             });
         }
     }
@@ -274,17 +324,19 @@ pub fn plan(s: &ArchiveSummary, job: &RenderJob, budget: MemoryBudget) -> Result
     let per_end = WINDOW_BYTES_PER_END + (16 * runs).div_ceil(ends.max(1)).min(8);
     let one_window = |w: u64| (w + 2 * CHUNK_ENDS as u64) * per_end;
     const WINDOWS: &str = "link windows";
-    let base = with(vec![("archive sections held", held)]);
-    let base_total = sum(&base);
-    let least = {
+    let base = vec![("archive sections held", held), (DISTRIBUTION, distribution)];
+    let with_windows = |windows: u64| {
         let mut parts = base.clone();
-        parts.push((WINDOWS, 2 * one_window(MIN_WINDOW_ENDS)));
+        parts.extend([(IMAGES, shading(windows)), (WINDOWS, windows)]);
         parts
     };
+    let least = with_windows(2 * one_window(MIN_WINDOW_ENDS));
     if !fits(&least) {
         return Err(BudgetError { budget, parts: least });
     }
-    let room = budget.bytes - base_total;
+    // The room for windows and the cache, as if the shading reused none of
+    // it (so that any windows chosen fit).
+    let room = budget.bytes.saturating_sub(sum(&base) + shading(0));
     // The cache only where it leaves room for the largest windows, one
     // per worker (so on many cores the cache needs a larger budget: 250
     // MB of windows on 64).
@@ -292,9 +344,8 @@ pub fn plan(s: &ArchiveSummary, job: &RenderJob, budget: MemoryBudget) -> Result
     let in_flight = ((room - cache) / one_window(MIN_WINDOW_ENDS)).clamp(2, workers);
     let per_window = (room - cache) / (in_flight * per_end);
     let window = per_window.saturating_sub(2 * CHUNK_ENDS as u64).clamp(MIN_WINDOW_ENDS, MAX_WINDOW_ENDS);
-    let mut parts = base;
-    parts.push((WINDOWS, in_flight * one_window(window)));
+    let mut parts = with_windows(in_flight * one_window(window));
     parts.push(("sample cache", cache));
     let access = LinkAccess::Streamed { window_ends: window as usize, in_flight: in_flight as usize };
-    Ok(MemoryPlan { access, cache_bytes: cache, frames: job.frames, budget, parts, patches })
+    Ok(MemoryPlan { access, cache_bytes: cache, frames: job.frames, budget, parts, patches, spill, spilled_bytes })
 }

@@ -26,25 +26,54 @@ pub fn vertex_radiance_seen(v: &InetView<'_>, patch_radiance: &[[f32; 3]]) -> Ve
     })
 }
 
+/// Vertices whose sums are held at once (32 bytes each: 4 MiB), so that
+/// a mesh of millions of vertices does not hold a sum for every one of
+/// them beside the radiance it makes: each block of vertices is one pass
+/// over the patches, the sums of a vertex added in the same order
+/// whatever the block.
+const SUMS_HELD: usize = 1 << 17;
+
 /// Mean of the patches' radiance at each vertex, weighted by the area
 /// each patch (or grouped triangle) has at it times `seen(patch)`.
 fn vertex_mean(v: &InetView<'_>, patch_radiance: &[[f32; 3]], seen: impl Fn(usize) -> f64) -> Vec<[f32; 3]> {
-    let mut sum = vec![[0.0f64; 4]; v.vertex_position.len()];
-    let mut add = |corners: &[u32], p: usize, a: f64| {
-        for &c in corners.iter().filter(|&&c| c != NO_VERTEX) {
-            let s = &mut sum[c as usize];
-            for k in 0..3 {
-                s[k] += a * patch_radiance[p][k] as f64;
+    let vertices = v.vertex_position.len();
+    let mut out = vec![[0.0f32; 3]; vertices];
+    let incident = grouped_incidence(v);
+    let mut sum = vec![[0.0f64; 4]; vertices.min(SUMS_HELD)];
+    for first in (0..vertices).step_by(SUMS_HELD) {
+        let held = first..(first + SUMS_HELD).min(vertices);
+        let sum = &mut sum[..held.len()];
+        sum.fill([0.0; 4]);
+        // Grouped patches have no corners of their own (PCOR is all NO_VERTEX).
+        for (p, corners) in v.patch_corners.iter().enumerate() {
+            let a = v.patch_area[p] as f64 * seen(p);
+            for &c in corners.iter().filter(|&&c| c != NO_VERTEX && held.contains(&(c as usize))) {
+                let s = &mut sum[c as usize - first];
+                for k in 0..3 {
+                    s[k] += a * patch_radiance[p][k] as f64;
+                }
+                s[3] += a;
             }
-            s[3] += a;
         }
-    };
-    // Grouped patches have no corners of their own (PCOR is all NO_VERTEX).
-    for (p, corners) in v.patch_corners.iter().enumerate() {
-        add(corners, p, v.patch_area[p] as f64 * seen(p));
+        grouped_vertex_mean(v, patch_radiance, &seen, &incident, held.clone(), sum);
+        for (o, s) in out[held].iter_mut().zip(sum.iter()) {
+            *o = if s[3] > 0.0 { [0, 1, 2].map(|k| (s[k] / s[3]) as f32) } else { [0.0; 3] };
+        }
     }
-    grouped_vertex_mean(v, patch_radiance, &seen, &mut sum);
-    sum.iter().map(|s| if s[3] > 0.0 { [0, 1, 2].map(|k| (s[k] / s[3]) as f32) } else { [0.0; 3] }).collect()
+    out
+}
+
+/// Each grouped triangle's corners with its group, sorted by vertex.
+fn grouped_incidence(v: &InetView<'_>) -> Vec<(u32, u32)> {
+    let mut incident: Vec<(u32, u32)> = v
+        .primitives
+        .iter()
+        .filter(|r| r.kind == layout::kind::GROUPED_TRIANGLE)
+        .flat_map(|r| v.grouped_triangles[r.first_vertex as usize].map(|c| (c, r.first_patch)))
+        .collect();
+    incident.sort_unstable();
+    incident.dedup();
+    incident
 }
 
 /// The vertices of grouped triangles (§5.8 of the format): a smooth field
@@ -57,19 +86,15 @@ fn grouped_vertex_mean(
     v: &InetView<'_>,
     patch_radiance: &[[f32; 3]],
     seen: &dyn Fn(usize) -> f64,
+    incident: &[(u32, u32)],
+    held: std::ops::Range<usize>,
     sum: &mut [[f64; 4]],
 ) {
     let grouped = |q: u32| v.primitives[v.patch_primitive[q as usize] as usize].kind == layout::kind::GROUPED_TRIANGLE;
-    let mut incident: Vec<(u32, u32)> = v
-        .primitives
-        .iter()
-        .filter(|r| r.kind == layout::kind::GROUPED_TRIANGLE)
-        .flat_map(|r| v.grouped_triangles[r.first_vertex as usize].map(|c| (c, r.first_patch)))
-        .collect();
-    incident.sort_unstable();
-    incident.dedup();
+    let from = incident.partition_point(|x| (x.0 as usize) < held.start);
+    let to = incident.partition_point(|x| (x.0 as usize) < held.end);
     let mut near: Vec<u32> = Vec::new();
-    for run in incident.chunk_by(|a, b| a.0 == b.0) {
+    for run in incident[from..to].chunk_by(|a, b| a.0 == b.0) {
         let vertex = run[0].0 as usize;
         near.clear();
         for &(_, g) in run {
@@ -80,7 +105,7 @@ fn grouped_vertex_mean(
         near.sort_unstable();
         near.dedup();
         let x = Vec3::from(v.vertex_position[vertex]).as_dvec3();
-        let s = &mut sum[vertex];
+        let s = &mut sum[vertex - held.start];
         for &g in &near {
             let g = g as usize;
             let area = v.patch_area[g] as f64;

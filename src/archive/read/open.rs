@@ -113,14 +113,19 @@ impl Archive {
         let (file, _) = crate::limits::open_regular(path, u64::MAX).map_err(io)?;
         let source = super::fingerprint::Source::new(file.try_clone().map_err(io)?, path)?;
         let (header, entries) = read_structure(&file, path)?;
-        let mut words = Vec::new();
-        let mut spans = Vec::new();
         // The link columns and `DELT` stay on disk; the stream holds `LCNX`
         // itself.
         let on_disk = |t: Tag| LINK_COLUMNS.contains(&t) || t == tag::LINK_ESCAPES || t == tag::DELTAS;
-        for e in entries.iter().filter(|e| !on_disk(e.tag)) {
-            let at = words.len() * 8;
-            words.resize(words.len() + (e.stored_length as usize).div_ceil(8), 0u64);
+        let held = || entries.iter().filter(|e| !on_disk(e.tag));
+        // Allocated once at its size: a vector grown section by section
+        // would hold its old and new buffers at once at each doubling.
+        let total: usize = held().map(|e| (e.stored_length as usize).div_ceil(8)).sum();
+        let mut words = vec![0u64; total];
+        let mut spans = Vec::new();
+        let mut next = 0;
+        for e in held() {
+            let at = next * 8;
+            next += (e.stored_length as usize).div_ceil(8);
             let buf = &mut bytemuck::cast_slice_mut::<u64, u8>(&mut words)[at..at + e.stored_length as usize];
             stream_read(&file, buf, e.offset).map_err(io)?;
             check_sum(e, buf)?;

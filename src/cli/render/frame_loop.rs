@@ -56,18 +56,29 @@ pub fn render_frames(
         }
         // A walkthrough of a still archive solves the light once.
         let reuse = setup.frames.still_walk && previous.is_some();
-        let solution = match previous.take() {
+        let mut solution = match previous.take() {
             Some(p) if reuse => p,
             p => {
                 let start = if args.cold { None } else { p.as_ref() };
                 illumnet::scratch::pause_point("distribute");
                 let solution = setup.distributor.frame(af, start, progress)?;
+                // The loop's vectors and link windows, freed, are the room
+                // the shading's are made in (the memory plan counts them
+                // once).
+                if let Some(stream) = setup.archive.link_stream() {
+                    stream.release_buffers();
+                }
+                crate::return_freed_memory();
                 // Light from a file cut short or rewritten under the pass
                 // is refused (a mapped one's bytes change unseen).
                 setup.archive.check_unchanged()?;
                 solution
             }
         };
+        if f + 1 >= setup.frames.range.end {
+            // No frame starts from the last one's light.
+            solution.release_warm_start();
+        }
         if !leader {
             // The other members of an MPI job solve the light with rank 0
             // (every frame's collectives) and leave the rest to it.

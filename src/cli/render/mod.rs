@@ -271,7 +271,13 @@ pub fn render(
     let mut lighting = distribute::Lighting::from_view(&view);
     relight::relight(&mut lighting, &archive, sets)?;
     let t_s = Instant::now();
-    let distributor = distribute::Distributor::new_in(&view, &opts, &lighting, extras.team)?;
+    let mut distributor = distribute::Distributor::new_in(&view, &opts, &lighting, extras.team)?;
+    if memory.spill {
+        // Beside the images: where the user has room for outputs (a system
+        // temporary directory may be memory).
+        let out = frame_plan.out_path(png, frame_plan.range.start)?;
+        distributor = distributor.spill_in(illumnet::scratch::dir_of(&out));
+    }
     let t_setup = t_s.elapsed().as_secs_f64();
     let edge_samples = options::edge_samples(&args, sequence_output);
     let render_opts = RenderOptions { samples_per_axis: args.samples, edge_samples_per_axis: edge_samples };

@@ -50,6 +50,8 @@ pub fn open_within_budget(
     };
     progress.finish();
     let archive = archive?;
+    // The checks' buffers, freed, are not held through the render.
+    crate::return_freed_memory();
     if let Some(stream) = archive.link_stream() {
         stream.evict_each_pass(args.evict_each_pass);
         if let plan::LinkAccess::Streamed { in_flight, .. } = memory.access {
