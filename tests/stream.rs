@@ -188,6 +188,7 @@ fn the_least_a_streamed_render_needs_does_not_grow_with_the_cores() {
         anderson_depth: 5,
         buckets: true,
         threads,
+        keeps_solving: false,
     };
     let budget = |bytes| MemoryBudget { bytes, source: BudgetSource::Given };
     // The least, from the refusal of a budget far too small: the same on

@@ -176,6 +176,7 @@ pub fn code(err: &anyhow::Error) -> u8 {
                 DistributeError::Archive(a) => archive_code(a),
                 DistributeError::TooLarge(_) | DistributeError::Unsupported(_) | DistributeError::Cancelled => FAILURE,
                 DistributeError::NotFinite { .. } => RESULT,
+                DistributeError::Scratch { .. } => IO,
                 _ => BAD_INPUT,
             };
         }

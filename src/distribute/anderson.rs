@@ -79,14 +79,11 @@ pub struct Anderson {
 
 /// The history, without the spare buffers. A spilled history is copied to
 /// new scratch files; one that cannot be (the disk full) is dropped: it
-/// only steers the steps, and the next write to the directory fails the
-/// distribution with the system's error.
+/// only steers the steps. The distribution itself copies a history with
+/// [`Anderson::try_clone`], which says so instead.
 impl Clone for Anderson {
     fn clone(&self) -> Self {
-        let pairs: std::io::Result<VecDeque<Pair>> =
-            self.pairs.iter().map(|(a, b)| Ok((a.try_clone()?, b.try_clone()?))).collect();
-        let pairs = pairs.unwrap_or_default();
-        Self { depth: self.depth, pairs, pending: None, spare: Vec::new(), spill: self.spill.clone() }
+        self.try_clone().unwrap_or_else(|_| Self::new_in(self.depth, self.spill.as_deref()))
     }
 }
 
@@ -113,6 +110,14 @@ impl Anderson {
         let depth = depth.min(MAX_DEPTH);
         let spill = spill.map(Path::to_path_buf);
         Self { depth, pairs: VecDeque::with_capacity(depth + 1), pending: None, spare: Vec::new(), spill }
+    }
+
+    /// The history, without the spare buffers: a spilled one copied to new
+    /// scratch files (which can fail, the disk full).
+    pub fn try_clone(&self) -> std::io::Result<Self> {
+        let pairs =
+            self.pairs.iter().map(|(a, b)| Ok((a.try_clone()?, b.try_clone()?))).collect::<std::io::Result<_>>()?;
+        Ok(Self { depth: self.depth, pairs, pending: None, spare: Vec::new(), spill: self.spill.clone() })
     }
 
     /// Whether this history can steer a problem of `n` patches with `depth`

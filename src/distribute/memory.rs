@@ -136,8 +136,11 @@ pub fn state_bytes(s: &StateShape) -> u64 {
     // Glossy: per ray slot two [f32; 4] vectors and the running radiance
     // (12), rays, linked, incoming scale (at most 12); the directional
     // radiance of two solutions and its direct part; the copied ends; the
-    // transposed tables.
-    let glossy = s.nondiffuse_slots * (2 * 16 + 12 + 4 + 4 + 12 + 2 * 2 * 12) + s.nondiffuse_ends * 12 + s.table_bytes;
+    // transposed tables; and per patch what it shot since the last table
+    // step ([f32; 4], 16).
+    let shot = if s.nondiffuse_slots > 0 { p * 16 } else { 0 };
+    let glossy =
+        s.nondiffuse_slots * (2 * 16 + 12 + 4 + 4 + 12 + 2 * 2 * 12) + s.nondiffuse_ends * 12 + s.table_bytes + shot;
     p * patch_bytes(s) + overlay + glossy
 }
 

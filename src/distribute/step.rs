@@ -117,7 +117,9 @@ impl<'d, 'f, 's> Iteration<'d, 'f, 's> {
         // its operator differs a little, but the pairs only steer the step,
         // and its slowest mode is this frame's too.
         let anderson = match start {
-            Some(st) if warm.first_send().is_some() && st.history.fits(n, d.opts.anderson_depth) => st.history.clone(),
+            Some(st) if warm.first_send().is_some() && st.history.fits(n, d.opts.anderson_depth) => {
+                st.history.try_clone().map_err(|e| scratch_error(spill, e))?
+            }
             _ => Anderson::new_in(if d.nd.is_none() || d.opts.defer_glossy { d.opts.anderson_depth } else { 0 }, spill),
         };
         let glossy = d.nd.as_ref().map(|x| {

@@ -54,6 +54,11 @@ pub struct RenderJob {
     /// Worker threads: a streamed gather reads a window per worker, as
     /// many at once as the budget has room for (at least two).
     pub threads: u32,
+    /// Whether the job keeps solving after its frames are shaded (`serve`,
+    /// which solves again on every change): then nothing is freed after a
+    /// frame (received power, link windows) and the state is never
+    /// spilled. A render solves each frame once.
+    pub keeps_solving: bool,
 }
 
 /// How the archive's link ends are held.
@@ -206,7 +211,7 @@ fn distribution_bytes(s: &ArchiveSummary, job: &RenderJob, spill: bool) -> (u64,
     // Glossy light and a sequence's overlays are held throughout. A
     // render's last frame frees the received power no later frame starts
     // from (`Solution::release_warm_start`): a still's only frame.
-    let released = if job.frames == 1 && !shape.sequence { 12 * p } else { 0 };
+    let released = if job.frames == 1 && !shape.sequence && !job.keeps_solving { 12 * p } else { 0 };
     let kept = peak - p * (patch_bytes(&shape) - kept_patch_bytes(&shape)) - released;
     (peak, kept, spilled_bytes(&shape))
 }
@@ -229,7 +234,9 @@ fn renderer_bytes(s: &ArchiveSummary, job: &RenderJob) -> (u64, u64) {
     // vertex radiance is made (12, and the sums).
     let (p, v) = (b.patch_count as u64, b.vertex_count as u64);
     let sums = v.min(1 << 17) * 32;
-    let radiance = (24 * p + 12 * v).max(12 * p + 24 * v) + sums;
+    // A grouped mesh's triangle corners with their groups (8 bytes each).
+    let grouped = s.section_count(tag::GROUPED_TRIANGLE_VERTICES) * 3 * 8;
+    let radiance = (24 * p + 12 * v).max(12 * p + 24 * v) + sums + grouped;
     let primitives = b.primitive_count as u64 * 320;
     (images + primitives, radiance)
 }
@@ -246,7 +253,7 @@ const IMAGES: &str = "images and radiance";
 /// files; or, when none fits, what the last would need.
 pub fn plan(s: &ArchiveSummary, job: &RenderJob, budget: MemoryBudget) -> Result<MemoryPlan, BudgetError> {
     let mut plan = plan_with(s, job, budget, false);
-    if plan.is_err() {
+    if plan.is_err() && !job.keeps_solving {
         plan = plan_with(s, job, budget, true);
     }
     plan
@@ -273,9 +280,9 @@ pub fn plan_with(
     let renderer = images + radiance - reused;
     // Streamed, a single frame's link windows are freed before it is
     // shaded (`release_buffers`): its radiance is made in their room too.
-    let shading = |windows: u64| match job.frames {
-        1 => images + (kept + radiance).saturating_sub(distribution + windows),
-        _ => renderer,
+    let shading = |windows: u64| match job.frames == 1 && !job.keeps_solving {
+        true => images + (kept + radiance).saturating_sub(distribution + windows),
+        false => renderer,
     };
     let pixels = job.width as u64 * job.height as u64;
     // The cache pays off only when a later frame reuses the samples.

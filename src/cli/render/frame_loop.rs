@@ -62,13 +62,6 @@ pub fn render_frames(
                 let start = if args.cold { None } else { p.as_ref() };
                 illumnet::scratch::pause_point("distribute");
                 let solution = setup.distributor.frame(af, start, progress)?;
-                // The loop's vectors and link windows, freed, are the room
-                // the shading's are made in (the memory plan counts them
-                // once).
-                if let Some(stream) = setup.archive.link_stream() {
-                    stream.release_buffers();
-                }
-                crate::return_freed_memory();
                 // Light from a file cut short or rewritten under the pass
                 // is refused (a mapped one's bytes change unseen).
                 setup.archive.check_unchanged()?;
@@ -78,6 +71,15 @@ pub fn render_frames(
         if f + 1 >= setup.frames.range.end {
             // No frame starts from the last one's light.
             solution.release_warm_start();
+        }
+        if !reuse {
+            // The loop's vectors, the last frame's light and the link
+            // windows, freed, are the room the shading's are made in (the
+            // memory plan counts them once).
+            if let Some(stream) = setup.archive.link_stream() {
+                stream.release_buffers();
+            }
+            crate::return_freed_memory();
         }
         if !leader {
             // The other members of an MPI job solve the light with rank 0

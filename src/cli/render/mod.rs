@@ -253,6 +253,7 @@ pub fn render(
         anderson_depth: args.anderson as u32,
         buckets: !args.no_buckets,
         threads: rayon::current_num_threads() as u32,
+        keeps_solving: false,
     };
     let (archive, memory) = open::open_within_budget(path, &summary, &job, budget, &args, progress)?;
     if extras.leader() && (budget.source == BudgetSource::Given || memory.access != plan::LinkAccess::Mapped) {
@@ -274,9 +275,12 @@ pub fn render(
     let mut distributor = distribute::Distributor::new_in(&view, &opts, &lighting, extras.team)?;
     if memory.spill {
         // Beside the images: where the user has room for outputs (a system
-        // temporary directory may be memory).
+        // temporary directory may be memory); an MPI rank on a node without
+        // the output's directory, in the system's.
         let out = frame_plan.out_path(png, frame_plan.range.start)?;
-        distributor = distributor.spill_in(illumnet::scratch::dir_of(&out));
+        let dir = illumnet::scratch::dir_of(&out);
+        let dir = if dir.is_dir() { dir.to_path_buf() } else { std::env::temp_dir() };
+        distributor = distributor.spill_in(&dir);
     }
     let t_setup = t_s.elapsed().as_secs_f64();
     let edge_samples = options::edge_samples(&args, sequence_output);

@@ -147,6 +147,7 @@ fn open_within_budget(path: &std::path::Path, budget: Option<u64>) -> Result<Arc
         anderson_depth: illumnet::distribute::DistributeOptions::default().anderson_depth as u32,
         buckets: true,
         threads: rayon::current_num_threads() as u32,
+        keeps_solving: true,
     };
     let budget = super::common::memory_budget(budget);
     let memory = plan::plan(&summary, &job, budget)?;
