@@ -40,6 +40,7 @@ pub use instances::{Instance, instances};
 pub use settings::{BuildSettings, DEFAULT_MAX_BUCKET, MAX_BUCKET, Quality, ray_space_divisions};
 use spill::Spill;
 pub use spill::SpilledLinks;
+pub use trace::TraceMethod;
 
 use crate::archive::ArchiveContents;
 use crate::archive::presence::{FramePresence, FrameSpan};
@@ -382,6 +383,7 @@ impl Prepared {
             sort_key: &setup.sort_key,
             frames: self.frames,
             bounds: self.bounds,
+            method: settings.trace_method,
         };
         let (delta, bucket) = (settings.ray_spacing, settings.max_bucket);
         trace::trace_all(&input, &setup.patches, &setup.dirs, delta, bucket, &self.nd_index, spill, only, progress)

@@ -40,6 +40,10 @@ pub struct BuildSettings {
     /// Whether small triangles of still, diffuse surfaces are grouped into
     /// patches of several (`patch::mesh`; default), or each keeps its own.
     pub group_triangles: bool,
+    /// How rays find their hits: BVH traversal per ray (default) or scan
+    /// conversion (groundwork, not faster yet). The archive is the same
+    /// byte for byte either way.
+    pub trace_method: super::trace::TraceMethod,
 }
 
 /// Widest bucket supported (the archive's limit).
@@ -113,6 +117,7 @@ impl BuildSettings {
             cell_order: crate::patch::DEFAULT_CELL_ORDER,
             patch_order: crate::patch::order::PatchOrder::Spatial,
             group_triangles: true,
+            trace_method: Default::default(),
         }
     }
 

@@ -95,6 +95,13 @@ pub struct BuildArgs {
     /// version 11.
     #[arg(long, value_enum, default_value_t = PatchOrder::Spatial)]
     patch_order: PatchOrder,
+    /// How each direction's rays find their hits: `bvh` (default) traverses
+    /// a BVH per ray; `scan` scan-converts every primitive's box onto the
+    /// direction's ray grid and tests the rays it may meet (groundwork for
+    /// a faster tracer: the same tests, so not faster yet). The archive is
+    /// the same byte for byte.
+    #[arg(long, value_enum, default_value_t = Tracer::Bvh)]
+    tracer: Tracer,
     /// Turn a planar surface about its normal by DEG degrees before building
     /// (repeatable), e.g. `--turn plate=45` for the brushed plate.
     #[arg(long, value_name = "SURFACE=DEG")]
@@ -135,6 +142,16 @@ enum PatchOrder {
     Spatial,
     /// In primitive order.
     Primitives,
+}
+
+/// How a build's rays find their hits (see `--tracer`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, clap::ValueEnum)]
+enum Tracer {
+    /// A BVH traversal per ray.
+    #[default]
+    Bvh,
+    /// Scan conversion of each primitive onto each direction's ray grid.
+    Scan,
 }
 
 /// Choices a glTF file does not make (format-spec/scene.md, "glTF 2.0
@@ -256,6 +273,10 @@ pub fn build_settings(scene: &Scene, args: &BuildArgs) -> BuildSettings {
         settings.direction_set = DirectionSetKind::RaySpace;
     }
     settings.group_triangles = !args.no_grouping;
+    settings.trace_method = match args.tracer {
+        Tracer::Scan => illumnet::bake::TraceMethod::Scan,
+        Tracer::Bvh => illumnet::bake::TraceMethod::Bvh,
+    };
     settings.patch_order = match args.patch_order {
         PatchOrder::Spatial => illumnet::patch::order::PatchOrder::Spatial,
         PatchOrder::Primitives => illumnet::patch::order::PatchOrder::Primitives,

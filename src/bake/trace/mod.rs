@@ -16,6 +16,7 @@
 
 mod changes;
 mod layout;
+mod raster;
 mod scratch;
 mod walk;
 
@@ -76,6 +77,17 @@ struct RayHitRecord {
     patch: u32,
 }
 
+/// A hit as the BVH or the scan conversion reports it, before the walk
+/// prepares it.
+#[inline]
+fn record(h: crate::geometry::accel::PrimitiveHit) -> RayHitRecord {
+    RayHitRecord { t: h.hit.t, primitive: h.primitive, uv: h.hit.uv, active: FrameSpan::all(1), cos: 0.0, patch: 0 }
+}
+
+/// A placeholder record (overwritten before it is read).
+const EMPTY_HIT: RayHitRecord =
+    RayHitRecord { t: 0.0, primitive: 0, uv: Vec2::ZERO, active: FrameSpan { first: 0, last: 0 }, cos: 0.0, patch: 0 };
+
 /// A link as traced: `(a << 32 | b, bucket at a, bucket at b)`.
 type LinkKey = (u64, u8, u8);
 
@@ -85,6 +97,21 @@ type LinkKey = (u64, u8, u8);
 /// more (counted as they grow, an eighth of the pair's rays at a time), so
 /// this is the least a pair needs.
 pub(super) const PAIR_BYTES_PER_RAY: u64 = size_of::<LinkKey>() as u64;
+
+/// How a pair's rays find their hits: the same hits either way, so the
+/// same archive byte for byte (`raster.rs`); what differs is the cost.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum TraceMethod {
+    /// Every ray traverses the BVH (the default).
+    #[default]
+    Bvh,
+    /// Each primitive's leaf box is scan-converted onto the pair's ray grid
+    /// and the rays it may meet are tested against it, a band of rows at a
+    /// time: groundwork for issue 41's tracer. It tests what traversal
+    /// tests, so it is not faster yet (docs/notebook/
+    /// 2026-12-07-scan-groundwork.md).
+    Scan,
+}
 
 /// What to trace: primitives with the frames each is present in.
 pub struct TraceInput<'a> {
@@ -100,6 +127,8 @@ pub struct TraceInput<'a> {
     pub frames: u32,
     /// Bounds the ray grids cover (all frames' geometry).
     pub bounds: (Vec3, Vec3),
+    /// How rays find their hits.
+    pub method: TraceMethod,
 }
 
 /// Direction pairs are traced in this many chunks (or one pair per chunk
@@ -335,6 +364,91 @@ impl Tracer<'_> {
     /// Traces pair `k`'s bundle in scratch `s`: every ray of its grid
     /// walked along its hits, frame 0's links merged into the bundle, the
     /// later frames' changes added to the chunk's (`s.chunk`).
+    /// Sorts the hits of one ray (`s.hits`, in any order) along it and
+    /// walks them into links and counts; the hits walked.
+    fn walk_ray(&self, s: &mut Scratch, g: &layout::Grid, walk: &Walk<'_>, k: u32) -> u64 {
+        if s.hits.is_empty() {
+            return 0;
+        }
+        let key = self.input.sort_key;
+        s.hits.sort_unstable_by(|x, y| {
+            x.t.total_cmp(&y.t).then_with(|| key[x.primitive as usize].cmp(&key[y.primitive as usize]))
+        });
+        // A ray gives a link at most per hit: more room for keys,
+        // counted before it is taken, in steps of an eighth of the
+        // pair's rays rather than by doubling.
+        if s.keys.capacity() - s.keys.len() < s.hits.len() {
+            let more = usize::try_from(g.nu * g.nv / 8).unwrap_or(usize::MAX).max(s.hits.len());
+            s.keys.reserve_exact(more);
+            if let Some(spill) = self.spill {
+                spill.hold_scratch(s.grown());
+            }
+        }
+        walk.ray(k, s)
+    }
+
+    /// The rays of pair `k`'s grid `g` by scan conversion (`raster.rs`), a
+    /// band of rows at a time, each walked in the BVH tracer's order; the
+    /// hits walked.
+    fn scan(&self, s: &mut Scratch, g: &layout::Grid, d: Vec3, walk: &Walk<'_>, k: u32) -> u64 {
+        let footprints = raster::footprints(&self.bvh, g, d);
+        let band = (raster::BAND_RAYS / g.nu.max(1)).clamp(1, g.nv.max(1));
+        let (mut next, mut active, mut hits) = (0, Vec::new(), 0);
+        for b0 in (0..g.nv).step_by(band as usize) {
+            let b1 = (b0 + band).min(g.nv);
+            while next < footprints.len() && footprints[next].rows.0 < b1 {
+                active.push(next);
+                next += 1;
+            }
+            active.retain(|&f| footprints[f].rows.1 >= b0);
+            s.fragments.clear();
+            for &f in &active {
+                let f = &footprints[f];
+                for jj in f.rows.0.max(b0)..=f.rows.1.min(b1 - 1) {
+                    let Some((a, b)) = f.span(jj, g.nu) else { continue };
+                    for ii in a..=b {
+                        if let Some(h) = self.bvh.reference_hit(f.id as usize, raster::ray_origin(g, ii, jj), d) {
+                            s.fragments.push((((jj - b0) * g.nu + ii) as u32, record(h)));
+                        }
+                    }
+                }
+            }
+            // The band's hits by ray (a counting sort), then its rays in
+            // the BVH tracer's order.
+            let rays = ((b1 - b0) * g.nu) as usize;
+            s.starts.clear();
+            s.starts.resize(rays + 1, 0);
+            for &(r, _) in &s.fragments {
+                s.starts[r as usize + 1] += 1;
+            }
+            for r in 0..rays {
+                s.starts[r + 1] += s.starts[r];
+            }
+            s.sorted.clear();
+            s.sorted.resize(s.fragments.len(), s.fragments.first().map_or(EMPTY_HIT, |f| f.1));
+            for &(r, h) in &s.fragments {
+                let at = &mut s.starts[r as usize];
+                s.sorted[*at as usize] = h;
+                *at += 1;
+            }
+            if let Some(spill) = self.spill {
+                spill.hold_scratch(s.grown());
+            }
+            // `starts[r]` is now where ray r's hits end.
+            let mut from = 0;
+            for r in 0..rays {
+                let to = s.starts[r] as usize;
+                if to > from {
+                    s.hits.clear();
+                    s.hits.extend_from_slice(&s.sorted[from..to]);
+                    hits += self.walk_ray(s, g, walk, k);
+                }
+                from = to;
+            }
+        }
+        hits
+    }
+
     fn pair(&self, s: &mut Scratch, k: u32) -> (Bundle, BundleStats) {
         let (lo, hi) = self.input.bounds;
         let d = self.dir(k);
@@ -364,41 +478,17 @@ impl Tracer<'_> {
         if let Some(spill) = self.spill {
             spill.hold_scratch(s.grown());
         }
-        for jj in 0..g.nv {
-            let v = ((g.j0 + jj as i64) as f32 + g.offset.y) * g.step;
-            for ii in 0..g.nu {
-                let u = ((g.i0 + ii as i64) as f32 + g.offset.x) * g.step;
-                let origin = g.origin + g.e1 * u + g.e2 * v;
-                s.hits.clear();
-                self.bvh.all_hits(origin, d, |h| {
-                    s.hits.push(RayHitRecord {
-                        t: h.hit.t,
-                        primitive: h.primitive,
-                        uv: h.hit.uv,
-                        active: FrameSpan::all(1),
-                        cos: 0.0,
-                        patch: 0,
-                    })
-                });
-                if s.hits.is_empty() {
-                    continue;
-                }
-                let key = self.input.sort_key;
-                s.hits.sort_unstable_by(|x, y| {
-                    x.t.total_cmp(&y.t).then_with(|| key[x.primitive as usize].cmp(&key[y.primitive as usize]))
-                });
-                // A ray gives a link at most per hit: more room for keys,
-                // counted before it is taken, in steps of an eighth of
-                // the pair's rays rather than by doubling.
-                if s.keys.capacity() - s.keys.len() < s.hits.len() {
-                    let more = usize::try_from(g.nu * g.nv / 8).unwrap_or(usize::MAX).max(s.hits.len());
-                    s.keys.reserve_exact(more);
-                    if let Some(spill) = self.spill {
-                        spill.hold_scratch(s.grown());
+        match self.input.method {
+            TraceMethod::Bvh => {
+                for jj in 0..g.nv {
+                    for ii in 0..g.nu {
+                        s.hits.clear();
+                        self.bvh.all_hits(raster::ray_origin(&g, ii, jj), d, |h| s.hits.push(record(h)));
+                        stats.hits += self.walk_ray(s, &g, &walk, k);
                     }
                 }
-                stats.hits += walk.ray(k, s);
             }
+            TraceMethod::Scan => stats.hits += self.scan(s, &g, d, &walk, k),
         }
         stats.links = s.keys.len() as u64;
         let bundle = merged_bundle(k, &mut s.keys);

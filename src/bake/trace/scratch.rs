@@ -13,6 +13,12 @@ use crate::archive::layout::DeltaRecord;
 #[derive(Default)]
 pub(super) struct Scratch {
     pub(super) hits: Vec<RayHitRecord>,
+    /// A band's hits by ray, as the scan conversion finds them
+    /// (`raster.rs`): `(ray in the band, hit)`, then sorted by ray, with
+    /// each ray's end.
+    pub(super) fragments: Vec<(u32, RayHitRecord)>,
+    pub(super) sorted: Vec<RayHitRecord>,
+    pub(super) starts: Vec<u32>,
     pub(super) keys: Vec<LinkKey>,
     pub(super) frame_links: Vec<LinkKey>,
     pub(super) prev_links: Vec<LinkKey>,
@@ -49,6 +55,9 @@ impl Scratch {
         }
         let frames: u64 = self.changes.iter().map(cap).sum();
         let bytes = cap(&self.hits)
+            + cap(&self.fragments)
+            + cap(&self.sorted)
+            + cap(&self.starts)
             + cap(&self.keys)
             + cap(&self.frame_links)
             + cap(&self.prev_links)
