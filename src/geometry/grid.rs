@@ -165,6 +165,33 @@ impl PatchGrid {
         }
     }
 
+    /// The cell containing surface point `uv`: [`Self::locate`]'s cell,
+    /// by the same arithmetic, without the corners and weights (a build's
+    /// walk asks for the cell of every hit; the corners cost more than the
+    /// cell).
+    #[inline]
+    pub fn cell_at(&self, uv: Vec2) -> u32 {
+        match self.kind {
+            PrimitiveKind::Quad => {
+                let a = (uv.x.clamp(0.0, 1.0)) * self.n_u as f32;
+                let b = (uv.y.clamp(0.0, 1.0)) * self.n_v as f32;
+                let i = (a as u32).min(self.n_u - 1);
+                let j = (b as u32).min(self.n_v - 1);
+                self.quad_cell(i, j)
+            }
+            PrimitiveKind::Triangle => {
+                let k = self.n_u;
+                let a = uv.x.max(0.0) * k as f32;
+                let b = uv.y.max(0.0) * k as f32;
+                let j = (b as u32).min(k - 1);
+                let i = (a as u32).min(k - 1 - j);
+                let (fa, fb) = (a - i as f32, b - j as f32);
+                let upright = fa + fb <= 1.0 || i + j + 1 >= k;
+                j * (2 * k - j) + 2 * i + if upright { 0 } else { 1 }
+            }
+        }
+    }
+
     /// The cell containing surface point `uv` and the corner weights that
     /// interpolate vertex values there (bilinear for quads, barycentric for
     /// triangles).
@@ -285,6 +312,38 @@ mod tests {
                 // Weights reproduce the point.
                 let p = (0..3).map(|n| g.vertex_uv(c[n]) * loc.weights[n]).sum::<Vec2>();
                 assert!((p - centre).length() < 1e-5);
+            }
+        }
+    }
+
+    #[test]
+    fn cell_at_is_the_cell_locate_finds_everywhere() {
+        // Points on and around every cell edge (k/n and one ulp either
+        // side), past the primitive's edges, and beyond a triangle's
+        // hypotenuse.
+        let mut values: Vec<f32> = vec![-0.25, -0.0, 0.0, 1.0, 1.25, 0.5, 0.999_999_9, 1e-8];
+        for n in 1..=23u32 {
+            for k in 0..=n {
+                let x = k as f32 / n as f32;
+                values.extend([
+                    x,
+                    f32::from_bits(x.to_bits().saturating_add(1)),
+                    f32::from_bits(x.to_bits().max(1) - 1),
+                ]);
+            }
+        }
+        for kind in [PrimitiveKind::Quad, PrimitiveKind::Triangle] {
+            for order in [CellOrder::Rows, CellOrder::Tiles] {
+                for (n_u, n_v) in [(1, 1), (3, 2), (7, 7), (20, 9), (23, 23)] {
+                    let n_v = if kind == PrimitiveKind::Triangle { n_u } else { n_v };
+                    let g = PatchGrid { kind, n_u, n_v, order };
+                    for &u in &values {
+                        for &v in &values {
+                            let uv = Vec2::new(u, v);
+                            assert_eq!(g.cell_at(uv), g.locate(uv).cell, "{kind:?} {order:?} {n_u}×{n_v} at {uv:?}");
+                        }
+                    }
+                }
             }
         }
     }

@@ -71,7 +71,7 @@ impl Walk<'_> {
             let pp = &self.patches.primitives[h.primitive as usize];
             h.active = self.input.active[h.primitive as usize];
             h.cos = self.normals[h.primitive as usize].dot(self.dir);
-            h.patch = pp.first_patch + pp.grid.locate(h.uv).cell;
+            h.patch = pp.first_patch + pp.grid.cell_at(h.uv);
         }
     }
 
