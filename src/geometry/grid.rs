@@ -165,28 +165,46 @@ impl PatchGrid {
         }
     }
 
+    /// Quad cell `(i, j)` holding surface point `uv`, and `uv`'s place in
+    /// it `(s, t)` (the one arithmetic [`Self::locate`] and
+    /// [`Self::cell_at`] share).
+    #[inline]
+    fn quad_at(&self, uv: Vec2) -> (u32, u32, f32, f32) {
+        let a = (uv.x.clamp(0.0, 1.0)) * self.n_u as f32;
+        let b = (uv.y.clamp(0.0, 1.0)) * self.n_v as f32;
+        let i = (a as u32).min(self.n_u - 1);
+        let j = (b as u32).min(self.n_v - 1);
+        (i, j, a - i as f32, b - j as f32)
+    }
+
+    /// Triangle row `j` and column `i` holding surface point `uv`, `uv`'s
+    /// place `(fa, fb)` in the cell's square, and whether it is in the
+    /// upright cell (points past the hypotenuse after rounding belong to
+    /// the last upright cell of the row).
+    #[inline]
+    fn triangle_at(&self, uv: Vec2) -> (u32, u32, f32, f32, bool) {
+        let k = self.n_u;
+        let a = uv.x.max(0.0) * k as f32;
+        let b = uv.y.max(0.0) * k as f32;
+        let j = (b as u32).min(k - 1);
+        let i = (a as u32).min(k - 1 - j);
+        let (fa, fb) = (a - i as f32, b - j as f32);
+        (i, j, fa, fb, fa + fb <= 1.0 || i + j + 1 >= k)
+    }
+
     /// The cell containing surface point `uv`: [`Self::locate`]'s cell,
-    /// by the same arithmetic, without the corners and weights (a build's
-    /// walk asks for the cell of every hit; the corners cost more than the
-    /// cell).
+    /// without the corners and weights (a build's walk asks for the cell
+    /// of every hit; the corners cost more than the cell).
     #[inline]
     pub fn cell_at(&self, uv: Vec2) -> u32 {
         match self.kind {
             PrimitiveKind::Quad => {
-                let a = (uv.x.clamp(0.0, 1.0)) * self.n_u as f32;
-                let b = (uv.y.clamp(0.0, 1.0)) * self.n_v as f32;
-                let i = (a as u32).min(self.n_u - 1);
-                let j = (b as u32).min(self.n_v - 1);
+                let (i, j, _, _) = self.quad_at(uv);
                 self.quad_cell(i, j)
             }
             PrimitiveKind::Triangle => {
+                let (i, j, _, _, upright) = self.triangle_at(uv);
                 let k = self.n_u;
-                let a = uv.x.max(0.0) * k as f32;
-                let b = uv.y.max(0.0) * k as f32;
-                let j = (b as u32).min(k - 1);
-                let i = (a as u32).min(k - 1 - j);
-                let (fa, fb) = (a - i as f32, b - j as f32);
-                let upright = fa + fb <= 1.0 || i + j + 1 >= k;
                 j * (2 * k - j) + 2 * i + if upright { 0 } else { 1 }
             }
         }
@@ -199,11 +217,7 @@ impl PatchGrid {
     pub fn locate(&self, uv: Vec2) -> CellLocation {
         match self.kind {
             PrimitiveKind::Quad => {
-                let a = (uv.x.clamp(0.0, 1.0)) * self.n_u as f32;
-                let b = (uv.y.clamp(0.0, 1.0)) * self.n_v as f32;
-                let i = (a as u32).min(self.n_u - 1);
-                let j = (b as u32).min(self.n_v - 1);
-                let (s, t) = (a - i as f32, b - j as f32);
+                let (i, j, s, t) = self.quad_at(uv);
                 let cell = self.quad_cell(i, j);
                 CellLocation {
                     cell,
@@ -213,14 +227,7 @@ impl PatchGrid {
             }
             PrimitiveKind::Triangle => {
                 let k = self.n_u;
-                let a = uv.x.max(0.0) * k as f32;
-                let b = uv.y.max(0.0) * k as f32;
-                let j = (b as u32).min(k - 1);
-                let i = (a as u32).min(k - 1 - j);
-                let (mut fa, mut fb) = (a - i as f32, b - j as f32);
-                // Points past the hypotenuse after rounding belong to the last
-                // upright cell of the row: pull them back onto its edge.
-                let upright = fa + fb <= 1.0 || i + j + 1 >= k;
+                let (i, j, mut fa, mut fb, upright) = self.triangle_at(uv);
                 if upright {
                     if fa + fb > 1.0 {
                         let s = 1.0 / (fa + fb);
