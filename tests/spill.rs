@@ -8,39 +8,21 @@
 mod common;
 
 use illumnet::archive::Archive;
-use illumnet::distribute::{DistributeError, DistributeOptions, Distributor, Lighting, Solution};
+use illumnet::distribute::{DistributeError, DistributeOptions, Distributor, Lighting};
 use illumnet::progress::NoProgress;
-
-/// Every frame of `a`, each warm-started from the last, spilling to
-/// `spill` when given.
-fn solve_all(a: &Archive, spill: Option<&std::path::Path>) -> Vec<Solution> {
-    let v = a.view();
-    let opts = DistributeOptions { tolerance: 1e-5, ..Default::default() };
-    let mut d = Distributor::new(&v, &opts, &Lighting::from_view(&v)).unwrap();
-    if let Some(dir) = spill {
-        d = d.spill_in(dir);
-    }
-    let frames = v.sequence.map_or(1, |s| s.frames());
-    let mut out: Vec<Solution> = Vec::new();
-    for k in 0..frames {
-        let s = d.frame(k, out.last(), &NoProgress).unwrap();
-        out.push(s);
-    }
-    out
-}
 
 #[test]
 fn spilled_state_gives_the_light_of_state_in_memory_bit_for_bit() {
     for (name, h) in common::coarse_scenes() {
         let dir = tempfile::tempdir().unwrap();
         let path = common::write_scene(&common::scene_file(name), h, dir.path());
-        let want = solve_all(&Archive::open(&path).unwrap(), None);
+        let want = common::solve_all_frames(&Archive::open(&path).unwrap(), None);
         assert!(want[0].balance.iterations > 3, "{name}: the acceleration has pairs to keep");
         let scratch = tempfile::tempdir().unwrap();
         for (what, archive) in
             [("mapped", Archive::open(&path).unwrap()), ("streamed", Archive::open_streamed(&path, 300).unwrap())]
         {
-            let got = solve_all(&archive, Some(scratch.path()));
+            let got = common::solve_all_frames(&archive, Some(scratch.path()));
             common::assert_same_light(&want, &got, &format!("{name}, {what}, spilled"));
         }
         // The scratch files are unnamed: nothing is left, even while held.

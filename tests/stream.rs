@@ -6,7 +6,7 @@ mod common;
 use std::path::{Path, PathBuf};
 
 use illumnet::archive::{self, Archive, layout::tag};
-use illumnet::distribute::{DistributeOptions, Distributor, Lighting, Solution};
+use illumnet::distribute::{DistributeOptions, Distributor, Lighting};
 use illumnet::progress::NoProgress;
 use illumnet::scene::{BuildHints, Scene};
 
@@ -18,21 +18,6 @@ fn coarse_cornell_box(dir: &Path) -> PathBuf {
     common::write_scene(&Scene::cornell_box(), hints, dir)
 }
 
-/// Every frame of the archive, each warm-started from the last, as one
-/// distributor does them.
-fn solve_all(a: &Archive) -> Vec<Solution> {
-    let v = a.view();
-    let opts = DistributeOptions { tolerance: 1e-5, ..Default::default() };
-    let d = Distributor::new(&v, &opts, &Lighting::from_view(&v)).unwrap();
-    let frames = v.sequence.map_or(1, |s| s.frames());
-    let mut out: Vec<Solution> = Vec::new();
-    for k in 0..frames {
-        let s = d.frame(k, out.last(), &NoProgress).unwrap();
-        out.push(s);
-    }
-    out
-}
-
 #[test]
 fn streamed_link_ends_give_the_mapped_light_bit_for_bit() {
     // Windows of a few hundred ends cut patches' rows at every kind of
@@ -42,14 +27,18 @@ fn streamed_link_ends_give_the_mapped_light_bit_for_bit() {
         let dir = tempfile::tempdir().unwrap();
         let path = common::write_scene(&common::scene_file(name), h, dir.path());
         let mapped = Archive::open(&path).unwrap();
-        let want = solve_all(&mapped);
+        let want = common::solve_all_frames(&mapped, None);
         let ends = mapped.view().link_end_count();
         for window in [300, 70_000, usize::MAX] {
             let streamed = Archive::open_streamed(&path, window).unwrap();
             let s = streamed.link_stream().expect("streamed");
             assert!(window > ends || s.window_count() > 1, "{name}: {} windows", s.window_count());
             assert_eq!(s.ends(), ends);
-            common::assert_same_light(&want, &solve_all(&streamed), &format!("{name} in windows of {window}"));
+            common::assert_same_light(
+                &want,
+                &common::solve_all_frames(&streamed, None),
+                &format!("{name} in windows of {window}"),
+            );
             // The gather's workers each hold one window's buffers, the
             // other passes two: no more were ever made.
             let most = rayon::current_num_threads().max(2) * s.window_capacity() * 10;
@@ -154,7 +143,7 @@ fn a_pass_holds_no_more_windows_than_its_limit_whatever_the_workers() {
     // budget with room for a few windows on a machine of many cores.
     let dir = tempfile::tempdir().unwrap();
     let path = coarse_cornell_box(dir.path());
-    let want = solve_all(&Archive::open(&path).unwrap());
+    let want = common::solve_all_frames(&Archive::open(&path).unwrap(), None);
     let pool = rayon::ThreadPoolBuilder::new().num_threads(4).build().unwrap();
     pool.install(|| {
         for limit in [1, 2, 3] {
@@ -163,7 +152,11 @@ fn a_pass_holds_no_more_windows_than_its_limit_whatever_the_workers() {
             s.limit_windows_in_flight(limit);
             assert!(s.window_count() > 4 * limit, "{} windows", s.window_count());
             assert_eq!(s.windows_in_flight(), limit);
-            common::assert_same_light(&want, &solve_all(&streamed), &format!("{limit} windows at a time on 4 workers"));
+            common::assert_same_light(
+                &want,
+                &common::solve_all_frames(&streamed, None),
+                &format!("{limit} windows at a time on 4 workers"),
+            );
             assert!(s.pooled_buffers() <= limit.max(2), "{} windows' buffers made", s.pooled_buffers());
         }
     });

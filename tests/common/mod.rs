@@ -125,6 +125,25 @@ pub fn coarse_scenes() -> [(&'static str, BuildHints); 3] {
     ]
 }
 
+/// Every frame of `a`, each warm-started from the last, as one
+/// distributor does them (tolerance 1e-5); given `spill`, its secant
+/// pairs and totals kept in scratch files there.
+pub fn solve_all_frames(a: &Archive, spill: Option<&Path>) -> Vec<Solution> {
+    let v = a.view();
+    let opts = DistributeOptions { tolerance: 1e-5, ..Default::default() };
+    let mut d = distribute::Distributor::new(&v, &opts, &distribute::Lighting::from_view(&v)).unwrap();
+    if let Some(dir) = spill {
+        d = d.spill_in(dir);
+    }
+    let frames = v.sequence.map_or(1, |s| s.frames());
+    let mut out: Vec<Solution> = Vec::new();
+    for k in 0..frames {
+        let s = d.frame(k, out.last(), &NoProgress).unwrap();
+        out.push(s);
+    }
+    out
+}
+
 /// Asserts two runs of frames reached the same light bit for bit: energy
 /// balance (iterations and ends gathered included), radiance, received
 /// power, residual, first bounce and directional radiance.
