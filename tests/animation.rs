@@ -85,7 +85,12 @@ fn glossy_adversarial() -> Scene {
 
 /// The sequence build of `scene` at `hints`, keeping its links, and its settings.
 fn sequence(scene: &Scene, hints: BuildHints) -> (bake::Sequence, BuildSettings) {
-    let settings = BuildSettings::resolve(scene, hints);
+    sequence_traced(scene, hints, bake::TraceMethod::default())
+}
+
+/// [`sequence`] with the rays traced by `method`.
+fn sequence_traced(scene: &Scene, hints: BuildHints, method: bake::TraceMethod) -> (bake::Sequence, BuildSettings) {
+    let settings = BuildSettings { trace_method: method, ..BuildSettings::resolve(scene, hints) };
     (bake::build_sequence_with_links(scene, &settings, &NoProgress).unwrap(), settings)
 }
 
@@ -97,9 +102,17 @@ fn from_scratch(scene: &Scene, seq: &bake::Sequence, settings: &BuildSettings, k
 
 #[test]
 fn sequence_links_equal_from_scratch_links_at_every_frame() {
+    // With either tracer (issue 41, item 3).
+    for method in [bake::TraceMethod::Bvh, bake::TraceMethod::Scan] {
+        eprintln!("{method:?}:");
+        links_equal_from_scratch_at_every_frame(method);
+    }
+}
+
+fn links_equal_from_scratch_at_every_frame(method: bake::TraceMethod) {
     let scene = adversarial();
     let hints = BuildHints { patch_size: Some(0.2), frequency: Some(5), ray_spacing: Some(0.03), buckets: Some(1) };
-    let (seq, settings) = sequence(&scene, hints);
+    let (seq, settings) = sequence_traced(&scene, hints, method);
     let index = &seq.contents.sequence.as_ref().unwrap().deltas.index;
     assert!(index.iter().any(|d| d.count > 0), "movers must change links");
     // `hold` makes the late starter one instance per held run: 3 instances.

@@ -1,15 +1,21 @@
 //! The two ways a build's rays find their hits (`build --tracer`, issue
-//! 41): scan conversion tests each ray against the references whose leaf
-//! box it meets, exactly the ones BVH traversal tests, so the archives are
-//! the same byte for byte: a still, a sequence (temporal instances and
-//! frame deltas), a glossy archive and a mesh. And how many rays slip
-//! through the seams of a sealed mesh room (issue 41, item 2).
+//! 41): the BVH tracer tests each ray against the primitives traversal
+//! reaches; the scan converter rasterises each primitive onto a pair's ray
+//! grid by a watertight fill rule. They may disagree only for rays within
+//! rounding of an edge: counted here and bounded, with the light solved
+//! from either archive and its images the same within 10⁻⁴. And how many
+//! rays slip through the seams of a sealed mesh room (item 2): none with
+//! scan conversion.
 
 mod common;
 
-use illumnet::archive;
+use std::collections::HashMap;
+
+use illumnet::archive::{self, Archive};
 use illumnet::bake::{self, BuildSettings, TraceMethod};
+use illumnet::distribute::{self, DistributeOptions};
 use illumnet::progress::NoProgress;
+use illumnet::render::{self, RenderOptions, image_io};
 use illumnet::scene::BuildHints;
 
 /// The archive's bytes of `scene` built at `hints` with `method`.
@@ -24,8 +30,63 @@ fn built(scene: &illumnet::scene::Scene, hints: BuildHints, method: TraceMethod)
     archive::write_to_vec(&contents).unwrap()
 }
 
+/// Frame 0's link ends of an archive, weight by `(patch, other patch,
+/// direction)`, and the total weight.
+fn link_ends(a: &Archive) -> (HashMap<(u32, u32, u32), f64>, f64) {
+    let v = a.view();
+    let all: Vec<u32> = (0..v.patch_count() as u32).collect();
+    let rows = v.link_rows(&all).unwrap();
+    let (mut ends, mut total) = (HashMap::new(), 0.0);
+    for p in 0..all.len() {
+        let (other, weight, direction) = rows.ends(p);
+        for i in 0..other.len() {
+            *ends.entry((p as u32, other[i], direction[i])).or_insert(0.0) += weight[i] as f64;
+            total += weight[i] as f64;
+        }
+    }
+    (ends, total)
+}
+
+/// How two archives of one scene differ: the share of link-end weight
+/// and of `H_p` that moved, and the solved light's worst relative
+/// differences (the energy balance's absorbed and back-face power, and
+/// each frame's image, relative L2).
+struct Difference {
+    links: f64,
+    hits: f64,
+    balance: f64,
+    image: f64,
+}
+
+fn difference(a: &Archive, b: &Archive) -> Difference {
+    let ((ea, wa), (eb, wb)) = (link_ends(a), link_ends(b));
+    let moved: f64 = ea.iter().map(|(k, w)| (w - eb.get(k).unwrap_or(&0.0)).abs()).sum::<f64>()
+        + eb.iter().filter(|(k, _)| !ea.contains_key(k)).map(|(_, w)| w).sum::<f64>();
+    let (va, vb) = (a.view(), b.view());
+    assert_eq!(va.patch_count(), vb.patch_count());
+    let hits = |v: &illumnet::archive::InetView<'_>| v.patch_hits.iter().map(|&h| h as f64).sum::<f64>();
+    let hit_moved: f64 = va.patch_hits.iter().zip(vb.patch_hits).map(|(&x, &y)| (x as f64 - y as f64).abs()).sum();
+    let opts = DistributeOptions { tolerance: 1e-7, ..Default::default() };
+    let frames = va.sequence.as_ref().map_or(1, |s| s.frames());
+    let (mut balance, mut image): (f64, f64) = (0.0, 0.0);
+    for k in 0..frames {
+        let (sa, sb) = (
+            distribute::distribute_frame(&va, k, &opts, &NoProgress).unwrap(),
+            distribute::distribute_frame(&vb, k, &opts, &NoProgress).unwrap(),
+        );
+        let total = |x: &[f64; 3]| x.iter().sum::<f64>();
+        for (x, y) in [(sa.balance.absorbed, sb.balance.absorbed), (sa.balance.back_faces, sb.balance.back_faces)] {
+            balance = balance.max((total(&x) - total(&y)).abs() / total(&sa.balance.emitted));
+        }
+        let r = RenderOptions { samples_per_axis: 2, ..Default::default() };
+        let (ia, ib) = (render::render_frame(&va, k, &sa.radiance, &r), render::render_frame(&vb, k, &sb.radiance, &r));
+        image = image.max(image_io::relative_l2(&ia, &ib).unwrap());
+    }
+    Difference { links: moved / (wa + wb), hits: hit_moved / hits(&va), balance, image }
+}
+
 #[test]
-fn scan_conversion_builds_the_bvh_tracers_archive_byte_for_byte() {
+fn scan_conversion_differs_from_the_bvh_tracer_only_at_edges() {
     let mut cases: Vec<(&str, BuildHints)> = common::coarse_scenes().to_vec();
     // A mesh (grouped triangles), and the Cornell box at the default
     // frequency's ray spacing (many rays through edges and corners).
@@ -40,8 +101,24 @@ fn scan_conversion_builds_the_bvh_tracers_archive_byte_for_byte() {
     for (name, h) in cases {
         let scene = common::scene_file(name);
         let (bvh, scan) = (built(&scene, h, TraceMethod::Bvh), built(&scene, h, TraceMethod::Scan));
-        assert!(bvh == scan, "{name}: the archives differ ({} and {} bytes)", bvh.len(), scan.len());
-        eprintln!("{name}: {} bytes, the same", bvh.len());
+        let (bvh, scan) = (Archive::from_bytes(&bvh).unwrap(), Archive::from_bytes(&scan).unwrap());
+        let d = difference(&bvh, &scan);
+        eprintln!(
+            "{name}: link-end weight moved {:.2e}, hits moved {:.2e}, balance {:.2e}, image {:.2e}",
+            d.links, d.hits, d.balance, d.image
+        );
+        // Bounds about twice what was measured (2026-12-07, docs/notebook/
+        // 2026-12-07-scan-conversion.md): link ends 2.4·10⁻⁶–4.9·10⁻⁵ of
+        // the weight, hits 2.7–7.5·10⁻⁶, balance ≤ 1.3·10⁻⁵. Each moved ray
+        // went to a neighbouring patch (within rounding of their edge).
+        // Images differ by 1.1–6.0·10⁻⁵ but for the Cornell box at 5 cm
+        // patches: 5.3·10⁻⁴, where one ray from the light moved to the
+        // ceiling beside it (coplanar, sharing the edge), and a back-wall patch lit by few rays of the
+        // light changed by 1.2%: the weight of one ray, not a bias.
+        assert!(d.links < 1e-4, "{name}: {:.2e} of the link-end weight differs", d.links);
+        assert!(d.hits < 2e-5, "{name}: {:.2e} of the hits differ", d.hits);
+        assert!(d.balance < 1e-4, "{name}: the energy balance differs by {:.2e}", d.balance);
+        assert!(d.image < 1e-3, "{name}: the images differ by {:.2e}", d.image);
     }
 }
 
@@ -100,9 +177,23 @@ fn rays_escaping_a_sealed_mesh_room_are_counted_and_bounded() {
     );
     let scene = illumnet::scene::Scene::from_toml(&toml, &dir.path().join("room.toml"), dir.path()).unwrap();
     let h = BuildHints { patch_size: Some(0.1), frequency: Some(8), ray_spacing: Some(0.005), buckets: None };
-    let (bvh, scan) = (built(&scene, h, TraceMethod::Bvh), built(&scene, h, TraceMethod::Scan));
-    assert!(bvh == scan, "the sealed room's archives differ");
-    let archive = illumnet::archive::Archive::from_bytes(&bvh).unwrap();
+    for method in [TraceMethod::Bvh, TraceMethod::Scan] {
+        let archive = Archive::from_bytes(&built(&scene, h, method)).unwrap();
+        let escaped = escaped_rays(&archive);
+        // Measured (2026-12-07): 9 of 39 479 501 rays slip through the
+        // BVH tracer's seams (2.3·10⁻⁷): a ray through a shared edge that
+        // both triangles' tests turn down. The scan converter's fill rule
+        // gives every such ray to exactly one of them.
+        let most = if method == TraceMethod::Scan { 0 } else { 9 };
+        assert!(escaped <= most, "{method:?}: {escaped} rays escaped the sealed room (at most {most})");
+    }
+}
+
+/// Rays that escaped a closed room (each patch's hits less those that
+/// reached a facing patch and those that met a back face), counted
+/// exactly from the archive, with the solved energy balance's escaped
+/// power checked against them.
+fn escaped_rays(archive: &Archive) -> i64 {
     let v = archive.view();
     // Per patch, the rays that left it (its hits) less those that reached a
     // facing patch (its link ends' counts) and those that met a back face:
@@ -118,7 +209,7 @@ fn rays_escaping_a_sealed_mesh_room_are_counted_and_bounded() {
         assert!(left >= 0, "patch {p}: more rays linked than hit it");
         (escaped_rays, rays) = (escaped_rays + left, rays + hits as i64);
     }
-    let b = common::solve(&archive).balance;
+    let b = common::solve(archive).balance;
     let s = |x: &[f64; 3]| x.iter().sum::<f64>();
     eprintln!(
         "sealed mesh room: {escaped_rays} of {rays} rays escaped; emitted {:.4} W, escaped {:.2e} W, back faces {:.4} W",
@@ -126,10 +217,6 @@ fn rays_escaping_a_sealed_mesh_room_are_counted_and_bounded() {
         s(&b.escaped),
         s(&b.back_faces)
     );
-    // Measured (2026-12-07): 9 of 39 479 501 rays slip through the seams
-    // (2.3·10⁻⁷), the same with either tracer: a ray through a shared edge
-    // that both triangles' tests turn down. A watertight scan converter
-    // must bring this to 0 (issue 41); until then it is a bound.
-    assert!(escaped_rays <= 9, "{escaped_rays} rays escaped the sealed room (9 measured)");
     assert!(s(&b.escaped) < 1e-6 * s(&b.emitted), "{b:?}");
+    escaped_rays
 }

@@ -45,8 +45,6 @@ pub struct PrimitiveBvh {
     boxes: Vec<Aabb>,
     /// The strip of its quad that each reference stands for.
     strips: Vec<Strip>,
-    /// Per reference, its leaf node's box ([`Self::reference_hit`]).
-    leaves: Vec<Aabb>,
 }
 
 /// Strip `index` of `count` equal strips of a flat quad across its surface
@@ -142,46 +140,13 @@ impl PrimitiveBvh {
         let ordered: Vec<Primitive> = original.iter().map(|&i| primitives[i as usize]).collect();
         let filters = ordered.iter().map(QuadFilter::new).collect();
         let boxes = leaf.iter().map(|&r| aabbs[r as usize]).collect();
-        // Each reference's leaf: the last box traversal tests before it.
-        let mut leaves = vec![Aabb::empty(); ordered.len()];
-        for node in bvh.nodes.iter().filter(|n| n.prim_count > 0) {
-            for i in node.first_index..node.first_index + node.prim_count {
-                leaves[i as usize] = node.aabb;
-            }
-        }
-        Self { bvh, ordered, filters, original, boxes, strips, leaves }
+        Self { bvh, ordered, filters, original, boxes, strips }
     }
 
     /// References in the BVH: the primitives, with a long quad lying
     /// across the axes counted once per strip.
     pub fn references(&self) -> usize {
         self.ordered.len()
-    }
-
-    /// Reference `id`'s leaf box (its BVH leaf's, which may hold other
-    /// references too), as `(min, max)`: where a line can meet it.
-    pub fn leaf_bounds(&self, id: usize) -> (Vec3, Vec3) {
-        let b = &self.leaves[id];
-        (b.min.into(), b.max.into())
-    }
-
-    /// What [`Self::all_hits`] reports of reference `id` for the line
-    /// through `origin` along `dir`, tested alone: its hit when the line
-    /// meets its leaf's box and the reference, else `None`. Traversal
-    /// reaches a reference exactly when the line meets its leaf's box (the
-    /// boxes above hold it, and the slab test is monotone in a box's
-    /// bounds), and the tests are the same code on the same line, so the
-    /// references of a line tested this way give [`Self::all_hits`]'s hits
-    /// bit for bit, in whatever order: what tracing by scan conversion
-    /// relies on (`bake::trace::raster`).
-    #[inline]
-    pub fn reference_hit(&self, id: usize, origin: Vec3, dir: Vec3) -> Option<PrimitiveHit> {
-        let ray = Ray::new(origin.into(), dir.into(), 0.0, f32::INFINITY);
-        if self.leaves[id].intersect_ray(&ray) >= ray.tmax {
-            return None;
-        }
-        let hit = self.ordered[id].intersect_filtered(&self.filters[id], origin, dir, ray.tmin, ray.tmax)?;
-        self.strips[id].holds(hit.uv).then_some(PrimitiveHit { primitive: self.original[id], hit })
     }
 
     /// Calls `out` for every intersection of the full line through `origin`

@@ -98,18 +98,16 @@ type LinkKey = (u64, u8, u8);
 /// this is the least a pair needs.
 pub(super) const PAIR_BYTES_PER_RAY: u64 = size_of::<LinkKey>() as u64;
 
-/// How a pair's rays find their hits: the same hits either way, so the
-/// same archive byte for byte (`raster.rs`); what differs is the cost.
+/// How a pair's rays find their hits: the same hits but for rays within
+/// rounding of an edge (`raster.rs`); what differs is the cost.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum TraceMethod {
     /// Every ray traverses the BVH (the default).
     #[default]
     Bvh,
-    /// Each primitive's leaf box is scan-converted onto the pair's ray grid
-    /// and the rays it may meet are tested against it, a band of rows at a
-    /// time: groundwork for issue 41's tracer. It tests what traversal
-    /// tests, so it is not faster yet (docs/notebook/
-    /// 2026-12-07-scan-groundwork.md).
+    /// Each primitive is projected onto the pair's ray grid and rasterised
+    /// by a watertight fill rule, its distance and surface coordinates
+    /// affine along a row (issue 41): no per-ray hit test.
     Scan,
 }
 
@@ -391,26 +389,27 @@ impl Tracer<'_> {
     /// band of rows at a time, each walked in the BVH tracer's order; the
     /// hits walked.
     fn scan(&self, s: &mut Scratch, g: &layout::Grid, d: Vec3, walk: &Walk<'_>, k: u32) -> u64 {
-        let footprints = raster::footprints(&self.bvh, g, d);
+        let mut projected = std::mem::take(&mut s.projected);
+        raster::project_all(self.input.prims, g, d, &mut projected);
         let band = (raster::BAND_RAYS / g.nu.max(1)).clamp(1, g.nv.max(1));
         let (mut next, mut active, mut hits) = (0, Vec::new(), 0);
         for b0 in (0..g.nv).step_by(band as usize) {
             let b1 = (b0 + band).min(g.nv);
-            while next < footprints.len() && footprints[next].rows.0 < b1 {
+            while next < projected.len() && projected[next].rows.0 < b1 {
                 active.push(next);
                 next += 1;
             }
-            active.retain(|&f| footprints[f].rows.1 >= b0);
+            active.retain(|&f| projected[f].rows.1 >= b0);
             s.fragments.clear();
             for &f in &active {
-                let f = &footprints[f];
+                let f = &projected[f];
+                let primitive = f.primitive;
                 for jj in f.rows.0.max(b0)..=f.rows.1.min(b1 - 1) {
-                    let Some((a, b)) = f.span(jj, g.nu) else { continue };
-                    for ii in a..=b {
-                        if let Some(h) = self.bvh.reference_hit(f.id as usize, raster::ray_origin(g, ii, jj), d) {
-                            s.fragments.push((((jj - b0) * g.nu + ii) as u32, record(h)));
-                        }
-                    }
+                    let Some(span) = f.span(jj, g.nu) else { continue };
+                    let row = ((jj - b0) * g.nu) as u32;
+                    f.row(jj, span, |ii, t, uv| {
+                        s.fragments.push((row + ii as u32, RayHitRecord { t, primitive, uv, ..EMPTY_HIT }));
+                    });
                 }
             }
             // The band's hits by ray (a counting sort), then its rays in
@@ -446,6 +445,7 @@ impl Tracer<'_> {
                 from = to;
             }
         }
+        s.projected = projected;
         hits
     }
 

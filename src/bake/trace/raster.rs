@@ -1,35 +1,40 @@
 //! Tracing a direction pair's bundle by scan conversion (`--tracer scan`,
-//! issue 41): instead of traversing the BVH once per ray, each BVH
-//! reference (a primitive, or a strip of a long quad) is projected onto
-//! the pair's ray grid, and only the rays its leaf box can meet are tested
-//! against it, a band of grid rows at a time.
+//! issue 41). A bundle's rays are parallel, so what they meet is an
+//! orthographic projection of the scene onto the grid's plane: each
+//! primitive is projected once per pair ([`Projected`]), rasterised onto
+//! the ray grid row by row, and its distance and surface coordinates along
+//! a row are affine in the column (a plane, and the parameterisation of a
+//! triangle or parallelogram; a general quad's bilinear coordinates are
+//! inverted per ray). No ray is tested against anything.
 //!
-//! The hits of a ray are then exactly those [`PrimitiveBvh::all_hits`]
-//! finds: traversal reaches a reference exactly when the line meets its
-//! leaf's box, and [`PrimitiveBvh::reference_hit`] makes that test and the
-//! reference's own with the same code on the same line (the rays' origins
-//! computed as the BVH tracer computes them, [`ray_origin`]). The
-//! projection only has to be conservative: a candidate the box test turns
-//! down costs a test, nothing more. So the links, counts and frame deltas,
-//! and the archive, are the BVH tracer's byte for byte (tested), and a ray
-//! that crosses nothing costs nothing.
+//! **Fill rule.** A ray belongs to a primitive when its grid point lies
+//! inside the projected polygon by a half-open rule: rows from the
+//! polygon's lowest `y` included to its highest excluded, and in a row the
+//! columns from the left crossing included to the right one excluded. Each
+//! crossing is computed from its edge's two projected endpoints in a fixed
+//! order (lower endpoint first), so two primitives sharing an edge compute
+//! the same crossing bit for bit, and a ray on their common edge belongs
+//! to exactly one of them: a closed mesh lets no ray through (the BVH
+//! tracer's floating-point tests let a few slip through the seams,
+//! `tests/tracer.rs`).
+//!
+//! **The difference from the BVH tracer.** Both find the same hits except
+//! for rays within rounding of an edge (the fill rule decides where the
+//! BVH's f32 tests did), and distances and coordinates that differ in
+//! their last bits (f64 affine forms rather than f32 per-ray tests). The
+//! archives differ only in the link ends of such rays: counted against
+//! the BVH tracer in `tests/tracer.rs`.
 
-use glam::{DVec2, DVec3, Vec3};
+use glam::{DVec2, DVec3, Vec2, Vec3};
 
 use super::layout::Grid;
-use crate::geometry::accel::PrimitiveBvh;
-
-/// Cells of margin around a projected box: the projection is computed in
-/// f64 from f32 corners, far closer than this to the rays' own f32
-/// arithmetic; the box test on each candidate decides.
-const MARGIN: f64 = 1.5;
+use crate::geometry::{Primitive, PrimitiveKind};
 
 /// Rays a band holds at most (its rows × the grid's columns): the
 /// fragments of about this many rays are held at once, some megabytes.
-pub(super) const BAND_RAYS: u64 = 1 << 16;
+pub(super) const BAND_RAYS: u64 = 1 << 12;
 
-/// The origin of ray `(ii, jj)` of grid `g`: the one expression both
-/// tracers use, so that their lines are the same bit for bit.
+/// The origin of ray `(ii, jj)` of grid `g`, as the BVH tracer computes it.
 #[inline]
 pub(super) fn ray_origin(g: &Grid, ii: u64, jj: u64) -> Vec3 {
     let v = ((g.j0 + jj as i64) as f32 + g.offset.y) * g.step;
@@ -37,148 +42,231 @@ pub(super) fn ray_origin(g: &Grid, ii: u64, jj: u64) -> Vec3 {
     g.origin + g.e1 * u + g.e2 * v
 }
 
-/// A reference's footprint on a pair's grid: the convex hull of its leaf
-/// box's corners in cell coordinates (x along `e1`, y along `e2`, ray
-/// `(ii, jj)` at `(ii, jj)`), and the rows it may cover.
-pub(super) struct Footprint {
-    /// The reference (`PrimitiveBvh` order).
-    pub(super) id: u32,
-    /// First and last row it may cover (within the grid).
-    pub(super) rows: (u64, u64),
-    hull: Vec<DVec2>,
+/// `c + a·x + b·y`: a quantity affine in the grid's cell coordinates.
+#[derive(Debug, Clone, Copy, Default)]
+struct Affine {
+    c: f64,
+    a: f64,
+    b: f64,
 }
 
-impl Footprint {
-    /// Columns of row `jj` the reference may cover (within `0..nu`), or
-    /// `None`.
+impl Affine {
+    /// The form restricted to row `y`: `(value at column 0, per column)`.
+    #[inline]
+    fn row(&self, y: f64) -> (f64, f64) {
+        (self.c + self.b * y, self.a)
+    }
+}
+
+/// How a projected primitive's surface coordinates follow the grid.
+#[derive(Debug, Clone, Copy)]
+enum Param {
+    /// Affine: a triangle's barycentrics, or a parallelogram's coordinates.
+    Affine(Affine, Affine),
+    /// A general quad: its projected corners, inverted per ray.
+    Bilinear([DVec2; 4]),
+}
+
+/// A primitive projected onto a pair's ray grid, in cell coordinates (ray
+/// `(ii, jj)` at `(ii, jj)`).
+#[derive(Debug, Clone, Copy)]
+pub(super) struct Projected {
+    /// The primitive.
+    pub(super) primitive: u32,
+    /// First and last grid row it covers.
+    pub(super) rows: (u64, u64),
+    /// Its projected corners (3 or 4 used), in the primitive's order.
+    corners: [DVec2; 4],
+    n: usize,
+    /// Distance along the rays from their origins to its plane.
+    t: Affine,
+    param: Param,
+}
+
+impl Projected {
+    /// The columns `lo..hi` of row `jj` the fill rule gives the primitive
+    /// (within `0..nu`), or `None`.
+    #[inline]
     pub(super) fn span(&self, jj: u64, nu: u64) -> Option<(u64, u64)> {
-        let (y0, y1) = (jj as f64 - MARGIN, jj as f64 + MARGIN);
-        let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
-        let n = self.hull.len();
-        for i in 0..n {
-            let (a, b) = (self.hull[i], self.hull[(i + 1) % n]);
-            if a.y >= y0 && a.y <= y1 {
-                lo = lo.min(a.x);
-                hi = hi.max(a.x);
+        let y = jj as f64;
+        let (mut lo, mut hi, mut crossings) = (f64::INFINITY, f64::NEG_INFINITY, 0);
+        for i in 0..self.n {
+            let (p, q) = (self.corners[i], self.corners[(i + 1) % self.n]);
+            // The lower endpoint first, so that both primitives sharing
+            // this edge compute its crossing by the same operations.
+            let (p, q) = if (p.y, p.x) <= (q.y, q.x) { (p, q) } else { (q, p) };
+            if p.y <= y && y < q.y {
+                let x = p.x + (q.x - p.x) * ((y - p.y) / (q.y - p.y));
+                lo = lo.min(x);
+                hi = hi.max(x);
+                crossings += 1;
             }
-            for y in [y0, y1] {
-                if (a.y - y) * (b.y - y) < 0.0 {
-                    let x = a.x + (b.x - a.x) * (y - a.y) / (b.y - a.y);
-                    lo = lo.min(x);
-                    hi = hi.max(x);
+        }
+        if crossings < 2 {
+            return None;
+        }
+        let (a, b) = (lo.ceil().max(0.0), hi.ceil().min(nu as f64));
+        (a < b).then_some((a as u64, b as u64))
+    }
+
+    /// Calls `out(column, t, uv)` for each ray of row `jj`'s columns
+    /// `lo..hi` (a [`Self::span`]).
+    #[inline]
+    pub(super) fn row(&self, jj: u64, (lo, hi): (u64, u64), mut out: impl FnMut(u64, f32, Vec2)) {
+        let y = jj as f64;
+        let (t0, dt) = self.t.row(y);
+        match self.param {
+            Param::Affine(u, v) => {
+                let ((u0, du), (v0, dv)) = (u.row(y), v.row(y));
+                for ii in lo..hi {
+                    let x = ii as f64;
+                    let t = t0 + dt * x;
+                    if t > 0.0 {
+                        out(ii, t as f32, Vec2::new((u0 + du * x) as f32, (v0 + dv * x) as f32));
+                    }
+                }
+            }
+            Param::Bilinear(c) => {
+                for ii in lo..hi {
+                    let x = ii as f64;
+                    let t = t0 + dt * x;
+                    if t > 0.0 {
+                        out(ii, t as f32, inverse_bilinear(DVec2::new(x, y), c).as_vec2());
+                    }
                 }
             }
         }
-        // Nothing collected (or NaN): the row misses the hull.
-        if lo.partial_cmp(&hi).is_none_or(|o| o == std::cmp::Ordering::Greater) {
-            return None;
-        }
-        let (lo, hi) = ((lo - MARGIN).floor().max(0.0), (hi + MARGIN).ceil());
-        if hi < 0.0 || lo > (nu - 1) as f64 {
-            return None;
-        }
-        Some((lo as u64, (hi as u64).min(nu - 1)))
     }
 }
 
-/// The footprints of every reference of `bvh` on grid `g` (direction
-/// `d`) that meets it, ordered by their first row.
-pub(super) fn footprints(bvh: &PrimitiveBvh, g: &Grid, d: Vec3) -> Vec<Footprint> {
-    let (e1, e2, d) = (g.e1.as_dvec3(), g.e2.as_dvec3(), d.as_dvec3());
-    let origin = g.origin.as_dvec3();
-    // Lines run along `d` through the grid's plane (spanned by e1 and e2,
-    // perpendicular to d or, for ray-space bundles, to an axis).
-    let n = e1.cross(e2);
-    let dn = d.dot(n);
-    let step = g.step as f64;
+/// The primitives of `prims` that grid `g` (direction `d`) sees, projected
+/// onto it, into `out`, ordered by their first row. Primitives seen edge
+/// on (no area in projection) cover no ray and are left out.
+pub(super) fn project_all(prims: &[Primitive], g: &Grid, d: Vec3, out: &mut Vec<Projected>) {
+    out.clear();
+    // Ray (x, y) is the line O + x·E1 + y·E2 + t·D.
+    let (d, step) = (d.as_dvec3(), g.step as f64);
+    let (e1, e2) = (g.e1.as_dvec3() * step, g.e2.as_dvec3() * step);
+    let o = g.origin.as_dvec3() + e1 * (g.i0 as f64 + g.offset.x as f64) + e2 * (g.j0 as f64 + g.offset.y as f64);
+    // The dual basis: (p − O)·A = x, (p − O)·B = y.
+    let det = e1.dot(e2.cross(d));
+    if det == 0.0 || !det.is_finite() {
+        return;
+    }
+    let (da, db) = (e2.cross(d) / det, d.cross(e1) / det);
     let cell = |p: DVec3| {
-        let q = p - origin;
-        let q = q - d * (q.dot(n) / dn);
-        DVec2::new(
-            q.dot(e1) / step - g.offset.x as f64 - g.i0 as f64,
-            q.dot(e2) / step - g.offset.y as f64 - g.j0 as f64,
-        )
+        let q = p - o;
+        DVec2::new(q.dot(da), q.dot(db))
     };
-    let mut out = Vec::new();
-    for id in 0..bvh.references() {
-        let (lo, hi) = bvh.leaf_bounds(id);
-        let (lo, hi) = (lo.as_dvec3(), hi.as_dvec3());
-        if !(lo.is_finite() && hi.is_finite() && lo.cmple(hi).all()) {
+    for (id, prim) in prims.iter().enumerate() {
+        let n = prim.corner_count();
+        let p: [DVec3; 4] = prim.p.map(|q| q.as_dvec3());
+        let mut corners = [DVec2::ZERO; 4];
+        for i in 0..n {
+            corners[i] = cell(p[i]);
+        }
+        // Twice the projected area (shoelace): none, no rays.
+        let area2: f64 = (0..n).map(|i| corners[i].perp_dot(corners[(i + 1) % n])).sum();
+        if area2.is_nan() || area2.abs() <= 1e-12 {
             continue;
         }
-        let corners: Vec<DVec2> = (0..8)
-            .map(|c| {
-                cell(DVec3::new(
-                    if c & 1 == 0 { lo.x } else { hi.x },
-                    if c & 2 == 0 { lo.y } else { hi.y },
-                    if c & 4 == 0 { lo.z } else { hi.z },
-                ))
-            })
-            .collect();
-        let (y0, y1) = corners.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), c| (a.min(c.y), b.max(c.y)));
-        let (first, last) = ((y0 - MARGIN).floor().max(0.0), (y1 + MARGIN).ceil());
-        let empty = first.partial_cmp(&last).is_none_or(|o| o == std::cmp::Ordering::Greater);
-        if empty || last < 0.0 || first > (g.nv - 1) as f64 {
+        let (y0, y1) =
+            corners[..n].iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), c| (a.min(c.y), b.max(c.y)));
+        let (first, last) = (y0.ceil().max(0.0), (y1.ceil() - 1.0).min(g.nv as f64 - 1.0));
+        if first.is_nan() || last.is_nan() || first > last {
             continue;
         }
-        let rows = (first as u64, (last as u64).min(g.nv - 1));
-        out.push(Footprint { id: id as u32, rows, hull: hull(corners) });
+        // The plane: n·(O + x·E1 + y·E2 + t·D − p0) = 0.
+        let normal = match prim.kind {
+            PrimitiveKind::Quad => (p[2] - p[0]).cross(p[3] - p[1]),
+            PrimitiveKind::Triangle => (p[1] - p[0]).cross(p[2] - p[0]),
+        };
+        let nd = normal.dot(d);
+        if nd == 0.0 || !nd.is_finite() {
+            continue;
+        }
+        let t = Affine { c: normal.dot(p[0] - o) / nd, a: -normal.dot(e1) / nd, b: -normal.dot(e2) / nd };
+        // Surface coordinates: (x, y) = P0 + u·(P1 − P0) + v·(P_last − P0)
+        // for a triangle (P2) or a parallelogram (P3).
+        let (c0, e) = (corners[0], corners[1] - corners[0]);
+        let f = corners[n - 1] - corners[0];
+        let skew = corners[0] - corners[1] + corners[2] - corners[3];
+        let param = if n == 3 || skew.length() <= 1e-9 * (e.length() + f.length()) {
+            let det = e.perp_dot(f);
+            let u = Affine { c: (c0.y * f.x - c0.x * f.y) / det, a: f.y / det, b: -f.x / det };
+            let v = Affine { c: (c0.x * e.y - c0.y * e.x) / det, a: -e.y / det, b: e.x / det };
+            Param::Affine(u, v)
+        } else {
+            Param::Bilinear(corners)
+        };
+        out.push(Projected { primitive: id as u32, rows: (first as u64, last as u64), corners, n, t, param });
     }
-    out.sort_by_key(|f| (f.rows.0, f.id));
-    out
+    out.sort_by_key(|f| (f.rows.0, f.primitive));
 }
 
-/// The convex hull of `points`, counter-clockwise (Andrew's monotone
-/// chain); a degenerate set gives its extreme points.
-fn hull(mut points: Vec<DVec2>) -> Vec<DVec2> {
-    points.sort_by(|a, b| a.x.total_cmp(&b.x).then(a.y.total_cmp(&b.y)));
-    points.dedup();
-    if points.len() < 3 {
-        return points;
-    }
-    let cross = |o: DVec2, a: DVec2, b: DVec2| (a - o).perp_dot(b - o);
-    let mut h: Vec<DVec2> = Vec::with_capacity(2 * points.len());
-    // The lower chain left to right, then the upper one back.
-    let chain = |h: &mut Vec<DVec2>, p: DVec2, start: usize| {
-        while h.len() >= start + 2 && cross(h[h.len() - 2], h[h.len() - 1], p) <= 0.0 {
-            h.pop();
-        }
-        h.push(p);
+/// The bilinear coordinates of `x` in the quad of corners `c`
+/// (`P(u,v) = c0 + u·e + v·f + uv·g`), clamped to `[0, 1]²`: the root
+/// nearest the square when rounding puts a point on the edge just outside.
+fn inverse_bilinear(x: DVec2, c: [DVec2; 4]) -> DVec2 {
+    let (e, f, g, h) = (c[1] - c[0], c[3] - c[0], c[0] - c[1] + c[2] - c[3], x - c[0]);
+    let (k2, k1, k0) = (g.perp_dot(f), e.perp_dot(f) + h.perp_dot(g), h.perp_dot(e));
+    let roots = if k2.abs() <= 1e-12 * k1.abs() {
+        [-k0 / k1, f64::NAN]
+    } else {
+        let w = (k1 * k1 - 4.0 * k0 * k2).max(0.0).sqrt();
+        let q = -0.5 * (k1 + k1.signum() * w);
+        [q / k2, k0 / q]
     };
-    for &p in &points {
-        chain(&mut h, p, 0);
-    }
-    h.pop();
-    let start = h.len();
-    for &p in points.iter().rev() {
-        chain(&mut h, p, start);
-    }
-    h.pop();
-    h
+    let outside = |s: f64| if s.is_finite() { (s - s.clamp(0.0, 1.0)).abs() } else { f64::INFINITY };
+    let v = if outside(roots[0]) <= outside(roots[1]) { roots[0] } else { roots[1] };
+    let den = e + g * v;
+    let u = if den.x.abs() >= den.y.abs() { (h.x - f.x * v) / den.x } else { (h.y - f.y * v) / den.y };
+    let clamp = |s: f64| if s.is_finite() { s.clamp(0.0, 1.0) } else { 0.0 };
+    DVec2::new(clamp(u), clamp(v))
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
 
+    /// A projected polygon with the given corners (no plane, no
+    /// parameterisation: spans only).
+    fn polygon(c: &[DVec2]) -> Projected {
+        let mut corners = [DVec2::ZERO; 4];
+        corners[..c.len()].copy_from_slice(c);
+        let zero = Affine::default();
+        Projected { primitive: 0, rows: (0, 0), corners, n: c.len(), t: zero, param: Param::Affine(zero, zero) }
+    }
+
     #[test]
-    fn a_hull_holds_its_points_and_a_span_its_row() {
-        let pts = vec![
-            DVec2::new(0.0, 0.0),
-            DVec2::new(4.0, 1.0),
-            DVec2::new(1.0, 5.0),
-            DVec2::new(2.0, 2.0),
-            DVec2::new(4.0, 1.0),
-        ];
-        let h = hull(pts);
-        assert_eq!(h.len(), 3, "{h:?}");
-        let f = Footprint { id: 0, rows: (0, 5), hull: h };
-        // Row 3: the triangle spans x in about [0.6, 2.8] there, with the
-        // margin's rows around it.
-        let (a, b) = f.span(3, 100).unwrap();
-        assert!(a == 0 && (4..=6).contains(&b), "{a}..{b}");
-        assert!(f.span(9, 100).is_none());
-        // Clamped to the grid's columns.
-        assert_eq!(f.span(3, 2), Some((0, 1)));
+    fn two_triangles_sharing_an_edge_cover_every_ray_once() {
+        // A quad split along a skew diagonal, in both windings, on a grid
+        // whose rows and columns pass through the corners.
+        let q = [DVec2::new(0.3, -0.5), DVec2::new(17.0, 1.0), DVec2::new(15.5, 12.0), DVec2::new(-2.0, 9.0)];
+        let (a, b) = (polygon(&[q[0], q[1], q[2]]), polygon(&[q[2], q[3], q[0]]));
+        let whole = polygon(&q);
+        for jj in 0..14 {
+            let mut covered = vec![0; 20];
+            for t in [&a, &b] {
+                if let Some((lo, hi)) = t.span(jj, 20) {
+                    (lo..hi).for_each(|i| covered[i as usize] += 1);
+                }
+            }
+            let mut expected = vec![0; 20];
+            if let Some((lo, hi)) = whole.span(jj, 20) {
+                (lo..hi).for_each(|i| expected[i as usize] = 1);
+            }
+            assert_eq!(covered, expected, "row {jj}");
+        }
+    }
+
+    #[test]
+    fn bilinear_inversion_finds_the_coordinates_of_a_point() {
+        let c = [DVec2::new(0.0, 0.0), DVec2::new(4.0, 0.5), DVec2::new(5.0, 3.0), DVec2::new(-0.5, 2.0)];
+        for (u, v) in [(0.25, 0.5), (0.9, 0.1), (0.0, 1.0), (0.5, 0.999)] {
+            let x = c[0] * (1.0 - u) * (1.0 - v) + c[1] * u * (1.0 - v) + c[2] * u * v + c[3] * (1.0 - u) * v;
+            let uv = inverse_bilinear(x, c);
+            assert!((uv - DVec2::new(u, v)).abs().max_element() < 1e-12, "{u} {v}: {uv}");
+        }
     }
 }

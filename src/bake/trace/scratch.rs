@@ -17,6 +17,8 @@ pub(super) struct Scratch {
     /// (`raster.rs`): `(ray in the band, hit)`, then sorted by ray, with
     /// each ray's end.
     pub(super) fragments: Vec<(u32, RayHitRecord)>,
+    /// The primitives projected onto the current pair's grid.
+    pub(super) projected: Vec<super::raster::Projected>,
     pub(super) sorted: Vec<RayHitRecord>,
     pub(super) starts: Vec<u32>,
     pub(super) keys: Vec<LinkKey>,
@@ -56,6 +58,7 @@ impl Scratch {
         let frames: u64 = self.changes.iter().map(cap).sum();
         let bytes = cap(&self.hits)
             + cap(&self.fragments)
+            + cap(&self.projected)
             + cap(&self.sorted)
             + cap(&self.starts)
             + cap(&self.keys)
