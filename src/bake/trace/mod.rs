@@ -18,6 +18,7 @@ mod changes;
 mod layout;
 mod raster;
 mod scratch;
+mod sort;
 mod walk;
 
 use std::sync::Mutex;
@@ -77,26 +78,41 @@ struct RayHitRecord {
     patch: u32,
 }
 
-/// A hit as the BVH or the scan conversion reports it, before the walk
-/// prepares it.
+/// A hit as the BVH reports it, before the walk prepares it (its patch
+/// [`UNPREPARED`]).
 #[inline]
 fn record(h: crate::geometry::accel::PrimitiveHit) -> RayHitRecord {
-    RayHitRecord { t: h.hit.t, primitive: h.primitive, uv: h.hit.uv, active: FrameSpan::all(1), cos: 0.0, patch: 0 }
+    RayHitRecord {
+        t: h.hit.t,
+        primitive: h.primitive,
+        uv: h.hit.uv,
+        active: FrameSpan::all(1),
+        cos: 0.0,
+        patch: UNPREPARED,
+    }
 }
+
+/// The patch of a hit the walk has not prepared yet.
+const UNPREPARED: u32 = u32::MAX;
 
 /// A placeholder record (overwritten before it is read).
 const EMPTY_HIT: RayHitRecord =
     RayHitRecord { t: 0.0, primitive: 0, uv: Vec2::ZERO, active: FrameSpan { first: 0, last: 0 }, cos: 0.0, patch: 0 };
+
+/// Hits a ray holds in its own slots while a band is scan-converted
+/// (more go to an overflow list).
+const SLOTS: usize = 4;
 
 /// A link as traced: `(a << 32 | b, bucket at a, bucket at b)`.
 type LinkKey = (u64, u8, u8);
 
 /// Bytes of a tracer's per-pair scratch per ray it traces: the link keys,
 /// reserved at one link a ray before the pair is traced and not freed
-/// (nor spillable) until it is done. Rays that cross more surfaces need
-/// more (counted as they grow, an eighth of the pair's rays at a time), so
-/// this is the least a pair needs.
-pub(super) const PAIR_BYTES_PER_RAY: u64 = size_of::<LinkKey>() as u64;
+/// (nor spillable) until it is done, and their sort's second buffer
+/// (`sort.rs`). Rays that cross more surfaces need more (counted as they
+/// grow, an eighth of the pair's rays at a time), so this is the least a
+/// pair needs.
+pub(super) const PAIR_BYTES_PER_RAY: u64 = 2 * size_of::<LinkKey>() as u64;
 
 /// How a pair's rays find their hits: the same hits but for rays within
 /// rounding of an edge (`raster.rs`); what differs is the cost.
@@ -362,27 +378,40 @@ impl Tracer<'_> {
     /// Traces pair `k`'s bundle in scratch `s`: every ray of its grid
     /// walked along its hits, frame 0's links merged into the bundle, the
     /// later frames' changes added to the chunk's (`s.chunk`).
-    /// Sorts the hits of one ray (`s.hits`, in any order) along it and
+    /// Sorts the hits of one ray (`hits`, in any order) along it and
     /// walks them into links and counts; the hits walked.
-    fn walk_ray(&self, s: &mut Scratch, g: &layout::Grid, walk: &Walk<'_>, k: u32) -> u64 {
-        if s.hits.is_empty() {
+    fn walk_ray(&self, hits: &mut [RayHitRecord], s: &mut Scratch, g: &layout::Grid, walk: &Walk<'_>, k: u32) -> u64 {
+        if hits.is_empty() {
             return 0;
         }
+        if hits[0].patch == UNPREPARED {
+            walk.prepare(hits);
+        }
         let key = self.input.sort_key;
-        s.hits.sort_unstable_by(|x, y| {
-            x.t.total_cmp(&y.t).then_with(|| key[x.primitive as usize].cmp(&key[y.primitive as usize]))
-        });
+        // By distance, ties by the build-independent key: a total order,
+        // so any sort gives the same order. Rays meet few surfaces: an
+        // insertion sort.
+        let before = |x: &RayHitRecord, y: &RayHitRecord| {
+            x.t.total_cmp(&y.t).then_with(|| key[x.primitive as usize].cmp(&key[y.primitive as usize])).is_lt()
+        };
+        for i in 1..hits.len() {
+            let mut j = i;
+            while j > 0 && before(&hits[j], &hits[j - 1]) {
+                hits.swap(j, j - 1);
+                j -= 1;
+            }
+        }
         // A ray gives a link at most per hit: more room for keys,
         // counted before it is taken, in steps of an eighth of the
         // pair's rays rather than by doubling.
-        if s.keys.capacity() - s.keys.len() < s.hits.len() {
-            let more = usize::try_from(g.nu * g.nv / 8).unwrap_or(usize::MAX).max(s.hits.len());
+        if s.keys.capacity() - s.keys.len() < hits.len() {
+            let more = usize::try_from(g.nu * g.nv / 8).unwrap_or(usize::MAX).max(hits.len());
             s.keys.reserve_exact(more);
             if let Some(spill) = self.spill {
                 spill.hold_scratch(s.grown());
             }
         }
-        walk.ray(k, s)
+        walk.ray(k, hits, s)
     }
 
     /// The rays of pair `k`'s grid `g` by scan conversion (`raster.rs`), a
@@ -400,50 +429,63 @@ impl Tracer<'_> {
                 next += 1;
             }
             active.retain(|&f| projected[f].rows.1 >= b0);
-            s.fragments.clear();
+            // Each ray's hits in its slots, those past `SLOTS` in the
+            // overflow (few rays cross more than four surfaces).
+            let rays = ((b1 - b0) * g.nu) as usize;
+            s.slot_count.clear();
+            s.slot_count.resize(rays, 0);
+            if s.slots.len() < rays * SLOTS {
+                s.slots.resize(rays * SLOTS, EMPTY_HIT);
+            }
+            s.overflow.clear();
             for &f in &active {
                 let f = &projected[f];
                 let primitive = f.primitive;
+                let p = walk.prepared(primitive);
+                let hit = RayHitRecord { primitive, active: p.active, cos: p.cos, ..EMPTY_HIT };
                 for jj in f.rows.0.max(b0)..=f.rows.1.min(b1 - 1) {
                     let Some(span) = f.span(jj, g.nu) else { continue };
-                    let row = ((jj - b0) * g.nu) as u32;
+                    let row = ((jj - b0) * g.nu) as usize;
                     f.row(jj, span, |ii, t, uv| {
-                        s.fragments.push((row + ii as u32, RayHitRecord { t, primitive, uv, ..EMPTY_HIT }));
+                        let r = row + ii as usize;
+                        let h = RayHitRecord { t, uv, patch: p.first_patch + p.grid.cell_at(uv), ..hit };
+                        let n = &mut s.slot_count[r];
+                        if (*n as usize) < SLOTS {
+                            s.slots[r * SLOTS + *n as usize] = h;
+                        } else {
+                            s.overflow.push((r as u32, h));
+                        }
+                        *n = n.saturating_add(1);
                     });
                 }
-            }
-            // The band's hits by ray (a counting sort), then its rays in
-            // the BVH tracer's order.
-            let rays = ((b1 - b0) * g.nu) as usize;
-            s.starts.clear();
-            s.starts.resize(rays + 1, 0);
-            for &(r, _) in &s.fragments {
-                s.starts[r as usize + 1] += 1;
-            }
-            for r in 0..rays {
-                s.starts[r + 1] += s.starts[r];
-            }
-            s.sorted.clear();
-            s.sorted.resize(s.fragments.len(), s.fragments.first().map_or(EMPTY_HIT, |f| f.1));
-            for &(r, h) in &s.fragments {
-                let at = &mut s.starts[r as usize];
-                s.sorted[*at as usize] = h;
-                *at += 1;
             }
             if let Some(spill) = self.spill {
                 spill.hold_scratch(s.grown());
             }
-            // `starts[r]` is now where ray r's hits end.
-            let mut from = 0;
+            // The overflow by ray (stable: each ray's in the order found).
+            s.overflow.sort_by_key(|o| o.0);
+            let mut slots = std::mem::take(&mut s.slots);
+            let mut over = 0;
             for r in 0..rays {
-                let to = s.starts[r] as usize;
-                if to > from {
-                    s.hits.clear();
-                    s.hits.extend_from_slice(&s.sorted[from..to]);
-                    hits += self.walk_ray(s, g, walk, k);
+                let n = s.slot_count[r] as usize;
+                if n == 0 {
+                    continue;
                 }
-                from = to;
+                if n <= SLOTS {
+                    hits += self.walk_ray(&mut slots[r * SLOTS..r * SLOTS + n], s, g, walk, k);
+                } else {
+                    let mut many = std::mem::take(&mut s.hits);
+                    many.clear();
+                    many.extend_from_slice(&slots[r * SLOTS..(r + 1) * SLOTS]);
+                    while over < s.overflow.len() && s.overflow[over].0 == r as u32 {
+                        many.push(s.overflow[over].1);
+                        over += 1;
+                    }
+                    hits += self.walk_ray(&mut many, s, g, walk, k);
+                    s.hits = many;
+                }
             }
+            s.slots = slots;
         }
         s.projected = projected;
         hits
@@ -482,16 +524,19 @@ impl Tracer<'_> {
             TraceMethod::Bvh => {
                 for jj in 0..g.nv {
                     for ii in 0..g.nu {
-                        s.hits.clear();
-                        self.bvh.all_hits(raster::ray_origin(&g, ii, jj), d, |h| s.hits.push(record(h)));
-                        stats.hits += self.walk_ray(s, &g, &walk, k);
+                        let mut hits = std::mem::take(&mut s.hits);
+                        hits.clear();
+                        self.bvh.all_hits(raster::ray_origin(&g, ii, jj), d, |h| hits.push(record(h)));
+                        stats.hits += self.walk_ray(&mut hits, s, &g, &walk, k);
+                        s.hits = hits;
                     }
                 }
             }
             TraceMethod::Scan => stats.hits += self.scan(s, &g, d, &walk, k),
         }
         stats.links = s.keys.len() as u64;
-        let bundle = merged_bundle(k, &mut s.keys);
+        sort::sort_keys(&mut s.keys, &mut s.sort_buffer);
+        let bundle = merged_bundle(k, &s.keys);
         accumulate_changes(s, &self.patch_active);
         self.progress.advance(1);
         crate::scratch::stop_point("trace");
@@ -524,11 +569,10 @@ impl Tracer<'_> {
     }
 }
 
-/// A pair's link keys (`keys`, one per facing hit pair on a ray) sorted
-/// and merged into its bundle: one link per distinct key, weighed by the
-/// rays that gave it.
-fn merged_bundle(pair: u32, keys: &mut [LinkKey]) -> Bundle {
-    keys.sort_unstable();
+/// A pair's link keys (`keys`, one per facing hit pair on a ray, sorted)
+/// merged into its bundle: one link per distinct key, weighed by the rays
+/// that gave it.
+fn merged_bundle(pair: u32, keys: &[LinkKey]) -> Bundle {
     let merged = keys.chunk_by(|x, y| x == y).count();
     let mut bundle = Bundle {
         pair,

@@ -13,15 +13,17 @@ use crate::archive::layout::DeltaRecord;
 #[derive(Default)]
 pub(super) struct Scratch {
     pub(super) hits: Vec<RayHitRecord>,
-    /// A band's hits by ray, as the scan conversion finds them
-    /// (`raster.rs`): `(ray in the band, hit)`, then sorted by ray, with
-    /// each ray's end.
-    pub(super) fragments: Vec<(u32, RayHitRecord)>,
+    /// A band's hits as the scan conversion finds them (`raster.rs`):
+    /// [`super::SLOTS`] a ray, their count per ray, and a ray's hits past
+    /// its slots as `(ray in the band, hit)`.
+    pub(super) slots: Vec<RayHitRecord>,
+    pub(super) slot_count: Vec<u8>,
+    pub(super) overflow: Vec<(u32, RayHitRecord)>,
     /// The primitives projected onto the current pair's grid.
     pub(super) projected: Vec<super::raster::Projected>,
-    pub(super) sorted: Vec<RayHitRecord>,
-    pub(super) starts: Vec<u32>,
     pub(super) keys: Vec<LinkKey>,
+    /// The keys' sort's second buffer (`sort.rs`).
+    pub(super) sort_buffer: Vec<LinkKey>,
     pub(super) frame_links: Vec<LinkKey>,
     pub(super) prev_links: Vec<LinkKey>,
     pub(super) change_frames: Vec<u32>,
@@ -57,11 +59,12 @@ impl Scratch {
         }
         let frames: u64 = self.changes.iter().map(cap).sum();
         let bytes = cap(&self.hits)
-            + cap(&self.fragments)
+            + cap(&self.slots)
+            + cap(&self.slot_count)
+            + cap(&self.overflow)
             + cap(&self.projected)
-            + cap(&self.sorted)
-            + cap(&self.starts)
             + cap(&self.keys)
+            + cap(&self.sort_buffer)
             + cap(&self.frame_links)
             + cap(&self.prev_links)
             + cap(&self.change_frames)

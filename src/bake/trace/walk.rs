@@ -30,13 +30,23 @@ fn bucket_of_beam(width: f64, cos_receiver: f32, area_receiver: f32, max_bucket:
     if max_bucket == 0 || area_receiver <= 0.0 {
         return 0;
     }
-    let footprint = width * width / (cos_receiver.abs() as f64).max(1e-3);
-    let patches = footprint / area_receiver as f64;
+    // `ring_size(b) ≤ footprint / area`, multiplied out (no division).
+    let footprint = width * width;
+    let per_patch = (cos_receiver.abs() as f64).max(1e-3) * area_receiver as f64;
     let mut b = 0;
-    while b < max_bucket && ring_size(b + 1) <= patches {
+    while b < max_bucket && ring_size(b + 1) * per_patch <= footprint {
         b += 1;
     }
     b as u8
+}
+
+/// What a hit of one primitive has in common with its others: the
+/// fields [`Walk::prepare`] fills, and what its patch is found from.
+pub(super) struct Prepared<'a> {
+    pub(super) active: FrameSpan,
+    pub(super) cos: f32,
+    pub(super) first_patch: u32,
+    pub(super) grid: &'a crate::geometry::grid::PatchGrid,
 }
 
 /// Shared, read-only state of one bundle's walk along its rays.
@@ -65,8 +75,9 @@ pub(super) struct Walk<'a> {
 }
 
 impl Walk<'_> {
-    /// Fills the per-hit fields the walks use.
-    fn prepare(&self, hits: &mut [RayHitRecord]) {
+    /// Fills the per-hit fields the walks use (the scan converter fills
+    /// them as it makes the hits, [`Walk::prepared`]).
+    pub(super) fn prepare(&self, hits: &mut [RayHitRecord]) {
         for h in hits {
             let pp = &self.patches.primitives[h.primitive as usize];
             h.active = self.input.active[h.primitive as usize];
@@ -188,22 +199,34 @@ impl Walk<'_> {
         }
     }
 
-    /// One ray: frame 0's links go to `s.keys`; for rays that meet temporal
-    /// instances, the changes at later frames go to `s.changes`.
-    pub(super) fn ray(&self, pair: u32, s: &mut Scratch) -> u64 {
+    /// The fields [`Walk::prepare`] fills in a hit of `primitive`
+    /// (`patch` from the hit's `uv`), computed once for all its hits.
+    pub(super) fn prepared(&self, primitive: u32) -> Prepared<'_> {
+        let p = primitive as usize;
+        Prepared {
+            active: self.input.active[p],
+            cos: self.normals[p].dot(self.dir),
+            first_patch: self.patches.primitives[p].first_patch,
+            grid: &self.patches.primitives[p].grid,
+        }
+    }
+
+    /// One ray, its hits prepared ([`Walk::prepare`]): frame 0's links go
+    /// to `s.keys`; for rays that meet temporal instances, the changes at
+    /// later frames go to `s.changes`.
+    pub(super) fn ray(&self, pair: u32, hits: &mut [RayHitRecord], s: &mut Scratch) -> u64 {
         let last = self.input.frames - 1;
-        self.prepare(&mut s.hits);
-        self.order_sheets(&mut s.hits);
+        self.order_sheets(hits);
         let all = FrameSpan::all(self.input.frames);
         let present_at = |f: u32| move |h: &&RayHitRecord| h.active.contains(f);
-        let temporal = s.hits.iter().any(|h| h.active != all);
+        let temporal = hits.iter().any(|h| h.active != all);
         if !temporal {
             // Every hit is present in every frame.
-            return self.frame(s.hits.iter(), 0, &mut s.keys, &mut s.counts);
+            return self.frame(hits.iter(), 0, &mut s.keys, &mut s.counts);
         }
         // The active hits change only where an instance appears or leaves.
         s.change_frames.clear();
-        for h in &s.hits {
+        for h in hits.iter() {
             let FrameSpan { first: lo, last: hi } = h.active;
             if lo > 0 {
                 s.change_frames.push(lo);
@@ -215,7 +238,7 @@ impl Walk<'_> {
         s.change_frames.sort_unstable();
         s.change_frames.dedup();
         s.prev_links.clear();
-        let mut counted = self.frame(s.hits.iter().filter(present_at(0)), 0, &mut s.prev_links, &mut s.counts);
+        let mut counted = self.frame(hits.iter().filter(present_at(0)), 0, &mut s.prev_links, &mut s.counts);
         s.keys.extend_from_slice(&s.prev_links);
         s.prev_links.sort_unstable();
         // Each change frame walks only the hits present in it: the
@@ -224,14 +247,14 @@ impl Walk<'_> {
         // as ray-ordered index lists rather than found by scanning all.
         s.permanent.clear();
         s.by_first.clear();
-        for (i, h) in s.hits.iter().enumerate() {
+        for (i, h) in hits.iter().enumerate() {
             if h.active == all {
                 s.permanent.push(i as u32);
             } else {
                 s.by_first.push(i as u32);
             }
         }
-        let hits = &s.hits;
+        let hits = &*hits;
         s.by_first.sort_unstable_by_key(|&i| hits[i as usize].active.first);
         s.active.clear();
         let mut next = 0;
