@@ -31,7 +31,7 @@ fn build(dir: &Path, name: &str, rays: &str, extra: &[&str]) -> (PathBuf, String
 fn a_bounded_build_of_two_chunks_writes_the_bytes_of_an_unbounded_one() {
     let dir = tempfile::tempdir().unwrap();
     let (full, _) = build(dir.path(), "full.inet", "0.003", &[]);
-    let (bounded, out) = build(dir.path(), "bounded.inet", "0.003", &["--memory-budget", "56M"]);
+    let (bounded, out) = build(dir.path(), "bounded.inet", "0.003", &["--memory-budget", "60M"]);
     let at = out.find("spilled ").unwrap_or_else(|| panic!("no spill: {out}"));
     let runs: usize = out[at + 8..].split(' ').next().unwrap().parse().unwrap();
     assert!(runs >= 2, "{out}");

@@ -143,10 +143,11 @@ fn version_6_archives_upgrade_to_the_same_sections_and_light() {
         assert!(new.len() < old.len(), "{name}: 6 bytes fewer per link end");
 
         // The light of a fresh build of the same scene (whose
-        // patches are numbered in tiles, so sums run in another order).
+        // patches are numbered in tiles, so sums run in another order),
+        // its rays traced as version 6 traced them (by the BVH).
         let scene = Scene::from_file(&scene).unwrap();
         let hints = BuildHints { patch_size: Some(patch), ray_spacing: Some(rays), frequency: Some(3), buckets: None };
-        let fresh = common::build_sequence_archive(&scene, hints);
+        let fresh = common::build_sequence_archive_traced(&scene, hints, illumnet::bake::TraceMethod::Bvh);
         for (k, (got, want)) in images(&a).iter().zip(images(&fresh)).enumerate() {
             assert!(want.iter().any(|&x| x > 0.0), "{name} frame {k}: black");
             let e = relative_l2(got, &want);
@@ -190,10 +191,12 @@ fn version_9_archives_upgrade_to_the_bytes_of_a_fresh_build() {
         let a = Archive::open(&out).unwrap();
         same_but_link_order(name, &old, &new, &a);
         // What a build of the same scene in primitive order writes (the
-        // upgrade keeps the file's patch numbers), byte for byte.
+        // upgrade keeps the file's patch numbers), its rays traced as
+        // version 9 traced them (by the BVH), byte for byte.
         let scene = Scene::from_file(&scene).unwrap();
         let mut settings = BuildSettings::resolve(&scene, hints);
         settings.prototype_library = None;
+        settings.trace_method = bake::TraceMethod::Bvh;
         settings.patch_order = illumnet::patch::order::PatchOrder::Primitives;
         let fresh = match scene.animation.is_some() {
             true => bake::build_sequence(&scene, &settings, &NoProgress).unwrap().contents,

@@ -49,8 +49,14 @@ pub fn build_archive(scene: &Scene, hints: BuildHints) -> Archive {
 /// Builds `scene` (still or animated: a sequence) with default settings
 /// (plus `hints`) and opens the result from memory.
 pub fn build_sequence_archive(scene: &Scene, hints: BuildHints) -> Archive {
+    build_sequence_archive_traced(scene, hints, bake::TraceMethod::default())
+}
+
+/// [`build_sequence_archive`] with the rays traced by `method`.
+pub fn build_sequence_archive_traced(scene: &Scene, hints: BuildHints, method: bake::TraceMethod) -> Archive {
     let mut settings = BuildSettings::resolve(scene, hints);
     settings.prototype_library = None;
+    settings.trace_method = method;
     let seq = bake::build_sequence(scene, &settings, &NoProgress).unwrap();
     Archive::from_bytes(&archive::write_to_vec(&seq.contents).unwrap()).unwrap()
 }

@@ -109,9 +109,10 @@ fn fingerprint(scene: &Scene, settings: &BuildSettings, patches: usize, pairs: u
             Ok(())
         }
     }
-    // Where prototype tables are cached, and how rays find their hits, do
-    // not change the archive.
-    let settings = BuildSettings { prototype_library: None, trace_method: Default::default(), ..settings.clone() };
+    // Where prototype tables are cached does not change the archive; how
+    // rays find their hits does (at edges), so shards traced by different
+    // tracers are refused.
+    let settings = BuildSettings { prototype_library: None, ..settings.clone() };
     let mut h = Hasher(xxhash_rust::xxh3::Xxh3::new());
     let version = crate::archive::layout::VERSION_WRITE;
     let _ = write!(h, "{version} {} {scene:?} {settings:?} {patches} {pairs}", env!("CARGO_PKG_VERSION"));

@@ -99,9 +99,10 @@ const UNPREPARED: u32 = u32::MAX;
 const EMPTY_HIT: RayHitRecord =
     RayHitRecord { t: 0.0, primitive: 0, uv: Vec2::ZERO, active: FrameSpan { first: 0, last: 0 }, cos: 0.0, patch: 0 };
 
-/// Hits a ray holds in its own slots while a band is scan-converted
-/// (more go to an overflow list).
-const SLOTS: usize = 4;
+/// Hits a ray holds in its own slots while a band is scan-converted, at
+/// first and at most (more go to an overflow list): a band whose overflow
+/// holds more than a hit for every fourth ray doubles them for the next.
+const SLOTS: (usize, usize) = (4, 64);
 
 /// A link as traced: `(a << 32 | b, bucket at a, bucket at b)`.
 type LinkKey = (u64, u8, u8);
@@ -118,12 +119,13 @@ pub(super) const PAIR_BYTES_PER_RAY: u64 = 2 * size_of::<LinkKey>() as u64;
 /// rounding of an edge (`raster.rs`); what differs is the cost.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum TraceMethod {
-    /// Every ray traverses the BVH (the default).
-    #[default]
+    /// Every ray traverses the BVH: the reference the scan converter is
+    /// tested against.
     Bvh,
     /// Each primitive is projected onto the pair's ray grid and rasterised
     /// by a watertight fill rule, its distance and surface coordinates
-    /// affine along a row (issue 41): no per-ray hit test.
+    /// affine along a row (issue 41): no per-ray hit test. The default.
+    #[default]
     Scan,
 }
 
@@ -429,13 +431,14 @@ impl Tracer<'_> {
                 next += 1;
             }
             active.retain(|&f| projected[f].rows.1 >= b0);
-            // Each ray's hits in its slots, those past `SLOTS` in the
-            // overflow (few rays cross more than four surfaces).
+            // Each ray's hits in its slots, those past them in the
+            // overflow.
             let rays = ((b1 - b0) * g.nu) as usize;
+            let slots_per_ray = s.slots_per_ray.max(SLOTS.0);
             s.slot_count.clear();
             s.slot_count.resize(rays, 0);
-            if s.slots.len() < rays * SLOTS {
-                s.slots.resize(rays * SLOTS, EMPTY_HIT);
+            if s.slots.len() < rays * slots_per_ray {
+                s.slots.resize(rays * slots_per_ray, EMPTY_HIT);
             }
             s.overflow.clear();
             for &f in &active {
@@ -450,8 +453,8 @@ impl Tracer<'_> {
                         let r = row + ii as usize;
                         let h = RayHitRecord { t, uv, patch: p.first_patch + p.grid.cell_at(uv), ..hit };
                         let n = &mut s.slot_count[r];
-                        if (*n as usize) < SLOTS {
-                            s.slots[r * SLOTS + *n as usize] = h;
+                        if (*n as usize) < slots_per_ray {
+                            s.slots[r * slots_per_ray + *n as usize] = h;
                         } else {
                             s.overflow.push((r as u32, h));
                         }
@@ -462,8 +465,11 @@ impl Tracer<'_> {
             if let Some(spill) = self.spill {
                 spill.hold_scratch(s.grown());
             }
-            // The overflow by ray (stable: each ray's in the order found).
-            s.overflow.sort_by_key(|o| o.0);
+            // The overflow by ray (a ray's hits are sorted as it is walked).
+            s.overflow.sort_unstable_by_key(|o| o.0);
+            if s.overflow.len() * 4 > rays {
+                s.slots_per_ray = (slots_per_ray * 2).min(SLOTS.1);
+            }
             let mut slots = std::mem::take(&mut s.slots);
             let mut over = 0;
             for r in 0..rays {
@@ -471,12 +477,13 @@ impl Tracer<'_> {
                 if n == 0 {
                     continue;
                 }
-                if n <= SLOTS {
-                    hits += self.walk_ray(&mut slots[r * SLOTS..r * SLOTS + n], s, g, walk, k);
+                if n <= slots_per_ray {
+                    let at = r * slots_per_ray;
+                    hits += self.walk_ray(&mut slots[at..at + n], s, g, walk, k);
                 } else {
                     let mut many = std::mem::take(&mut s.hits);
                     many.clear();
-                    many.extend_from_slice(&slots[r * SLOTS..(r + 1) * SLOTS]);
+                    many.extend_from_slice(&slots[r * slots_per_ray..(r + 1) * slots_per_ray]);
                     while over < s.overflow.len() && s.overflow[over].0 == r as u32 {
                         many.push(s.overflow[over].1);
                         over += 1;

@@ -14,10 +14,11 @@ use crate::archive::layout::DeltaRecord;
 pub(super) struct Scratch {
     pub(super) hits: Vec<RayHitRecord>,
     /// A band's hits as the scan conversion finds them (`raster.rs`):
-    /// [`super::SLOTS`] a ray, their count per ray, and a ray's hits past
-    /// its slots as `(ray in the band, hit)`.
+    /// `slots_per_ray` a ray ([`super::SLOTS`]), their count per ray, and
+    /// a ray's hits past its slots as `(ray in the band, hit)`.
     pub(super) slots: Vec<RayHitRecord>,
     pub(super) slot_count: Vec<u8>,
+    pub(super) slots_per_ray: usize,
     pub(super) overflow: Vec<(u32, RayHitRecord)>,
     /// The primitives projected onto the current pair's grid.
     pub(super) projected: Vec<super::raster::Projected>,
