@@ -78,18 +78,45 @@ struct RayHitRecord {
     patch: u32,
 }
 
-/// A hit as the BVH reports it, before the walk prepares it (its patch
-/// [`UNPREPARED`]).
+/// A hit as the BVH reports it (of the primitives `ids`, or of all),
+/// before the walk prepares it (its patch [`UNPREPARED`]).
 #[inline]
-fn record(h: crate::geometry::accel::PrimitiveHit) -> RayHitRecord {
-    RayHitRecord {
-        t: h.hit.t,
-        primitive: h.primitive,
-        uv: h.hit.uv,
-        active: FrameSpan::all(1),
-        cos: 0.0,
-        patch: UNPREPARED,
+fn record(h: crate::geometry::accel::PrimitiveHit, ids: Option<&[u32]>) -> RayHitRecord {
+    let primitive = ids.map_or(h.primitive, |ids| ids[h.primitive as usize]);
+    RayHitRecord { t: h.hit.t, primitive, uv: h.hit.uv, active: FrameSpan::all(1), cos: 0.0, patch: UNPREPARED }
+}
+
+/// Primitives smaller than this many squares of the ray spacing are not
+/// scan-converted but tested by the rays that reach their BVH: projecting
+/// a primitive onto every pair's grid costs about as much as a few rays'
+/// hit tests, and a primitive this small is crossed by fewer than one ray
+/// of a pair on average (a mesh of 10⁶ triangles traced 10× slower by
+/// rasterisation alone: docs/notebook/2026-12-07-scan-conversion.md). The
+/// choice is the primitive's alone, so a sequence and a from-scratch build
+/// of one of its frames make it alike.
+const RASTER_MIN_AREA: f32 = 1.0;
+
+/// The BVH the rays are tested against, and the primitives it holds
+/// (`None`: all): all for the BVH tracer; for the scan converter those
+/// below [`RASTER_MIN_AREA`] squares of the ray spacing `delta`, if any.
+fn traced_by_bvh(input: &TraceInput<'_>, delta: f32) -> (Option<PrimitiveBvh>, Option<Vec<u32>>) {
+    match input.method {
+        TraceMethod::Bvh => (Some(PrimitiveBvh::new(input.prims)), None),
+        TraceMethod::Scan => {
+            let ids: Vec<u32> = (0..input.prims.len() as u32).filter(|&i| !rasterised(input, delta, i)).collect();
+            if ids.is_empty() {
+                return (None, Some(ids));
+            }
+            let small: Vec<crate::geometry::Primitive> = ids.iter().map(|&i| input.prims[i as usize]).collect();
+            (Some(PrimitiveBvh::new(&small)), Some(ids))
+        }
     }
+}
+
+/// Whether the scan converter rasterises primitive `i` (else the rays
+/// test it through the BVH): [`RASTER_MIN_AREA`].
+fn rasterised(input: &TraceInput<'_>, delta: f32, i: u32) -> bool {
+    input.prims[i as usize].area() >= RASTER_MIN_AREA * delta * delta
 }
 
 /// The patch of a hit the walk has not prepared yet.
@@ -103,6 +130,19 @@ const EMPTY_HIT: RayHitRecord =
 /// first and at most (more go to an overflow list): a band whose overflow
 /// holds more than a hit for every fourth ray doubles them for the next.
 const SLOTS: (usize, usize) = (4, 64);
+
+/// Puts hit `h` of ray `r` of a band in the ray's next slot of
+/// `slots_per_ray`, or in the overflow.
+#[inline]
+fn place(s: &mut Scratch, slots_per_ray: usize, r: usize, h: RayHitRecord) {
+    let n = &mut s.slot_count[r];
+    if (*n as usize) < slots_per_ray {
+        s.slots[r * slots_per_ray + *n as usize] = h;
+    } else {
+        s.overflow.push((r as u32, h));
+    }
+    *n = n.saturating_add(1);
+}
 
 /// A link as traced: `(a << 32 | b, bucket at a, bucket at b)`.
 type LinkKey = (u64, u8, u8);
@@ -218,7 +258,7 @@ pub fn trace_all(
         nd_index,
         spill,
         progress,
-        bvh: PrimitiveBvh::new(prims),
+        bvh: traced_by_bvh(input, delta),
         normals: prims.iter().map(|p| p.normal()).collect(),
         hit_counts: (0..patches.len()).map(|_| AtomicU64::new(0)).collect(),
         nd_hits: (0..nd_count * pairs as usize).map(|_| AtomicU32::new(0)).collect(),
@@ -228,6 +268,10 @@ pub fn trace_all(
         // Links touching a patch absent from a frame are left out of its
         // changes (the format removes them anyway).
         patch_active: patches.primitive.iter().map(|&p| input.active[p as usize]).collect(),
+        rasterised: match input.method {
+            TraceMethod::Scan => (0..prims.len() as u32).filter(|&i| rasterised(input, delta, i)).collect(),
+            TraceMethod::Bvh => Vec::new(),
+        },
         pairs,
         per_chunk: chunking(pairs).0,
     };
@@ -305,7 +349,10 @@ struct Tracer<'a> {
     nd_index: &'a [u32],
     spill: Option<&'a Spill>,
     progress: &'a dyn Progress,
-    bvh: PrimitiveBvh,
+    /// The BVH of the primitives rays are tested against, and which they
+    /// are (`None`: all, in order): all for the BVH tracer; for the scan
+    /// converter the small ones ([`traced_by_bvh`]), or nothing.
+    bvh: (Option<PrimitiveBvh>, Option<Vec<u32>>),
     /// Per primitive, its unit normal.
     normals: Vec<Vec3>,
     /// `H_p`, in u64 while counting: a single patch could exceed u32 near
@@ -321,6 +368,8 @@ struct Tracer<'a> {
     eps_t: f32,
     /// Per patch, the frames it is present in.
     patch_active: Vec<FrameSpan>,
+    /// The primitives the scan converter rasterises ([`RASTER_MIN_AREA`]).
+    rasterised: Vec<u32>,
     /// Direction pairs, and pairs per chunk.
     pairs: u32,
     per_chunk: u32,
@@ -421,7 +470,7 @@ impl Tracer<'_> {
     /// hits walked.
     fn scan(&self, s: &mut Scratch, g: &layout::Grid, d: Vec3, walk: &Walk<'_>, k: u32) -> u64 {
         let mut projected = std::mem::take(&mut s.projected);
-        raster::project_all(self.input.prims, g, d, &mut projected);
+        raster::project_all(self.input.prims, &self.rasterised, g, d, &mut projected);
         let band = (raster::BAND_RAYS / g.nu.max(1)).clamp(1, g.nv.max(1));
         let (mut next, mut active, mut hits) = (0, Vec::new(), 0);
         for b0 in (0..g.nv).step_by(band as usize) {
@@ -450,16 +499,22 @@ impl Tracer<'_> {
                     let Some(span) = f.span(jj, g.nu) else { continue };
                     let row = ((jj - b0) * g.nu) as usize;
                     f.row(jj, span, |ii, t, uv| {
-                        let r = row + ii as usize;
                         let h = RayHitRecord { t, uv, patch: p.first_patch + p.grid.cell_at(uv), ..hit };
-                        let n = &mut s.slot_count[r];
-                        if (*n as usize) < slots_per_ray {
-                            s.slots[r * slots_per_ray + *n as usize] = h;
-                        } else {
-                            s.overflow.push((r as u32, h));
-                        }
-                        *n = n.saturating_add(1);
+                        place(s, slots_per_ray, row + ii as usize, h);
                     });
+                }
+            }
+            // The small primitives, by the rays that reach their BVH.
+            if let (Some(bvh), ids) = &self.bvh {
+                for jj in b0..b1 {
+                    for ii in 0..g.nu {
+                        let r = ((jj - b0) * g.nu + ii) as usize;
+                        bvh.all_hits(raster::ray_origin(g, ii, jj), d, |h| {
+                            let mut h = record(h, ids.as_deref());
+                            walk.prepare(std::slice::from_mut(&mut h));
+                            place(s, slots_per_ray, r, h);
+                        });
+                    }
                 }
             }
             if let Some(spill) = self.spill {
@@ -533,7 +588,9 @@ impl Tracer<'_> {
                     for ii in 0..g.nu {
                         let mut hits = std::mem::take(&mut s.hits);
                         hits.clear();
-                        self.bvh.all_hits(raster::ray_origin(&g, ii, jj), d, |h| hits.push(record(h)));
+                        if let (Some(bvh), ids) = &self.bvh {
+                            bvh.all_hits(raster::ray_origin(&g, ii, jj), d, |h| hits.push(record(h, ids.as_deref())));
+                        }
                         stats.hits += self.walk_ray(&mut hits, s, &g, &walk, k);
                         s.hits = hits;
                     }

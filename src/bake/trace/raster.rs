@@ -139,10 +139,10 @@ impl Projected {
     }
 }
 
-/// The primitives of `prims` that grid `g` (direction `d`) sees, projected
-/// onto it, into `out`, ordered by their first row. Primitives seen edge
-/// on (no area in projection) cover no ray and are left out.
-pub(super) fn project_all(prims: &[Primitive], g: &Grid, d: Vec3, out: &mut Vec<Projected>) {
+/// The primitives `ids` of `prims` that grid `g` (direction `d`) sees,
+/// projected onto it, into `out`, ordered by their first row. Primitives
+/// seen edge on (no area in projection) cover no ray and are left out.
+pub(super) fn project_all(prims: &[Primitive], ids: &[u32], g: &Grid, d: Vec3, out: &mut Vec<Projected>) {
     out.clear();
     // Ray (x, y) is the line O + x·E1 + y·E2 + t·D.
     let (d, step) = (d.as_dvec3(), g.step as f64);
@@ -158,7 +158,8 @@ pub(super) fn project_all(prims: &[Primitive], g: &Grid, d: Vec3, out: &mut Vec<
         let q = p - o;
         DVec2::new(q.dot(da), q.dot(db))
     };
-    for (id, prim) in prims.iter().enumerate() {
+    for &id in ids {
+        let prim = &prims[id as usize];
         let n = prim.corner_count();
         let p: [DVec3; 4] = prim.p.map(|q| q.as_dvec3());
         let mut corners = [DVec2::ZERO; 4];
@@ -199,7 +200,7 @@ pub(super) fn project_all(prims: &[Primitive], g: &Grid, d: Vec3, out: &mut Vec<
         } else {
             Param::Bilinear(corners)
         };
-        out.push(Projected { primitive: id as u32, rows: (first as u64, last as u64), corners, n, t, param });
+        out.push(Projected { primitive: id, rows: (first as u64, last as u64), corners, n, t, param });
     }
     out.sort_by_key(|f| (f.rows.0, f.primitive));
 }
