@@ -123,14 +123,26 @@ impl PrimitiveBvh {
     /// Builds the BVH. Bounds are padded slightly so that flat, axis-aligned
     /// primitives have non-empty boxes.
     pub fn new(primitives: &[Primitive]) -> Self {
-        let (lo, hi) = super::bounds_of(primitives);
+        Self::build(primitives, 0..primitives.len() as u32)
+    }
+
+    /// Builds the BVH of the primitives `ids` of `primitives` alone (hits
+    /// name them by their index in `primitives`), without copying them:
+    /// the scan converter's BVH of the primitives it does not rasterise.
+    pub fn of_subset(primitives: &[Primitive], ids: &[u32]) -> Self {
+        Self::build(primitives, ids.iter().copied())
+    }
+
+    /// The BVH of primitives `ids` of `primitives`.
+    fn build(primitives: &[Primitive], ids: impl Iterator<Item = u32> + Clone) -> Self {
+        let (lo, hi) = super::bounds_of(ids.clone().map(|i| &primitives[i as usize]));
         let pad = ((hi - lo).max_element() * 1e-6).max(1e-9);
-        let mut aabbs = Vec::with_capacity(primitives.len());
-        let mut refs = Vec::with_capacity(primitives.len());
-        for (i, p) in primitives.iter().enumerate() {
-            for (strip, a, b) in pieces(p) {
+        let mut aabbs = Vec::with_capacity(ids.size_hint().0);
+        let mut refs = Vec::with_capacity(ids.size_hint().0);
+        for i in ids {
+            for (strip, a, b) in pieces(&primitives[i as usize]) {
                 aabbs.push(Aabb::new(Vec3A::from(a - pad), Vec3A::from(b + pad)));
-                refs.push((i as u32, strip));
+                refs.push((i, strip));
             }
         }
         let bvh = build_bvh2(&aabbs, BvhBuildParams::medium_build(), &mut Duration::default());

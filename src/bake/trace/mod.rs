@@ -78,12 +78,18 @@ struct RayHitRecord {
     patch: u32,
 }
 
-/// A hit as the BVH reports it (of the primitives `ids`, or of all),
-/// before the walk prepares it (its patch [`UNPREPARED`]).
+/// A hit as the BVH reports it, before the walk prepares it (its patch
+/// [`UNPREPARED`]).
 #[inline]
-fn record(h: crate::geometry::accel::PrimitiveHit, ids: Option<&[u32]>) -> RayHitRecord {
-    let primitive = ids.map_or(h.primitive, |ids| ids[h.primitive as usize]);
-    RayHitRecord { t: h.hit.t, primitive, uv: h.hit.uv, active: FrameSpan::all(1), cos: 0.0, patch: UNPREPARED }
+fn record(h: crate::geometry::accel::PrimitiveHit) -> RayHitRecord {
+    RayHitRecord {
+        t: h.hit.t,
+        primitive: h.primitive,
+        uv: h.hit.uv,
+        active: FrameSpan::all(1),
+        cos: 0.0,
+        patch: UNPREPARED,
+    }
 }
 
 /// Primitives smaller than this many squares of the ray spacing are not
@@ -96,19 +102,16 @@ fn record(h: crate::geometry::accel::PrimitiveHit, ids: Option<&[u32]>) -> RayHi
 /// of one of its frames make it alike.
 const RASTER_MIN_AREA: f32 = 1.0;
 
-/// The BVH the rays are tested against, and the primitives it holds
-/// (`None`: all): all for the BVH tracer; for the scan converter those
-/// below [`RASTER_MIN_AREA`] squares of the ray spacing `delta`, if any.
-fn traced_by_bvh(input: &TraceInput<'_>, delta: f32) -> (Option<PrimitiveBvh>, Option<Vec<u32>>) {
+/// The BVH the rays are tested against: of all primitives for the BVH
+/// tracer; for the scan converter, of those it does not rasterise
+/// (`rasterised` lists the others), if any.
+fn traced_by_bvh(input: &TraceInput<'_>, rasterised: &[u32]) -> Option<PrimitiveBvh> {
     match input.method {
-        TraceMethod::Bvh => (Some(PrimitiveBvh::new(input.prims)), None),
+        TraceMethod::Bvh => Some(PrimitiveBvh::new(input.prims)),
         TraceMethod::Scan => {
-            let ids: Vec<u32> = (0..input.prims.len() as u32).filter(|&i| !rasterised(input, delta, i)).collect();
-            if ids.is_empty() {
-                return (None, Some(ids));
-            }
-            let small: Vec<crate::geometry::Primitive> = ids.iter().map(|&i| input.prims[i as usize]).collect();
-            (Some(PrimitiveBvh::new(&small)), Some(ids))
+            let mut raster = rasterised.iter().peekable();
+            let small: Vec<u32> = (0..input.prims.len() as u32).filter(|i| raster.next_if_eq(&i).is_none()).collect();
+            (!small.is_empty()).then(|| PrimitiveBvh::of_subset(input.prims, &small))
         }
     }
 }
@@ -249,6 +252,10 @@ pub fn trace_all(
     check_ray_count(input, dirs, &layouts, delta, progress)?;
     let prims = input.prims;
     let nd_count = nd_index.iter().filter(|&&i| i != u32::MAX).count();
+    let rasterised: Vec<u32> = match input.method {
+        TraceMethod::Scan => (0..prims.len() as u32).filter(|&i| rasterised(input, delta, i)).collect(),
+        TraceMethod::Bvh => Vec::new(),
+    };
     let tracer = Tracer {
         input,
         patches,
@@ -258,7 +265,7 @@ pub fn trace_all(
         nd_index,
         spill,
         progress,
-        bvh: traced_by_bvh(input, delta),
+        bvh: traced_by_bvh(input, &rasterised),
         normals: prims.iter().map(|p| p.normal()).collect(),
         hit_counts: (0..patches.len()).map(|_| AtomicU64::new(0)).collect(),
         nd_hits: (0..nd_count * pairs as usize).map(|_| AtomicU32::new(0)).collect(),
@@ -268,10 +275,7 @@ pub fn trace_all(
         // Links touching a patch absent from a frame are left out of its
         // changes (the format removes them anyway).
         patch_active: patches.primitive.iter().map(|&p| input.active[p as usize]).collect(),
-        rasterised: match input.method {
-            TraceMethod::Scan => (0..prims.len() as u32).filter(|&i| rasterised(input, delta, i)).collect(),
-            TraceMethod::Bvh => Vec::new(),
-        },
+        rasterised,
         pairs,
         per_chunk: chunking(pairs).0,
     };
@@ -349,10 +353,9 @@ struct Tracer<'a> {
     nd_index: &'a [u32],
     spill: Option<&'a Spill>,
     progress: &'a dyn Progress,
-    /// The BVH of the primitives rays are tested against, and which they
-    /// are (`None`: all, in order): all for the BVH tracer; for the scan
-    /// converter the small ones ([`traced_by_bvh`]), or nothing.
-    bvh: (Option<PrimitiveBvh>, Option<Vec<u32>>),
+    /// The BVH of the primitives rays are tested against
+    /// ([`traced_by_bvh`]).
+    bvh: Option<PrimitiveBvh>,
     /// Per primitive, its unit normal.
     normals: Vec<Vec3>,
     /// `H_p`, in u64 while counting: a single patch could exceed u32 near
@@ -505,12 +508,12 @@ impl Tracer<'_> {
                 }
             }
             // The small primitives, by the rays that reach their BVH.
-            if let (Some(bvh), ids) = &self.bvh {
+            if let Some(bvh) = &self.bvh {
                 for jj in b0..b1 {
                     for ii in 0..g.nu {
                         let r = ((jj - b0) * g.nu + ii) as usize;
                         bvh.all_hits(raster::ray_origin(g, ii, jj), d, |h| {
-                            let mut h = record(h, ids.as_deref());
+                            let mut h = record(h);
                             walk.prepare(std::slice::from_mut(&mut h));
                             place(s, slots_per_ray, r, h);
                         });
@@ -588,8 +591,8 @@ impl Tracer<'_> {
                     for ii in 0..g.nu {
                         let mut hits = std::mem::take(&mut s.hits);
                         hits.clear();
-                        if let (Some(bvh), ids) = &self.bvh {
-                            bvh.all_hits(raster::ray_origin(&g, ii, jj), d, |h| hits.push(record(h, ids.as_deref())));
+                        if let Some(bvh) = &self.bvh {
+                            bvh.all_hits(raster::ray_origin(&g, ii, jj), d, |h| hits.push(record(h)));
                         }
                         stats.hits += self.walk_ray(&mut hits, s, &g, &walk, k);
                         s.hits = hits;
