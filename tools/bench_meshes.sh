@@ -8,9 +8,11 @@
 # seconds, rays/s, peak resident memory (VmHWM, as the build reports it).
 #
 #   tools/bench_meshes.sh [BUDGET]      # default 3G; about 1 minute
+#   TRACER=bvh tools/bench_meshes.sh    # the BVH tracer (default: scan)
 set -euo pipefail
 ROOT=$(cd "$(dirname "$0")/.." && pwd)
 BUDGET=${1:-3G}
+TRACER=${TRACER:-scan}
 BIN="$ROOT/target/release/illumnet"
 cargo build --release --quiet --manifest-path "$ROOT/Cargo.toml"
 TMP=$(mktemp -d)
@@ -23,7 +25,7 @@ for L in 0 1 2 3; do
   for mode in grouped per-triangle; do
     [ $mode = per-triangle ] && [ $L != 2 ] && continue
     extra=(); [ $mode = per-triangle ] && extra=(--no-grouping)
-    out=$("$BIN" build "$TMP/b$L.toml" -o "$TMP/b.inet" -q --memory-budget "$BUDGET" "${extra[@]}")
+    out=$("$BIN" build "$TMP/b$L.toml" -o "$TMP/b.inet" -q --memory-budget "$BUDGET" --tracer "$TRACER" "${extra[@]}")
     line=$(grep '^built' <<<"$out")
     patches=$(sed -E 's/.*: ([0-9]+) patches.*/\1/' <<<"$line")
     rate=$(sed -E 's/.*rays \(([0-9.]+ M rays\/s)\).*/\1/' <<<"$line")
