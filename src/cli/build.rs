@@ -97,10 +97,11 @@ pub struct BuildArgs {
     patch_order: PatchOrder,
     /// How each direction's rays find their hits: `scan` (default)
     /// rasterises every primitive onto the direction's ray grid by a
-    /// watertight fill rule (no ray slips through a mesh's seams); `bvh`
-    /// traverses a BVH per ray, about 3× slower, the reference. The
-    /// archives differ only in rays within rounding of an edge (a few in
-    /// 10⁵ of the link ends).
+    /// watertight fill rule (no ray slips between two rasterised
+    /// primitives), leaving those smaller than the ray spacing squared to
+    /// the rays through a BVH of them; `bvh` traverses a BVH of everything
+    /// per ray, 1.2–3× slower, the reference. The archives differ only in
+    /// rays within rounding of an edge (a few in 10⁵ of the link ends).
     #[arg(long, value_enum, default_value_t = Tracer::Scan)]
     tracer: Tracer,
     /// Turn a planar surface about its normal by DEG degrees before building

@@ -131,7 +131,8 @@ const EMPTY_HIT: RayHitRecord =
 
 /// Hits a ray holds in its own slots while a band is scan-converted, at
 /// first and at most (more go to an overflow list): a band whose overflow
-/// holds more than a hit for every fourth ray doubles them for the next.
+/// holds more than a hit for every fourth ray doubles them for the next
+/// band of the pair (never past 16 hits a ray of a full band).
 const SLOTS: (usize, usize) = (4, 64);
 
 /// Puts hit `h` of ray `r` of a band in the ray's next slot of
@@ -442,17 +443,25 @@ impl Tracer<'_> {
             walk.prepare(hits);
         }
         let key = self.input.sort_key;
-        // By distance, ties by the build-independent key: a total order,
-        // so any sort gives the same order. Rays meet few surfaces: an
-        // insertion sort.
-        let before = |x: &RayHitRecord, y: &RayHitRecord| {
-            x.t.total_cmp(&y.t).then_with(|| key[x.primitive as usize].cmp(&key[y.primitive as usize])).is_lt()
+        // By distance, ties by the build-independent key, then by the
+        // first frame present (instances of one surface share its keys).
+        // Rays meet few surfaces: an insertion sort (stable, like the
+        // fallback for many), so hits the order cannot tell apart stay in
+        // the order they were found.
+        let order = |x: &RayHitRecord, y: &RayHitRecord| {
+            x.t.total_cmp(&y.t)
+                .then_with(|| key[x.primitive as usize].cmp(&key[y.primitive as usize]))
+                .then(x.active.first.cmp(&y.active.first))
         };
-        for i in 1..hits.len() {
-            let mut j = i;
-            while j > 0 && before(&hits[j], &hits[j - 1]) {
-                hits.swap(j, j - 1);
-                j -= 1;
+        if hits.len() > 32 {
+            hits.sort_by(order);
+        } else {
+            for i in 1..hits.len() {
+                let mut j = i;
+                while j > 0 && order(&hits[j], &hits[j - 1]).is_lt() {
+                    hits.swap(j, j - 1);
+                    j -= 1;
+                }
             }
         }
         // A ray gives a link at most per hit: more room for keys,
@@ -472,10 +481,18 @@ impl Tracer<'_> {
     /// band of rows at a time, each walked in the BVH tracer's order; the
     /// hits walked.
     fn scan(&self, s: &mut Scratch, g: &layout::Grid, d: Vec3, walk: &Walk<'_>, k: u32) -> u64 {
-        let mut projected = std::mem::take(&mut s.projected);
-        raster::project_all(self.input.prims, &self.rasterised, g, d, &mut projected);
+        raster::project_all(self.input.prims, &self.rasterised, g, d, &mut s.projected);
+        if let Some(spill) = self.spill {
+            spill.hold_scratch(s.grown());
+        }
+        let projected = std::mem::take(&mut s.projected);
+        let mut active = std::mem::take(&mut s.active_projected);
+        active.clear();
         let band = (raster::BAND_RAYS / g.nu.max(1)).clamp(1, g.nv.max(1));
-        let (mut next, mut active, mut hits) = (0, Vec::new(), 0);
+        // Slots per ray start anew each pair (so that which hits overflow
+        // depends on the pair alone), and hold at most 16 × BAND_RAYS hits.
+        s.slots_per_ray = SLOTS.0;
+        let (mut next, mut hits) = (0, 0);
         for b0 in (0..g.nv).step_by(band as usize) {
             let b1 = (b0 + band).min(g.nv);
             while next < projected.len() && projected[next].rows.0 < b1 {
@@ -486,13 +503,16 @@ impl Tracer<'_> {
             // Each ray's hits in its slots, those past them in the
             // overflow.
             let rays = ((b1 - b0) * g.nu) as usize;
-            let slots_per_ray = s.slots_per_ray.max(SLOTS.0);
+            let slots_per_ray = s.slots_per_ray;
             s.slot_count.clear();
             s.slot_count.resize(rays, 0);
             if s.slots.len() < rays * slots_per_ray {
                 s.slots.resize(rays * slots_per_ray, EMPTY_HIT);
             }
             s.overflow.clear();
+            if let Some(spill) = self.spill {
+                spill.hold_scratch(s.grown());
+            }
             for &f in &active {
                 let f = &projected[f];
                 let primitive = f.primitive;
@@ -524,9 +544,10 @@ impl Tracer<'_> {
                 spill.hold_scratch(s.grown());
             }
             // The overflow by ray (a ray's hits are sorted as it is walked).
-            s.overflow.sort_unstable_by_key(|o| o.0);
+            s.overflow.sort_by_key(|o| o.0);
+            let most = (SLOTS.1.min(16 * raster::BAND_RAYS as usize / rays.max(1))).max(SLOTS.0);
             if s.overflow.len() * 4 > rays {
-                s.slots_per_ray = (slots_per_ray * 2).min(SLOTS.1);
+                s.slots_per_ray = (slots_per_ray * 2).min(most);
             }
             let mut slots = std::mem::take(&mut s.slots);
             let mut over = 0;
@@ -553,6 +574,7 @@ impl Tracer<'_> {
             s.slots = slots;
         }
         s.projected = projected;
+        s.active_projected = active;
         hits
     }
 

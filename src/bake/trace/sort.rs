@@ -33,19 +33,20 @@ pub(super) fn sort_keys(keys: &mut Vec<LinkKey>, buf: &mut Vec<LinkKey>) {
         keys.sort_unstable();
         return;
     }
-    let mut counts = [[0u32; 256]; DIGITS];
+    let mut counts = [[0usize; 256]; DIGITS];
     for k in keys.iter() {
         for (d, c) in counts.iter_mut().enumerate() {
             c[digit(k, d)] += 1;
         }
     }
     buf.clear();
+    buf.reserve_exact(n);
     buf.resize(n, (0, 0, 0));
     for (d, c) in counts.iter().enumerate() {
-        if c.iter().any(|&x| x as usize == n) {
+        if c.contains(&n) {
             continue;
         }
-        let mut at = [0u32; 256];
+        let mut at = [0usize; 256];
         let mut sum = 0;
         for (a, &x) in at.iter_mut().zip(c) {
             *a = sum;
@@ -53,7 +54,7 @@ pub(super) fn sort_keys(keys: &mut Vec<LinkKey>, buf: &mut Vec<LinkKey>) {
         }
         for k in keys.iter() {
             let i = &mut at[digit(k, d)];
-            buf[*i as usize] = *k;
+            buf[*i] = *k;
             *i += 1;
         }
         std::mem::swap(keys, buf);
