@@ -481,12 +481,18 @@ impl Tracer<'_> {
     /// band of rows at a time, each walked in the BVH tracer's order; the
     /// hits walked.
     fn scan(&self, s: &mut Scratch, g: &layout::Grid, d: Vec3, walk: &Walk<'_>, k: u32) -> u64 {
-        raster::project_all(self.input.prims, &self.rasterised, g, d, &mut s.projected);
+        let frame = raster::GridFrame::new(g, d);
+        s.extents.clear();
+        s.extents.reserve_exact(self.rasterised.len());
         if let Some(spill) = self.spill {
             spill.hold_scratch(s.grown());
         }
-        let projected = std::mem::take(&mut s.projected);
-        let mut active = std::mem::take(&mut s.active_projected);
+        if let Some(frame) = &frame {
+            frame.extents(self.input.prims, &self.rasterised, &mut s.extents);
+        }
+        let extents = std::mem::take(&mut s.extents);
+        // The primitives a band's rows may meet, projected as they start.
+        let mut active = std::mem::take(&mut s.projected);
         active.clear();
         let band = (raster::BAND_RAYS / g.nu.max(1)).clamp(1, g.nv.max(1));
         // Slots per ray start anew each pair (so that which hits overflow
@@ -495,11 +501,14 @@ impl Tracer<'_> {
         let (mut next, mut hits) = (0, 0);
         for b0 in (0..g.nv).step_by(band as usize) {
             let b1 = (b0 + band).min(g.nv);
-            while next < projected.len() && projected[next].rows.0 < b1 {
-                active.push(next);
+            while next < extents.len() && extents[next].rows.0 < b1 {
+                let id = extents[next].primitive;
+                if let Some(p) = frame.as_ref().and_then(|f| f.project(id, &self.input.prims[id as usize])) {
+                    active.push(p);
+                }
                 next += 1;
             }
-            active.retain(|&f| projected[f].rows.1 >= b0);
+            active.retain(|f| f.rows.1 >= b0);
             // Each ray's hits in its slots, those past them in the
             // overflow.
             let rays = ((b1 - b0) * g.nu) as usize;
@@ -513,8 +522,7 @@ impl Tracer<'_> {
             if let Some(spill) = self.spill {
                 spill.hold_scratch(s.grown());
             }
-            for &f in &active {
-                let f = &projected[f];
+            for f in &active {
                 let primitive = f.primitive;
                 let p = walk.prepared(primitive);
                 let hit = RayHitRecord { primitive, active: p.active, cos: p.cos, ..EMPTY_HIT };
@@ -573,8 +581,8 @@ impl Tracer<'_> {
             }
             s.slots = slots;
         }
-        s.projected = projected;
-        s.active_projected = active;
+        s.extents = extents;
+        s.projected = active;
         hits
     }
 

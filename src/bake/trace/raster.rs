@@ -142,56 +142,110 @@ impl Projected {
     }
 }
 
-/// The primitives `ids` of `prims` that grid `g` (direction `d`) sees,
-/// projected onto it, into `out`, ordered by their first row. Primitives
-/// seen edge on (no area in projection) cover no ray and are left out.
-pub(super) fn project_all(prims: &[Primitive], ids: &[u32], g: &Grid, d: Vec3, out: &mut Vec<Projected>) {
-    out.clear();
-    // Ray (x, y) is the line O + x·E1 + y·E2 + t·D.
-    let (d, step) = (d.as_dvec3(), g.step as f64);
-    let (e1, e2) = (g.e1.as_dvec3() * step, g.e2.as_dvec3() * step);
-    let o = g.origin.as_dvec3() + e1 * (g.i0 as f64 + g.offset.x as f64) + e2 * (g.j0 as f64 + g.offset.y as f64);
-    // The dual basis: (p − O)·A = x, (p − O)·B = y.
-    let det = e1.dot(e2.cross(d));
-    if det == 0.0 || !det.is_finite() {
-        return;
+/// Where a primitive falls on a pair's grid, in 24 bytes: what a pair
+/// holds for every primitive it rasterises (the full projection, some
+/// 190 bytes, is made only for the band of rows it covers).
+#[derive(Debug, Clone, Copy)]
+pub(super) struct Extent {
+    /// First and last grid row it covers.
+    pub(super) rows: (u64, u64),
+    /// The primitive.
+    pub(super) primitive: u32,
+}
+
+/// A pair's grid as the projection sees it: ray `(x, y)` is the line
+/// `O + x·E1 + y·E2 + t·D`, and `(p − O)·A = x`, `(p − O)·B = y`.
+pub(super) struct GridFrame {
+    o: DVec3,
+    e1: DVec3,
+    e2: DVec3,
+    d: DVec3,
+    a: Dual,
+    nv: u64,
+}
+
+/// The dual basis of a [`GridFrame`].
+struct Dual {
+    x: DVec3,
+    y: DVec3,
+}
+
+impl GridFrame {
+    /// The frame of grid `g` (direction `d`), or `None` for a degenerate
+    /// grid (no rays to rasterise onto).
+    pub(super) fn new(g: &Grid, d: Vec3) -> Option<Self> {
+        let (d, step) = (d.as_dvec3(), g.step as f64);
+        let (e1, e2) = (g.e1.as_dvec3() * step, g.e2.as_dvec3() * step);
+        let o = g.origin.as_dvec3() + e1 * (g.i0 as f64 + g.offset.x as f64) + e2 * (g.j0 as f64 + g.offset.y as f64);
+        let det = e1.dot(e2.cross(d));
+        if det == 0.0 || !det.is_finite() {
+            return None;
+        }
+        let a = Dual { x: e2.cross(d) / det, y: d.cross(e1) / det };
+        Some(Self { o, e1, e2, d, a, nv: g.nv })
     }
-    let (da, db) = (e2.cross(d) / det, d.cross(e1) / det);
-    let cell = |p: DVec3| {
-        let q = p - o;
-        DVec2::new(q.dot(da), q.dot(db))
-    };
-    for &id in ids {
-        let prim = &prims[id as usize];
+
+    /// Point `p` in cell coordinates.
+    #[inline]
+    fn cell(&self, p: DVec3) -> DVec2 {
+        let q = p - self.o;
+        DVec2::new(q.dot(self.a.x), q.dot(self.a.y))
+    }
+
+    /// The corners of `prim` projected, and the grid rows they cover
+    /// (`None`: seen edge on, or no row of the grid).
+    fn corners(&self, prim: &Primitive) -> Option<([DVec2; 4], (u64, u64))> {
         let n = prim.corner_count();
-        let p: [DVec3; 4] = prim.p.map(|q| q.as_dvec3());
         let mut corners = [DVec2::ZERO; 4];
         for i in 0..n {
-            corners[i] = cell(p[i]);
+            corners[i] = self.cell(prim.p[i].as_dvec3());
         }
         // Twice the projected area (a fan from the first corner, on
         // differences so that it keeps its precision far from the grid's
         // origin): none, no rays.
         let area2: f64 = (1..n - 1).map(|i| (corners[i] - corners[0]).perp_dot(corners[i + 1] - corners[0])).sum();
         if area2.is_nan() || area2.abs() <= 1e-12 {
-            continue;
+            return None;
         }
         let (y0, y1) =
             corners[..n].iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), c| (a.min(c.y), b.max(c.y)));
-        let (first, last) = (y0.ceil().max(0.0), (y1.ceil() - 1.0).min(g.nv as f64 - 1.0));
+        let (first, last) = (y0.ceil().max(0.0), (y1.ceil() - 1.0).min(self.nv as f64 - 1.0));
         if first.is_nan() || last.is_nan() || first > last {
-            continue;
+            return None;
         }
+        Some((corners, (first as u64, last as u64)))
+    }
+
+    /// The extents of primitives `ids` of `prims` on this grid, into
+    /// `out`, ordered by their first row; primitives that cover no row
+    /// are left out.
+    pub(super) fn extents(&self, prims: &[Primitive], ids: &[u32], out: &mut Vec<Extent>) {
+        out.clear();
+        for &id in ids {
+            if let Some((_, rows)) = self.corners(&prims[id as usize]) {
+                out.push(Extent { rows, primitive: id });
+            }
+        }
+        out.sort_by_key(|e| (e.rows.0, e.primitive));
+    }
+
+    /// Primitive `id` (`prim`) projected onto this grid, or `None` when
+    /// it covers no ray.
+    pub(super) fn project(&self, id: u32, prim: &Primitive) -> Option<Projected> {
+        let (corners, rows) = self.corners(prim)?;
+        let n = prim.corner_count();
+        let p: [DVec3; 4] = prim.p.map(|q| q.as_dvec3());
         // The plane: n·(O + x·E1 + y·E2 + t·D − p0) = 0.
         let normal = match prim.kind {
             PrimitiveKind::Quad => (p[2] - p[0]).cross(p[3] - p[1]),
             PrimitiveKind::Triangle => (p[1] - p[0]).cross(p[2] - p[0]),
         };
-        let nd = normal.dot(d);
+        let nd = normal.dot(self.d);
         if nd == 0.0 || !nd.is_finite() {
-            continue;
+            return None;
         }
-        let t = Affine { c: normal.dot(p[0] - o) / nd, a: -normal.dot(e1) / nd, b: -normal.dot(e2) / nd };
+        let t =
+            Affine { c: normal.dot(p[0] - self.o) / nd, a: -normal.dot(self.e1) / nd, b: -normal.dot(self.e2) / nd };
         // Surface coordinates: (x, y) = P0 + u·(P1 − P0) + v·(P_last − P0)
         // for a triangle (P2) or a parallelogram (P3).
         let (c0, e) = (corners[0], corners[1] - corners[0]);
@@ -200,7 +254,7 @@ pub(super) fn project_all(prims: &[Primitive], ids: &[u32], g: &Grid, d: Vec3, o
         let param = if n == 3 || skew.length() <= 1e-9 * (e.length() + f.length()) {
             let det = e.perp_dot(f);
             if det == 0.0 || !det.is_finite() {
-                continue;
+                return None;
             }
             let u = Affine { c: (c0.y * f.x - c0.x * f.y) / det, a: f.y / det, b: -f.x / det };
             let v = Affine { c: (c0.x * e.y - c0.y * e.x) / det, a: -e.y / det, b: e.x / det };
@@ -208,9 +262,8 @@ pub(super) fn project_all(prims: &[Primitive], ids: &[u32], g: &Grid, d: Vec3, o
         } else {
             Param::Bilinear(corners)
         };
-        out.push(Projected { primitive: id, rows: (first as u64, last as u64), corners, n, t, param });
+        Some(Projected { primitive: id, rows, corners, n, t, param })
     }
-    out.sort_by_key(|f| (f.rows.0, f.primitive));
 }
 
 /// The bilinear coordinates of `x` in the quad of corners `c`

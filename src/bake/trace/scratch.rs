@@ -20,10 +20,10 @@ pub(super) struct Scratch {
     pub(super) slot_count: Vec<u8>,
     pub(super) slots_per_ray: usize,
     pub(super) overflow: Vec<(u32, RayHitRecord)>,
-    /// The primitives projected onto the current pair's grid, and those
-    /// a band's rows may meet.
+    /// Where each rasterised primitive falls on the current pair's grid,
+    /// and the projections of those a band's rows may meet.
+    pub(super) extents: Vec<super::raster::Extent>,
     pub(super) projected: Vec<super::raster::Projected>,
-    pub(super) active_projected: Vec<usize>,
     pub(super) keys: Vec<LinkKey>,
     /// The keys' sort's second buffer (`sort.rs`).
     pub(super) sort_buffer: Vec<LinkKey>,
@@ -65,8 +65,8 @@ impl Scratch {
             + cap(&self.slots)
             + cap(&self.slot_count)
             + cap(&self.overflow)
+            + cap(&self.extents)
             + cap(&self.projected)
-            + cap(&self.active_projected)
             + cap(&self.keys)
             + cap(&self.sort_buffer)
             + cap(&self.frame_links)
