@@ -113,7 +113,7 @@ pub(super) fn refuse_many_patches(bound: &MemoryBound, prims: usize, cut: CutSiz
 /// Under `b`: what the links may hold before workers spill them
 /// ([`SpillPlan`]), as the [`Spill`] the tracers spill to, or a refusal
 /// now when the budget is below what the build of `setup` (`nd_index` its
-/// non-diffuse patches, `frames` frames, rays `ray_spacing` apart over
+/// non-diffuse patches, `frames` frames, traced as `settings` say over
 /// `bounds`) needs whatever its links. `resident_before` is what was
 /// resident before the setup.
 pub(super) fn spill_within(
@@ -121,10 +121,11 @@ pub(super) fn spill_within(
     setup: &Setup,
     nd_index: &[u32],
     frames: u32,
-    ray_spacing: f32,
+    settings: &super::BuildSettings,
     bounds: (Vec3, Vec3),
     resident_before: Option<u64>,
 ) -> Result<Spill, BuildError> {
+    let ray_spacing = settings.ray_spacing;
     let (patches, prims, dirs) = (&setup.patches, setup.prims.len(), &setup.dirs);
     let nd = nd_index.iter().filter(|&&i| i != u32::MAX).count();
     let mut parts = fixed_build_bytes(patches, prims, nd, dirs.len() / 2, frames);
@@ -150,6 +151,9 @@ pub(super) fn spill_within(
     let making = pair_rays.saturating_mul(BUNDLE_BYTES_PER_LINK).saturating_mul(workers as u64);
     parts.push(("the bundle each tracer makes of them", making));
     parts.push(("a run writer's buffer per tracer", (RUN_WRITE_BUFFER * workers) as u64));
+    // The scan converter's extent of every primitive it rasterises.
+    let extents = trace::extent_bytes(&setup.prims, ray_spacing, settings.trace_method);
+    parts.push(("the scan converter's extents per tracer", extents.saturating_mul(workers as u64)));
     let fixed: u64 = parts.iter().map(|p| p.1).sum();
     if b.budget < fixed.saturating_add(LEAST_LINKS) {
         parts.push(("links", LEAST_LINKS));

@@ -363,7 +363,7 @@ impl Prepared {
         bound
             .map(|b| {
                 let (setup, nd) = (&self.setup, &self.nd_index);
-                budget::spill_within(b, setup, nd, self.frames, settings.ray_spacing, self.bounds, self.resident_before)
+                budget::spill_within(b, setup, nd, self.frames, settings, self.bounds, self.resident_before)
             })
             .transpose()
     }

@@ -116,10 +116,21 @@ fn traced_by_bvh(input: &TraceInput<'_>, rasterised: &[u32]) -> Option<Primitive
     }
 }
 
-/// Whether the scan converter rasterises primitive `i` (else the rays
-/// test it through the BVH): [`RASTER_MIN_AREA`].
-fn rasterised(input: &TraceInput<'_>, delta: f32, i: u32) -> bool {
-    input.prims[i as usize].area() >= RASTER_MIN_AREA * delta * delta
+/// Bytes a tracer holds per pair for the primitives it rasterises (their
+/// extents on the grid, `raster::Extent`), built with `method` and rays
+/// `delta` apart: fixed while it traces.
+pub(super) fn extent_bytes(prims: &[Primitive], delta: f32, method: TraceMethod) -> u64 {
+    let rasterised = match method {
+        TraceMethod::Scan => prims.iter().filter(|p| rasterised(p, delta)).count(),
+        TraceMethod::Bvh => 0,
+    };
+    (rasterised * size_of::<raster::Extent>()) as u64
+}
+
+/// Whether the scan converter rasterises `prim` (else the rays test it
+/// through the BVH): [`RASTER_MIN_AREA`].
+fn rasterised(prim: &Primitive, delta: f32) -> bool {
+    prim.area() >= RASTER_MIN_AREA * delta * delta
 }
 
 /// The patch of a hit the walk has not prepared yet.
@@ -254,7 +265,7 @@ pub fn trace_all(
     let prims = input.prims;
     let nd_count = nd_index.iter().filter(|&&i| i != u32::MAX).count();
     let rasterised: Vec<u32> = match input.method {
-        TraceMethod::Scan => (0..prims.len() as u32).filter(|&i| rasterised(input, delta, i)).collect(),
+        TraceMethod::Scan => (0..prims.len() as u32).filter(|&i| rasterised(&prims[i as usize], delta)).collect(),
         TraceMethod::Bvh => Vec::new(),
     };
     let tracer = Tracer {
