@@ -66,8 +66,9 @@ impl Affine {
 enum Param {
     /// Affine: a triangle's barycentrics, or a parallelogram's coordinates.
     Affine(Affine, Affine),
-    /// A general quad: its projected corners, inverted per ray.
-    Bilinear([DVec2; 4]),
+    /// A general quad: its projected corners (`Projected::corners`),
+    /// inverted per ray.
+    Bilinear,
 }
 
 /// A primitive projected onto a pair's ray grid, in cell coordinates (ray
@@ -129,7 +130,8 @@ impl Projected {
                     }
                 }
             }
-            Param::Bilinear(c) => {
+            Param::Bilinear => {
+                let c = self.corners;
                 for ii in lo..hi {
                     let x = ii as f64;
                     let t = t0 + dt * x;
@@ -260,7 +262,7 @@ impl GridFrame {
             let v = Affine { c: (c0.x * e.y - c0.y * e.x) / det, a: -e.y / det, b: e.x / det };
             Param::Affine(u, v)
         } else {
-            Param::Bilinear(corners)
+            Param::Bilinear
         };
         Some(Projected { primitive: id, rows, corners, n, t, param })
     }

@@ -79,10 +79,8 @@ impl Walk<'_> {
     /// them as it makes the hits, [`Walk::prepared`]).
     pub(super) fn prepare(&self, hits: &mut [RayHitRecord]) {
         for h in hits {
-            let pp = &self.patches.primitives[h.primitive as usize];
-            h.active = self.input.active[h.primitive as usize];
-            h.cos = self.normals[h.primitive as usize].dot(self.dir);
-            h.patch = pp.first_patch + pp.grid.cell_at(h.uv);
+            let p = self.prepared(h.primitive);
+            (h.active, h.cos, h.patch) = (p.active, p.cos, p.first_patch + p.grid.cell_at(h.uv));
         }
     }
 
