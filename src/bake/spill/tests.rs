@@ -98,3 +98,29 @@ fn runs_of_a_few_links_cut_bundles_and_merge_to_the_in_memory_table() {
         assert_eq!(bucket, expected.bucket);
     }
 }
+
+proptest::proptest! {
+    /// The loser tree hands out every run's keys in ascending order, for
+    /// any number of runs (including none and one) and runs running dry.
+    #[test]
+    fn a_tournament_gives_keys_in_order(runs in proptest::collection::vec(proptest::collection::vec(0u64..1 << 40, 0..20), 0..40)) {
+        let runs: Vec<Vec<u64>> = runs.into_iter().map(|mut r| { r.sort_unstable(); r }).collect();
+        let key = |k: u64, i: usize| (k << RUN_BITS) | i as u64;
+        let mut want: Vec<u64> = runs.iter().enumerate().flat_map(|(i, r)| r.iter().map(move |&k| key(k, i))).collect();
+        want.sort_unstable();
+        let mut next = vec![0usize; runs.len()];
+        let first = runs.iter().enumerate().map(|(i, r)| r.first().map_or(NO_SLOT, |&k| key(k, i))).collect();
+        let mut t = Tournament::new(first);
+        let mut got = Vec::new();
+        loop {
+            let (i, k) = t.winner();
+            if k == NO_SLOT {
+                break;
+            }
+            got.push(k);
+            next[i] += 1;
+            t.replace(runs[i].get(next[i]).map_or(NO_SLOT, |&k| key(k, i)));
+        }
+        proptest::prop_assert_eq!(got, want);
+    }
+}
