@@ -223,7 +223,15 @@ impl PrimitiveBvh {
     /// The closest intersection with `t` in `(t_min, ∞)`, from either side.
     #[inline]
     pub fn closest_hit(&self, origin: Vec3, dir: Vec3, t_min: f32) -> Option<PrimitiveHit> {
-        let ray = Ray::new(origin.into(), dir.into(), t_min, f32::INFINITY);
+        self.closest_hit_within(origin, dir, t_min, f32::INFINITY)
+    }
+
+    /// The closest intersection with `t` in `(t_min, t_max)`, from either
+    /// side: [`Self::closest_hit`] when that is nearer than `t_max`, found
+    /// without visiting what lies beyond it.
+    #[inline]
+    pub fn closest_hit_within(&self, origin: Vec3, dir: Vec3, t_min: f32, t_max: f32) -> Option<PrimitiveHit> {
+        let ray = Ray::new(origin.into(), dir.into(), t_min, t_max);
         let mut best: Option<PrimitiveHit> = None;
         let mut rh = RayHit::none();
         self.bvh.ray_traverse(ray, &mut rh, |r, id| {

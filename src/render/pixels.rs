@@ -213,11 +213,13 @@ fn pixel_reach(hits: &[SampleHit], pl: &PixelLight<'_>, (x, y): (u32, u32), scra
         }
     }
     scratch.lit.sort_by_key(|&(prim, _, _)| prim);
+    // What the camera's rays meet is found in the same BVH.
+    let nearest = |o: Vec3, w: Vec3, t_max: f32| pl.bvh.closest_hit_within(o, w, 0.0, t_max).map_or(t_max, |h| h.hit.t);
     for run in scratch.lit.chunk_by(|a, b| a.0 == b.0) {
         let prim = run[0].0;
         let mean = run.iter().map(|r| r.1).sum::<Vec3>() / run.len() as f32;
         let size = (pl.patch_size)(prim, run[0].2);
-        let w = gather.reach_weight(mean, pl.normals[prim as usize], size, pl.light.epsilon(), pl.trace);
+        let w = gather.reach_weight(mean, pl.normals[prim as usize], size, pl.light.epsilon(), &nearest);
         scratch.reach.push((prim, w));
     }
 }

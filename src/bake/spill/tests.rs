@@ -124,3 +124,64 @@ proptest::proptest! {
         proptest::prop_assert_eq!(got, want);
     }
 }
+
+/// Bundles of 40 pairs of 5 000 links each over [`PATCHES`] patches (4·10⁵
+/// ends: several of the merge's batches).
+fn many_bundles() -> Vec<Bundle> {
+    let mut state = 0x9e37_79b9_7f4a_7c15u64;
+    let mut next = move |m: u32| {
+        state = state.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1_442_695_040_888_963_407);
+        ((state >> 33) % m as u64) as u32
+    };
+    (0..40u32)
+        .map(|pair| {
+            let mut links: Vec<(u32, u32)> = (0..5000).map(|_| (next(PATCHES as u32), next(PATCHES as u32))).collect();
+            links.sort_unstable();
+            let mut b = Bundle { pair, ..Default::default() };
+            for (x, y) in links {
+                b.a.push(x);
+                b.b.push(y);
+                b.w.push(1 + next(7));
+                b.bucket_a.push(next(2) as u8);
+                b.bucket_b.push(next(2) as u8);
+            }
+            b
+        })
+        .collect()
+}
+
+#[test]
+fn the_merge_thread_hands_the_writer_every_batch_and_stops_when_it_fails() {
+    let expected = assemble(&many_bundles(), PATCHES, 1);
+    let dir = tempfile::tempdir().expect("a temporary directory");
+    let spill =
+        Spill::new(&dir.path().join("a.inet"), SpillPlan { threshold: 1 << 20, run_links: 30_000 }, PATCHES, 0, 1)
+            .expect("a spill");
+    spill.spill(&mut many_bundles()).expect("spilled");
+    let (mut merged, _) = spill.finish_with(256, &crate::progress::NoProgress).expect("finished");
+    assert!(merged.run_count() >= 6, "{} runs", merged.run_count());
+    let (mut other, mut weight, mut direction, mut bucket, mut batches) = (vec![], vec![], vec![], vec![], 0);
+    merged
+        .write_ends(&mut |o, w, d, k| {
+            other.extend_from_slice(o);
+            weight.extend_from_slice(w);
+            direction.extend_from_slice(d);
+            bucket.extend_from_slice(k);
+            batches += 1;
+            Ok(())
+        })
+        .expect("merged");
+    assert!(batches >= 6, "{batches} batches");
+    assert_eq!(other, expected.other);
+    assert_eq!(weight, expected.weight);
+    assert_eq!(direction, expected.direction);
+    assert_eq!(bucket, expected.bucket);
+    // A writer failing at its second batch: its error, and no hang.
+    let mut taken = 0;
+    let failed = merged.write_ends(&mut |_, _, _, _| {
+        taken += 1;
+        if taken == 2 { Err(std::io::Error::other("disk full")) } else { Ok(()) }
+    });
+    assert_eq!(failed.expect_err("the writer's error").to_string(), "disk full");
+    assert_eq!(taken, 2, "no batch after the failure");
+}
