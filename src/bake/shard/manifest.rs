@@ -13,7 +13,7 @@ use xxhash_rust::xxh3::Xxh3;
 /// `kind` of every manifest.
 pub const KIND: &str = "illumnet build shard";
 /// The manifest layout this binary writes and reads.
-pub const MANIFEST_VERSION: u32 = 1;
+pub const MANIFEST_VERSION: u32 = 2;
 /// The line that ends a manifest, before its checksum in hex.
 const TRAILER: &str = "\nxxh3-64 ";
 
@@ -85,6 +85,8 @@ pub struct RunEntry {
     pub ends: u64,
     /// Slot records.
     pub slots: u64,
+    /// Bytes of an end record: 8 (16-bit weight and direction) or 12.
+    pub end_bytes: u64,
     /// The file.
     pub file: FileSum,
 }
@@ -201,7 +203,7 @@ mod tests {
             invocation: vec!["scene.toml".into()],
             directory: "/".into(),
             counts: sum.clone(),
-            runs: vec![RunEntry { first_pair: 0, first_link: 0, ends: 2, slots: 1, file: sum }],
+            runs: vec![RunEntry { first_pair: 0, first_link: 0, ends: 2, slots: 1, end_bytes: 8, file: sum }],
         }
     }
 

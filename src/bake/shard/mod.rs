@@ -265,6 +265,7 @@ fn keep_runs(links: SpilledLinks, dir: &Path, stem: &str) -> std::io::Result<Vec
             first_link: run.first.1,
             ends: run.ends,
             slots: run.slots,
+            end_bytes: run.end_bytes,
             file,
         });
     }
@@ -425,10 +426,16 @@ pub fn merge_shards(
                 return Err(here(format!("a run starts at pair {}, outside the shard's pairs {own:?}", r.first_pair)));
             }
             let path = manifest::check_file(dir, &r.file).map_err(here)?;
-            if r.ends.checked_add(r.slots).and_then(|n| n.checked_mul(12)) != Some(r.file.bytes) {
+            if r.end_bytes != 8 && r.end_bytes != 12 {
+                return Err(here(format!("{}: end records of {} bytes (8 or 12)", path.display(), r.end_bytes)));
+            }
+            let bytes =
+                r.ends.checked_mul(r.end_bytes).zip(r.slots.checked_mul(12)).and_then(|(e, s)| e.checked_add(s));
+            if bytes != Some(r.file.bytes) {
                 return Err(here(format!("{}: its length does not hold its records", path.display())));
             }
-            runs.push(Run { first: (r.first_pair, r.first_link), path, ends: r.ends, slots: r.slots });
+            let (ends, slots, end_bytes) = (r.ends, r.slots, r.end_bytes);
+            runs.push(Run { first: (r.first_pair, r.first_link), path, ends, slots, end_bytes });
         }
         progress.advance(1);
     }
@@ -474,7 +481,7 @@ pub fn merge_shards(
 /// The shards' runs as the links to write, merged in passes first (into
 /// scratch next to `output`) when more than one merge may open.
 fn spilled_links(runs: Vec<Run>, output: &Path, progress: &dyn Progress) -> Result<SpilledLinks, BuildError> {
-    let spilled = (runs.len(), runs.iter().map(|r| (r.ends + r.slots) * 12).sum());
+    let spilled = (runs.len(), runs.iter().map(Run::bytes).sum());
     let ends = runs.iter().map(|r| r.ends).sum();
     let fan_in = super::spill::merge_fan_in();
     if runs.len() <= fan_in {

@@ -18,10 +18,11 @@
 //! `.illumnet-*.spill` (the writer's temporary archive is `.illumnet-*.tmp`),
 //! removed when the build ends, succeeds or fails.
 //!
-//! Run file: `E` records of 12 bytes (other patch u32, weight f32,
-//! direction u32, little-endian), then `S` records of 12 bytes (owner u32,
-//! bucket · 2¹⁶ + sender chunk u32, count u32), one per non-empty slot,
-//! ascending (a slot repeats only where its count would pass u32).
+//! Run file: `E` end records of 8 bytes (other patch u32, weight u16,
+//! direction u16, little-endian) when all of the run's fit, else of 12
+//! (u32, f32, u32), then `S` records of 12 bytes (owner u32, bucket · 2¹⁶
+//! + sender chunk u32, count u32), one per non-empty slot, ascending (a
+//! slot repeats only where its count would pass u32): `records.rs`.
 //!
 //! More runs than one merge may open ([`MERGE_FAN_IN`], or fewer under a
 //! low limit of open files) are merged in passes: groups of
@@ -90,6 +91,15 @@ pub(super) struct Run {
     pub(super) path: PathBuf,
     pub(super) ends: u64,
     pub(super) slots: u64,
+    /// Bytes of its end records ([`records::NARROW`] or [`records::WIDE`]).
+    pub(super) end_bytes: u64,
+}
+
+impl Run {
+    /// Bytes of its file.
+    pub(super) fn bytes(&self) -> u64 {
+        self.ends * self.end_bytes + self.slots * records::SLOT
+    }
 }
 
 /// How a bounded build spends `room`, the bytes its links may hold:
@@ -323,11 +333,15 @@ impl Spill {
         let path = self.run_path(&format!("run-{:06}-{n:04}.bin", first.0))?;
         let file = File::create(&path).map_err(|e| io_error(&path, e))?;
         let mut out = BufWriter::with_capacity(RUN_WRITE_BUFFER, file);
+        let end_bytes = records::end_bytes(ends);
         let write = |out: &mut BufWriter<File>, ends: &[SortEnd]| -> std::io::Result<u64> {
-            put_records(out, ends.iter().map(|e| [e.other, e.weight.to_bits(), e.direction]))?;
+            records::put_ends(out, ends, end_bytes)?;
             let mut slots = 0u64;
             let runs = ends.chunk_by(|x, y| (x.owner, x.slot()) == (y.owner, y.slot()));
-            put_records(out, runs.map(|run| [run[0].owner, run[0].slot(), run.len() as u32]).inspect(|_| slots += 1))?;
+            records::put_slots(
+                out,
+                runs.map(|run| [run[0].owner, run[0].slot(), run.len() as u32]).inspect(|_| slots += 1),
+            )?;
             out.flush()?;
             Ok(slots)
         };
@@ -340,7 +354,13 @@ impl Spill {
                 per[e.owner as usize] += 1;
             }
         }
-        self.runs.lock().expect("no panics while held").push(Run { first, path, ends: ends.len() as u64, slots });
+        self.runs.lock().expect("no panics while held").push(Run {
+            first,
+            path,
+            ends: ends.len() as u64,
+            slots,
+            end_bytes,
+        });
         Ok(())
     }
 
@@ -434,7 +454,7 @@ impl Spill {
         drop(self.buffers);
         let mut runs = self.runs.into_inner().expect("no panics while held");
         runs.sort_by_key(|r| r.first);
-        let spilled = (runs.len(), runs.iter().map(|r| (r.ends + r.slots) * 12).sum());
+        let spilled = (runs.len(), runs.iter().map(Run::bytes).sum());
         let dir = self.dir.into_inner().expect("no panics while held");
         if let Some((scratch, _)) = &dir {
             runs = merge_passes(runs, fan_in.max(2), scratch.path(), progress)?;
@@ -582,18 +602,18 @@ fn merge_batches(
     // A slot's records are read in pieces of up to 4 096 (48 KiB), not
     // one by one.
     const PIECE: usize = 1 << 12;
-    let mut records = vec![0u8; PIECE * 12];
-    merge_slots(runs, MERGE_BUFFERS, |_, k, count, ends| {
+    let mut piece = vec![0u8; PIECE * records::WIDE as usize];
+    merge_slots(runs, MERGE_BUFFERS, |_, k, count, ends, end_bytes| {
         let mut left = count as usize;
         while left > 0 {
             let n = left.min(BATCH_ENDS - batch.len()).min(PIECE);
-            let bytes = &mut records[..n * 12];
+            let bytes = &mut piece[..n * end_bytes as usize];
             ends.read_exact(bytes)?;
-            let word = |r: &[u8], j: usize| u32::from_le_bytes(r[4 * j..4 * j + 4].try_into().expect("4 bytes"));
-            for r in bytes.chunks_exact(12) {
-                batch.other.push(word(r, 0));
-                batch.weight.push(f32::from_bits(word(r, 1)));
-                batch.direction.push(word(r, 2));
+            for r in bytes.chunks_exact(end_bytes as usize) {
+                let (other, weight, direction) = records::end(r, end_bytes);
+                batch.other.push(other);
+                batch.weight.push(weight);
+                batch.direction.push(direction);
             }
             batch.bucket.resize(batch.len(), (k >> 16) as u8);
             left -= n;
@@ -611,34 +631,15 @@ fn merge_batches(
     Ok(())
 }
 
-/// Writes `records` (three little-endian u32 each) to `out`, a piece of
-/// 1 024 at a time (a write call per field made a sixth of a spilling
-/// build's samples copies of four bytes).
-fn put_records(out: &mut impl Write, records: impl Iterator<Item = [u32; 3]>) -> std::io::Result<()> {
-    let mut piece = [0u8; 12 * 1024];
-    let mut n = 0;
-    for r in records {
-        for (j, w) in r.iter().enumerate() {
-            piece[n + 4 * j..n + 4 * j + 4].copy_from_slice(&w.to_le_bytes());
-        }
-        n += 12;
-        if n == piece.len() {
-            out.write_all(&piece)?;
-            n = 0;
-        }
-    }
-    out.write_all(&piece[..n])
-}
-
 /// Walks the slots of `runs` (in the order of their first link) in merged
 /// order: smallest (owner, slot key) first, and within a slot the runs in
-/// order. `slot(owner, key, count, ends)` must read the slot's `count`
-/// end records from `ends`. The read buffers take at most `buffers` bytes
+/// order. `slot(owner, key, count, ends, end_bytes)` must read the slot's
+/// `count` end records (of `end_bytes` each) from `ends`. The read buffers take at most `buffers` bytes
 /// (at least 4 KiB a file).
 fn merge_slots(
     runs: &[Run],
     buffers: usize,
-    mut slot: impl FnMut(u32, u32, u32, &mut BufReader<File>) -> std::io::Result<()>,
+    mut slot: impl FnMut(u32, u32, u32, &mut BufReader<File>, u64) -> std::io::Result<()>,
 ) -> std::io::Result<()> {
     if runs.len() > 1 << RUN_BITS {
         return Err(std::io::Error::other(format!(
@@ -656,7 +657,7 @@ fn merge_slots(
             || File::open(&run.path).map_err(|e| std::io::Error::new(e.kind(), format!("{}: {e}", run.path.display())));
         let ends = BufReader::with_capacity(buffer, open()?);
         let mut file = open()?;
-        file.seek(SeekFrom::Start(run.ends * 12))?;
+        file.seek(SeekFrom::Start(run.ends * run.end_bytes))?;
         let mut r = RunReader { ends, slots: BufReader::with_capacity(buffer, file), slots_left: run.slots };
         next.push(merge_key(r.next_slot()?, i, &mut counts)?);
         readers.push(r);
@@ -669,7 +670,7 @@ fn merge_slots(
         }
         let (owner, key) = ((k >> (24 + RUN_BITS)) as u32, ((k >> RUN_BITS) & 0xff_ffff) as u32);
         let r = &mut readers[i];
-        slot(owner, key, counts[i], &mut r.ends)?;
+        slot(owner, key, counts[i], &mut r.ends, runs[i].end_bytes)?;
         tournament.replace(merge_key(r.next_slot()?, i, &mut counts)?);
     }
 }
@@ -804,19 +805,24 @@ fn merge_group(group: &[Run], path: &Path) -> std::io::Result<Run> {
     let mut slots_out = BufWriter::with_capacity(RUN_WRITE_BUFFER, File::create(&slots_path)?);
     let (mut ends, mut slots) = (0u64, 0u64);
     let mut last: Option<(u32, u32, u32)> = None;
-    let mut put = |out: &mut BufWriter<File>, (owner, key, count): (u32, u32, u32)| -> std::io::Result<()> {
+    let mut put = |out: &mut BufWriter<File>, slot: (u32, u32, u32)| -> std::io::Result<()> {
         slots += 1;
-        out.write_all(&owner.to_le_bytes())?;
-        out.write_all(&key.to_le_bytes())?;
-        out.write_all(&count.to_le_bytes())
+        records::put_slots(out, std::iter::once([slot.0, slot.1, slot.2]))
     };
-    let mut records = vec![0u8; 64 << 10];
-    merge_slots(group, MERGE_BUFFERS - 2 * RUN_WRITE_BUFFER - records.len(), |owner, key, count, from| {
-        let mut left = count as usize * 12;
+    // Narrow if every run of the group is.
+    let end_bytes = group.iter().map(|r| r.end_bytes).max().unwrap_or(records::NARROW);
+    const PIECE: usize = 4 << 10;
+    let (mut piece, mut converted) = (vec![0u8; PIECE * records::WIDE as usize], Vec::new());
+    let buffers = MERGE_BUFFERS - 2 * RUN_WRITE_BUFFER - 3 * piece.len();
+    merge_slots(group, buffers, |owner, key, count, from, from_bytes| {
+        let mut left = count as usize;
         while left > 0 {
-            let n = left.min(records.len());
-            from.read_exact(&mut records[..n])?;
-            ends_out.write_all(&records[..n])?;
+            let n = left.min(PIECE);
+            let bytes = &mut piece[..n * from_bytes as usize];
+            from.read_exact(bytes)?;
+            converted.clear();
+            records::convert(bytes, from_bytes, end_bytes, &mut converted);
+            ends_out.write_all(&converted)?;
             left -= n;
         }
         ends += count as u64;
@@ -840,9 +846,10 @@ fn merge_group(group: &[Run], path: &Path) -> std::io::Result<Run> {
     std::io::copy(&mut File::open(&slots_path)?, &mut file)?;
     // (If it stays, the scratch directory goes with it.)
     let _ = std::fs::remove_file(&slots_path);
-    Ok(Run { first: group[0].first, path: path.to_path_buf(), ends, slots })
+    Ok(Run { first: group[0].first, path: path.to_path_buf(), ends, slots, end_bytes })
 }
 
+mod records;
 mod sort;
 #[cfg(test)]
 mod tests;

@@ -31,7 +31,9 @@ fn patch(i: u32) -> u32 {
 }
 
 /// Bundles of pairs 0..6, of 0 to 9 links, over 40 patches in two
-/// sender chunks.
+/// sender chunks; one link of pair 2 has a weight past 16 bits, so that
+/// runs holding it have wide records and the others narrow ones (merge
+/// passes then join both).
 fn bundles() -> Vec<Bundle> {
     (0..6u32)
         .map(|pair| {
@@ -40,7 +42,7 @@ fn bundles() -> Vec<Bundle> {
             for i in 0..n {
                 b.a.push(patch((pair * 7 + i * 3) % 40));
                 b.b.push(patch((pair * 11 + i * 5 + 1) % 40));
-                b.w.push(1 + (i + pair) % 4);
+                b.w.push(if (pair, i) == (2, 4) { 70_000 } else { 1 + (i + pair) % 4 });
                 b.bucket_a.push((i % 2) as u8);
                 b.bucket_b.push(((i + pair) % 3 == 0) as u8);
             }
@@ -67,6 +69,8 @@ fn runs_of_a_few_links_cut_bundles_and_merge_to_the_in_memory_table() {
         let mut runs = spill.runs.lock().expect("runs");
         assert!(runs.iter().all(|r| r.ends <= 2 * run_links), "a run holds at most {run_links} links");
         assert!(runs.iter().all(|r| r.ends > 0), "no empty runs");
+        assert!(runs.iter().any(|r| r.end_bytes == records::WIDE), "a wide run");
+        assert!(runs.iter().any(|r| r.end_bytes == records::NARROW), "narrow runs");
         let links: u64 = 7 + 9 + 1 + 4;
         assert!(runs.len() as u64 >= links.div_ceil(run_links), "{} runs of {run_links}", runs.len());
         // Runs finish in any order on several workers: the merge orders them.

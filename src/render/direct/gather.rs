@@ -237,7 +237,6 @@ pub(crate) fn cosine_direction(u: Vec2, (t, b, n): (Vec3, Vec3, Vec3)) -> Vec3 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::render::primary::{NO_HIT, SampleHit};
 
     #[test]
     fn lattice_directions_are_cosine_distributed() {
