@@ -20,9 +20,10 @@
 //!
 //! Run file: `E` end records of 8 bytes (other patch u32, weight u16,
 //! direction u16, little-endian) when all of the run's fit, else of 12
-//! (u32, f32, u32), then `S` records of 12 bytes (owner u32, bucket · 2¹⁶
-//! + sender chunk u32, count u32), one per non-empty slot, ascending (a
-//! slot repeats only where its count would pass u32): `records.rs`.
+//! (u32, f32, u32), then `S` records of 12 bytes (owner u32, the bucket
+//! times 2¹⁶ plus the sender chunk as u32, count u32), one per non-empty
+//! slot, ascending (a slot repeats only where its count would pass u32):
+//! `records.rs`.
 //!
 //! More runs than one merge may open ([`MERGE_FAN_IN`], or fewer under a
 //! low limit of open files) are merged in passes: groups of
