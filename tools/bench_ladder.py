@@ -47,7 +47,7 @@ RUNGS = [
 ]
 HOT_BYTES_PER_END = 3  # LOTH (2) + LCNT (1); LRUN adds 8 bytes a run
 DISK_BYTES_PER_END = 7.2  # + LDIR (4) and the runs (format 10)
-SPILL_BYTES_PER_END = 13
+SPILL_BYTES_PER_END = 10  # 8-byte end records and ~1.6 bytes of slot records an end
 
 
 def run(args, log=None):
