@@ -165,7 +165,8 @@ type LinkKey = (u64, u8, u8);
 /// Bytes of a tracer's per-pair scratch per ray it traces: the link keys,
 /// reserved at one link a ray before the pair is traced and not freed
 /// (nor spillable) until it is done, and their sort's second buffer
-/// (`sort.rs`). Rays that cross more surfaces need more (counted as they
+/// (`sort.rs`: the tuples' own, or the keys packed in words and their
+/// second half, 16 bytes a key either way). Rays that cross more surfaces need more (counted as they
 /// grow, an eighth of the pair's rays at a time), so this is the least a
 /// pair needs.
 pub(super) const PAIR_BYTES_PER_RAY: u64 = 2 * size_of::<LinkKey>() as u64;
@@ -274,6 +275,7 @@ pub fn trace_all(
         dirs,
         layouts,
         max_bucket,
+        packing: sort::Packing::new(patches.len(), max_bucket),
         nd_index,
         spill,
         progress,
@@ -361,6 +363,8 @@ struct Tracer<'a> {
     dirs: &'a DirectionSet,
     layouts: Vec<BundleLayout>,
     max_bucket: u32,
+    /// How a pair's link keys pack into words for their sort, when they fit.
+    packing: Option<sort::Packing>,
     /// Per patch, its index among non-diffuse patches (`u32::MAX`: diffuse).
     nd_index: &'a [u32],
     spill: Option<&'a Spill>,
@@ -643,8 +647,7 @@ impl Tracer<'_> {
             TraceMethod::Scan => stats.hits += self.scan(s, &g, d, &walk, k),
         }
         stats.links = s.keys.len() as u64;
-        sort::sort_keys(&mut s.keys, &mut s.sort_buffer);
-        let bundle = merged_bundle(k, &s.keys);
+        let bundle = sort::merged_bundle(k, &mut s.keys, self.packing, &mut s.words, &mut s.sort_buffer);
         accumulate_changes(s, &self.patch_active);
         self.progress.advance(1);
         crate::scratch::stop_point("trace");
@@ -675,28 +678,4 @@ impl Tracer<'_> {
         let nd_backs = self.nd_backs.into_iter().map(AtomicU32::into_inner).collect();
         Ok(Traced { bundles, hits, nd_hits, backs, nd_backs, deltas, stats })
     }
-}
-
-/// A pair's link keys (`keys`, one per facing hit pair on a ray, sorted)
-/// merged into its bundle: one link per distinct key, weighed by the rays
-/// that gave it.
-fn merged_bundle(pair: u32, keys: &[LinkKey]) -> Bundle {
-    let merged = keys.chunk_by(|x, y| x == y).count();
-    let mut bundle = Bundle {
-        pair,
-        a: Vec::with_capacity(merged),
-        b: Vec::with_capacity(merged),
-        w: Vec::with_capacity(merged),
-        bucket_a: Vec::with_capacity(merged),
-        bucket_b: Vec::with_capacity(merged),
-    };
-    for run in keys.chunk_by(|x, y| x == y) {
-        let (key, ba, bb) = run[0];
-        bundle.a.push((key >> 32) as u32);
-        bundle.b.push(key as u32);
-        bundle.w.push(run.len() as u32);
-        bundle.bucket_a.push(ba);
-        bundle.bucket_b.push(bb);
-    }
-    bundle
 }

@@ -27,6 +27,9 @@ pub(super) struct Scratch {
     pub(super) keys: Vec<LinkKey>,
     /// The keys' sort's second buffer (`sort.rs`).
     pub(super) sort_buffer: Vec<LinkKey>,
+    /// The keys packed in words and their sort's second half (`sort.rs`;
+    /// used instead of `sort_buffer` when a build's keys fit 64 bits).
+    pub(super) words: Vec<u64>,
     pub(super) frame_links: Vec<LinkKey>,
     pub(super) prev_links: Vec<LinkKey>,
     pub(super) change_frames: Vec<u32>,
@@ -69,6 +72,7 @@ impl Scratch {
             + cap(&self.projected)
             + cap(&self.keys)
             + cap(&self.sort_buffer)
+            + cap(&self.words)
             + cap(&self.frame_links)
             + cap(&self.prev_links)
             + cap(&self.change_frames)
