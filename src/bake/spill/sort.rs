@@ -131,15 +131,17 @@ mod tests {
                     let (a, bb, w) = (bundle.a[i], bundle.b[i], bundle.w[i] as f32);
                     let seq = want.len() as u32;
                     let d = 2 * bundle.pair;
-                    want.push(SortEnd { owner: a, bucket: bundle.bucket_a[i], seq, other: bb, weight: w, direction: d });
-                    want.push(SortEnd { owner: bb, bucket: bundle.bucket_b[i], seq: seq + 1, other: a, weight: w, direction: d + 1 });
+                    let (ka, kb) = (bundle.bucket_a[i], bundle.bucket_b[i]);
+                    want.push(SortEnd { owner: a, bucket: ka, seq, other: bb, weight: w, direction: d });
+                    want.push(SortEnd { owner: bb, bucket: kb, seq: seq + 1, other: a, weight: w, direction: d + 1 });
                 }
             }
             want.sort_unstable_by_key(|e| (e.owner, e.slot(), e.seq));
             let mut ends = Vec::new();
             sorted_run(&bundles, &segments, patches, &mut ends);
             let fields = |v: &[SortEnd]| {
-                v.iter().map(|e| (e.owner, e.bucket, e.seq, e.other, e.weight.to_bits(), e.direction)).collect::<Vec<_>>()
+                let f = |e: &SortEnd| (e.owner, e.bucket, e.seq, e.other, e.weight.to_bits(), e.direction);
+                v.iter().map(f).collect::<Vec<_>>()
             };
             proptest::prop_assert_eq!(fields(&ends), fields(&want));
         }

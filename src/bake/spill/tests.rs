@@ -1,6 +1,7 @@
 //! The external sort's tests: runs, merge passes and the plan.
 
 use super::*;
+use crate::archive::LinkEndSource;
 use crate::bake::links::assemble;
 
 #[test]
@@ -107,7 +108,9 @@ proptest::proptest! {
     /// The loser tree hands out every run's keys in ascending order, for
     /// any number of runs (including none and one) and runs running dry.
     #[test]
-    fn a_tournament_gives_keys_in_order(runs in proptest::collection::vec(proptest::collection::vec(0u64..1 << 40, 0..20), 0..40)) {
+    fn a_tournament_gives_keys_in_order(
+        runs in proptest::collection::vec(proptest::collection::vec(0u64..1 << 40, 0..20), 0..40),
+    ) {
         let runs: Vec<Vec<u64>> = runs.into_iter().map(|mut r| { r.sort_unstable(); r }).collect();
         let key = |k: u64, i: usize| (k << RUN_BITS) | i as u64;
         let mut want: Vec<u64> = runs.iter().enumerate().flat_map(|(i, r)| r.iter().map(move |&k| key(k, i))).collect();

@@ -166,9 +166,9 @@ type LinkKey = (u64, u8, u8);
 /// reserved at one link a ray before the pair is traced and not freed
 /// (nor spillable) until it is done, and their sort's second buffer
 /// (`sort.rs`: the tuples' own, or the keys packed in words and their
-/// second half, 16 bytes a key either way). Rays that cross more surfaces need more (counted as they
-/// grow, an eighth of the pair's rays at a time), so this is the least a
-/// pair needs.
+/// second half, 16 bytes a key either way). Rays that cross more surfaces
+/// need more (counted as they grow, an eighth of the pair's rays at a
+/// time), so this is the least a pair needs.
 pub(super) const PAIR_BYTES_PER_RAY: u64 = 2 * size_of::<LinkKey>() as u64;
 
 /// How a pair's rays find their hits: the same hits but for rays within
