@@ -140,6 +140,16 @@ fn damaged_missing_doubled_and_foreign_shards_are_refused_naming_the_shard() {
     std::fs::write(d.join("shard-0001-of-0003.manifest"), forged.to_text()).unwrap();
     std::fs::copy(good.join("shard-0002-of-0003.manifest"), d.join("shard-0002-of-0003.manifest")).unwrap();
     refused(merge(&[&d], &out), &["shard 1/3", "does not hold its records"]);
+    // End records of a size the format has not, or of the other size.
+    let good1 =
+        Manifest::from_text(&std::fs::read_to_string(good.join("shard-0001-of-0003.manifest")).unwrap()).unwrap();
+    assert_eq!(good1.runs[0].end_bytes, 8, "the Cornell box's runs have narrow records");
+    for (end_bytes, why) in [(9, "end records of 9 bytes"), (12, "does not hold its records")] {
+        let mut forged = good1.clone();
+        forged.runs[0].end_bytes = end_bytes;
+        std::fs::write(d.join("shard-0001-of-0003.manifest"), forged.to_text()).unwrap();
+        refused(merge(&[&d], &out), &["shard 1/3", why]);
+    }
 
     // A stale shard: traced by another version of the program.
     let d = copy_of(&good, &tmp.path().join("stale"));
