@@ -213,8 +213,14 @@ fn pixel_reach(hits: &[SampleHit], pl: &PixelLight<'_>, (x, y): (u32, u32), scra
         }
     }
     scratch.lit.sort_by_key(|&(prim, _, _)| prim);
-    // What the camera's rays meet is found in the same BVH.
-    let nearest = |o: Vec3, w: Vec3, t_max: f32| pl.bvh.closest_hit_within(o, w, 0.0, t_max).map_or(t_max, |h| h.hit.t);
+    // What the camera's rays meet is found in the same BVH. The search
+    // looks a little past `t_max` (10⁻⁵ of it): the traversal skips a box
+    // whose entry, rounded, is not below its bound, and a hit just below
+    // `t_max` would be lost where the box's entry rounds up to it; a hit
+    // past `t_max` changes no probe's minimum.
+    let nearest = |o: Vec3, w: Vec3, t_max: f32| {
+        pl.bvh.closest_hit_within(o, w, 0.0, t_max * (1.0 + 1e-5)).map_or(t_max, |h| h.hit.t)
+    };
     for run in scratch.lit.chunk_by(|a, b| a.0 == b.0) {
         let prim = run[0].0;
         let mean = run.iter().map(|r| r.1).sum::<Vec3>() / run.len() as f32;

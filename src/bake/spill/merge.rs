@@ -52,7 +52,9 @@ impl LinkEndSource for SpilledLinks {
             empty_tx.send(Batch::default()).expect("the receiver is held here");
         }
         std::thread::scope(|scope| {
-            let merger = scope.spawn(move || merge_batches(runs, &full_tx, &empty_rx));
+            let merger = std::thread::Builder::new()
+                .name("merge".into())
+                .spawn_scoped(scope, move || merge_batches(runs, &full_tx, &empty_rx))?;
             let mut written = Ok(());
             while let Ok(mut batch) = full_rx.recv() {
                 written = out(&batch.other, &batch.weight, &batch.direction, &batch.bucket);
