@@ -2,7 +2,7 @@
 
 use super::*;
 use crate::archive::LinkEndSource;
-use crate::bake::links::assemble;
+use crate::bake::links::{LinkTable, assemble};
 
 #[test]
 fn a_plan_fills_its_room_and_no_more() {
@@ -87,16 +87,8 @@ fn runs_of_a_few_links_cut_bundles_and_merge_to_the_in_memory_table() {
         let scratch = files.flatten().find(|f| f.path().is_dir()).expect("a scratch directory").path();
         let left = std::fs::read_dir(scratch).expect("the scratch directory").count();
         assert_eq!(left, merged.runs.len() + 1, "the runs left and the lock file, nothing else");
-        let (mut other, mut weight, mut direction, mut bucket) = (vec![], vec![], vec![], vec![]);
-        merged
-            .write_ends(&mut |o, w, d, k| {
-                other.extend_from_slice(o);
-                weight.extend_from_slice(w);
-                direction.extend_from_slice(d);
-                bucket.extend_from_slice(k);
-                Ok(())
-            })
-            .expect("merged");
+        let (table, _) = merged_table(&mut merged);
+        let LinkTable { other, weight, direction, bucket, .. } = table;
         assert_eq!(other, expected.other, "run_links {run_links}");
         assert_eq!(weight, expected.weight);
         assert_eq!(direction, expected.direction);
@@ -130,6 +122,24 @@ proptest::proptest! {
         }
         proptest::prop_assert_eq!(got, want);
     }
+}
+
+/// The link-end columns `merged` writes (its offsets left empty), and the
+/// batches it wrote them in.
+fn merged_table(merged: &mut SpilledLinks) -> (LinkTable, usize) {
+    let mut t = LinkTable { offsets: vec![], other: vec![], weight: vec![], direction: vec![], bucket: vec![] };
+    let mut batches = 0;
+    merged
+        .write_ends(&mut |o, w, d, k| {
+            t.other.extend_from_slice(o);
+            t.weight.extend_from_slice(w);
+            t.direction.extend_from_slice(d);
+            t.bucket.extend_from_slice(k);
+            batches += 1;
+            Ok(())
+        })
+        .expect("merged");
+    (t, batches)
 }
 
 /// Bundles of 40 pairs of 5 000 links each over [`PATCHES`] patches (4·10⁵
@@ -167,22 +177,12 @@ fn the_merge_thread_hands_the_writer_every_batch_and_stops_when_it_fails() {
     spill.spill(&mut many_bundles()).expect("spilled");
     let (mut merged, _) = spill.finish_with(256, &crate::progress::NoProgress).expect("finished");
     assert!(merged.run_count() >= 6, "{} runs", merged.run_count());
-    let (mut other, mut weight, mut direction, mut bucket, mut batches) = (vec![], vec![], vec![], vec![], 0);
-    merged
-        .write_ends(&mut |o, w, d, k| {
-            other.extend_from_slice(o);
-            weight.extend_from_slice(w);
-            direction.extend_from_slice(d);
-            bucket.extend_from_slice(k);
-            batches += 1;
-            Ok(())
-        })
-        .expect("merged");
+    let (table, batches) = merged_table(&mut merged);
     assert!(batches >= 6, "{batches} batches");
-    assert_eq!(other, expected.other);
-    assert_eq!(weight, expected.weight);
-    assert_eq!(direction, expected.direction);
-    assert_eq!(bucket, expected.bucket);
+    assert_eq!(table.other, expected.other);
+    assert_eq!(table.weight, expected.weight);
+    assert_eq!(table.direction, expected.direction);
+    assert_eq!(table.bucket, expected.bucket);
     // A writer failing at its second batch: its error, and no hang.
     let mut taken = 0;
     let failed = merged.write_ends(&mut |_, _, _, _| {

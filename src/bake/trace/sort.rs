@@ -38,32 +38,46 @@ pub(super) fn sort_keys(keys: &mut Vec<LinkKey>, buf: &mut Vec<LinkKey>) {
         keys.sort_unstable();
         return;
     }
-    let mut counts = [[0usize; 256]; DIGITS];
-    for k in keys.iter() {
-        for (d, c) in counts.iter_mut().enumerate() {
-            c[digit(k, d)] += 1;
-        }
-    }
     buf.clear();
     buf.reserve_exact(n);
     buf.resize(n, (0, 0, 0));
+    let second = buf.as_ptr();
+    if lsd::<_, DIGITS>(keys, buf, digit).as_ptr() == second {
+        std::mem::swap(keys, buf);
+    }
+}
+
+/// Sorts `a` by `D` byte-wise LSD passes, `digit(x, d)` being byte `d`
+/// (least significant first), with `b` (as long) as the second buffer;
+/// bytes every element shares cost no pass. The sorted elements: `a` or
+/// `b`.
+fn lsd<'w, T: Copy, const D: usize>(a: &'w mut [T], b: &'w mut [T], digit: impl Fn(&T, usize) -> usize) -> &'w mut [T] {
+    let n = a.len();
+    let mut counts = [[0usize; 256]; D];
+    for x in a.iter() {
+        for (d, c) in counts.iter_mut().enumerate() {
+            c[digit(x, d)] += 1;
+        }
+    }
+    let (mut from, mut to) = (a, b);
     for (d, c) in counts.iter().enumerate() {
         if c.contains(&n) {
             continue;
         }
         let mut at = [0usize; 256];
         let mut sum = 0;
-        for (a, &x) in at.iter_mut().zip(c) {
-            *a = sum;
-            sum += x;
+        for (i, &k) in at.iter_mut().zip(c) {
+            *i = sum;
+            sum += k;
         }
-        for k in keys.iter() {
-            let i = &mut at[digit(k, d)];
-            buf[*i] = *k;
+        for x in from.iter() {
+            let i = &mut at[digit(x, d)];
+            to[*i] = *x;
             *i += 1;
         }
-        std::mem::swap(keys, buf);
+        std::mem::swap(&mut from, &mut to);
     }
+    from
 }
 
 /// A pair's link keys packed into one word each, in the same order: `a`,
@@ -152,40 +166,14 @@ fn bundle_of(pair: u32, n: usize, runs: impl Iterator<Item = (LinkKey, u32)>) ->
     bundle
 }
 
-/// Sorts `a` ascending by byte-wise LSD passes with `b` (as long) as the
-/// second buffer, skipping bytes every word shares; the sorted words
-/// (in `a` or `b`).
+/// Sorts `a` ascending with `b` (as long) as the second buffer; the
+/// sorted words (in `a` or `b`).
 fn sort_words<'w>(a: &'w mut [u64], b: &'w mut [u64]) -> &'w [u64] {
-    let n = a.len();
-    if n < SMALL {
+    if a.len() < SMALL {
         a.sort_unstable();
         return a;
     }
-    let mut counts = [[0usize; 256]; 8];
-    for &w in a.iter() {
-        for (d, c) in counts.iter_mut().enumerate() {
-            c[((w >> (8 * d)) & 0xff) as usize] += 1;
-        }
-    }
-    let (mut from, mut to) = (a, b);
-    for (d, c) in counts.iter().enumerate() {
-        if c.contains(&n) {
-            continue;
-        }
-        let mut at = [0usize; 256];
-        let mut sum = 0;
-        for (x, &k) in at.iter_mut().zip(c) {
-            *x = sum;
-            sum += k;
-        }
-        for &w in from.iter() {
-            let i = &mut at[((w >> (8 * d)) & 0xff) as usize];
-            to[*i] = w;
-            *i += 1;
-        }
-        std::mem::swap(&mut from, &mut to);
-    }
-    from
+    lsd::<_, 8>(a, b, |w, d| ((w >> (8 * d)) & 0xff) as usize)
 }
 
 #[cfg(test)]
