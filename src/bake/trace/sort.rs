@@ -136,11 +136,15 @@ pub(super) fn merged_bundle(
         return bundle_of(pair, n, keys.chunk_by(|x, y| x == y).map(|r| (r[0], r.len() as u32)));
     };
     let n = keys.len();
-    words.clear();
-    words.reserve_exact(2 * n);
-    words.extend(keys.iter().map(|k| p.pack(k)));
-    words.resize(2 * n, 0);
-    let (sorted, other) = words.split_at_mut(n);
+    // Grown (and zeroed) only when a pair has more keys than any before.
+    if words.len() < 2 * n {
+        words.reserve_exact(2 * n - words.len());
+        words.resize(2 * n, 0);
+    }
+    let (sorted, other) = words[..2 * n].split_at_mut(n);
+    for (w, k) in sorted.iter_mut().zip(keys.iter()) {
+        *w = p.pack(k);
+    }
     let sorted = sort_words(sorted, other);
     let distinct = sorted.chunk_by(|x, y| x == y).count();
     bundle_of(pair, distinct, sorted.chunk_by(|x, y| x == y).map(|r| (p.unpack(r[0]), r.len() as u32)))
@@ -215,7 +219,8 @@ mod tests {
             want.sort_unstable();
             let want: Vec<(LinkKey, u32)> = want.chunk_by(|x, y| x == y).map(|r| (r[0], r.len() as u32)).collect();
             for packing in [Packing::new(patches, max_bucket), None] {
-                let (mut words, mut buf, mut k) = (Vec::new(), Vec::new(), keys.clone());
+                // A second buffer longer than needed, holding what an earlier pair left.
+                let (mut words, mut buf, mut k) = (vec![u64::MAX; 3 * keys.len() + 7], Vec::new(), keys.clone());
                 let b = merged_bundle(7, &mut k, packing, &mut words, &mut buf);
                 let got: Vec<(LinkKey, u32)> = (0..b.a.len())
                     .map(|i| ((((b.a[i] as u64) << 32) | b.b[i] as u64, b.bucket_a[i], b.bucket_b[i]), b.w[i]))
