@@ -107,7 +107,7 @@ const RASTER_MIN_AREA: f32 = 1.0;
 /// (`rasterised` lists the others), if any.
 fn traced_by_bvh(input: &TraceInput<'_>, rasterised: &[u32]) -> Option<PrimitiveBvh> {
     match input.method {
-        TraceMethod::Bvh => Some(PrimitiveBvh::new(input.prims)),
+        TraceMethod::Bvh => Some(PrimitiveBvh::for_bundles(input.prims)),
         TraceMethod::Scan => {
             let mut raster = rasterised.iter().peekable();
             let small: Vec<u32> = (0..input.prims.len() as u32).filter(|i| raster.next_if_eq(&i).is_none()).collect();
