@@ -1,11 +1,14 @@
 //! Sorting a pair's link keys and merging them into its bundle
-//! ([`merged_bundle`]): byte-wise LSD radix sorts. The keys of a pair (one
+//! ([`merged_bundle`]): LSD radix sorts. The keys of a pair (one
 //! a facing hit pair, about one a ray) are sorted before they are merged;
 //! comparison sorting them was the largest single cost of a
 //! scan-converted build (`docs/notebook/2026-12-07-scan-conversion.md`).
 //! Where a build's keys fit 64 bits they are packed into words first
 //! ([`Packing`]): 1.11–1.19× the top rung's shard trace, the same bytes
-//! (`docs/notebook/2026-12-08-spill-and-merge.md`). The second buffer is
+//! (`docs/notebook/2026-12-08-spill-and-merge.md`), and sorted in digits
+//! of up to 11 bits rather than bytes: 0.92–0.93× the CPU time of the
+//! Cornell box's build and of that shard (`docs/notebook/2026-12-08-render-rays.md`).
+//! The second buffer is
 //! the tracer's own, kept from pair to pair and counted in a bounded
 //! build's scratch (16 bytes a key either way).
 
@@ -18,6 +21,10 @@ const DIGITS: usize = 10;
 
 /// Keys fewer than this are sorted by comparison.
 const SMALL: usize = 256;
+
+/// Widest digit of a radix pass: its counts (4 bytes each, 8 KiB) stay in
+/// the first-level cache beside the pass's two streams.
+const DIGIT_BITS: u32 = 11;
 
 #[inline]
 fn digit(k: &LinkKey, d: usize) -> usize {
@@ -34,7 +41,7 @@ fn digit(k: &LinkKey, d: usize) -> usize {
 /// pass.
 pub(super) fn sort_keys(keys: &mut Vec<LinkKey>, buf: &mut Vec<LinkKey>) {
     let n = keys.len();
-    if n < SMALL {
+    if n < SMALL || n > u32::MAX as usize {
         keys.sort_unstable();
         return;
     }
@@ -42,37 +49,44 @@ pub(super) fn sort_keys(keys: &mut Vec<LinkKey>, buf: &mut Vec<LinkKey>) {
     buf.reserve_exact(n);
     buf.resize(n, (0, 0, 0));
     let second = buf.as_ptr();
-    if lsd::<_, DIGITS>(keys, buf, digit).as_ptr() == second {
+    if lsd::<_, DIGITS, 256>(keys, buf, (DIGITS, 8), digit).as_ptr() == second {
         std::mem::swap(keys, buf);
     }
 }
 
-/// Sorts `a` by `D` byte-wise LSD passes, `digit(x, d)` being byte `d`
-/// (least significant first), with `b` (as long) as the second buffer;
-/// bytes every element shares cost no pass. The sorted elements: `a` or
-/// `b`.
-fn lsd<'w, T: Copy, const D: usize>(a: &'w mut [T], b: &'w mut [T], digit: impl Fn(&T, usize) -> usize) -> &'w mut [T] {
+/// Sorts `a` by `passes` LSD passes over digits of `width` bits
+/// (`R` = 2^width at most, at most `D` passes), `digit(x, d)` being digit
+/// `d` (least significant first), with `b` (as long, at most 2³² − 1) as
+/// the second buffer; a digit every element shares costs no pass. The
+/// sorted elements: `a` or `b`.
+fn lsd<'w, T: Copy, const D: usize, const R: usize>(
+    a: &'w mut [T],
+    b: &'w mut [T],
+    (passes, width): (usize, u32),
+    digit: impl Fn(&T, usize) -> usize,
+) -> &'w mut [T] {
     let n = a.len();
-    let mut counts = [[0usize; 256]; D];
+    let mut counts = [[0u32; R]; D];
+    let counts = &mut counts[..passes.min(D)];
     for x in a.iter() {
         for (d, c) in counts.iter_mut().enumerate() {
             c[digit(x, d)] += 1;
         }
     }
     let (mut from, mut to) = (a, b);
-    for (d, c) in counts.iter().enumerate() {
-        if c.contains(&n) {
+    for (d, c) in counts.iter_mut().enumerate() {
+        let c = &mut c[..(1usize << width).min(R)];
+        if c.contains(&(n as u32)) {
             continue;
         }
-        let mut at = [0usize; 256];
+        // The counts become each digit's first place.
         let mut sum = 0;
-        for (i, &k) in at.iter_mut().zip(c) {
-            *i = sum;
-            sum += k;
+        for k in c.iter_mut() {
+            (*k, sum) = (sum, sum + *k);
         }
         for x in from.iter() {
-            let i = &mut at[digit(x, d)];
-            to[*i] = *x;
+            let i = &mut c[digit(x, d)];
+            to[*i as usize] = *x;
             *i += 1;
         }
         std::mem::swap(&mut from, &mut to);
@@ -99,6 +113,11 @@ impl Packing {
         let bits = |n: u64| 64 - n.leading_zeros();
         let (patch_bits, bucket_bits) = (bits(patches.saturating_sub(1) as u64), bits(max_bucket as u64));
         (2 * patch_bits + 2 * bucket_bits <= 64).then_some(Self { patch_bits, bucket_bits })
+    }
+
+    /// Bits a packed key spans.
+    fn bits(&self) -> u32 {
+        2 * (self.patch_bits + self.bucket_bits)
     }
 
     #[inline]
@@ -145,7 +164,7 @@ pub(super) fn merged_bundle(
     for (w, k) in sorted.iter_mut().zip(keys.iter()) {
         *w = p.pack(k);
     }
-    let sorted = sort_words(sorted, other);
+    let sorted = sort_words(sorted, other, p.bits());
     let distinct = sorted.chunk_by(|x, y| x == y).count();
     bundle_of(pair, distinct, sorted.chunk_by(|x, y| x == y).map(|r| (p.unpack(r[0]), r.len() as u32)))
 }
@@ -170,14 +189,24 @@ fn bundle_of(pair: u32, n: usize, runs: impl Iterator<Item = (LinkKey, u32)>) ->
     bundle
 }
 
-/// Sorts `a` ascending with `b` (as long) as the second buffer; the
-/// sorted words (in `a` or `b`).
-fn sort_words<'w>(a: &'w mut [u64], b: &'w mut [u64]) -> &'w [u64] {
-    if a.len() < SMALL {
+/// Sorts `a`, whose words span their low `bits` bits, ascending with `b`
+/// (as long) as the second buffer; the sorted words (in `a` or `b`). The
+/// bits are cut into as few equal digits of at most [`DIGIT_BITS`] as
+/// cover them, one pass each (the Cornell box's 32 bits: three passes of
+/// 11, where bytes took four).
+fn sort_words<'w>(a: &'w mut [u64], b: &'w mut [u64], bits: u32) -> &'w [u64] {
+    if a.len() < SMALL || a.len() > u32::MAX as usize {
         a.sort_unstable();
         return a;
     }
-    lsd::<_, 8>(a, b, |w, d| ((w >> (8 * d)) & 0xff) as usize)
+    let bits = bits.clamp(1, 64);
+    let passes = bits.div_ceil(DIGIT_BITS);
+    let width = bits.div_ceil(passes);
+    let mask = (1u64 << width) - 1;
+    const PASSES: usize = 64usize.div_ceil(DIGIT_BITS as usize);
+    lsd::<_, PASSES, { 1 << DIGIT_BITS }>(a, b, (passes as usize, width), |w, d| {
+        ((w >> (d as u32 * width)) & mask) as usize
+    })
 }
 
 #[cfg(test)]
