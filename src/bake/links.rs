@@ -87,6 +87,16 @@ pub fn assemble(bundles: &[Bundle], patch_count: usize, max_bucket: u32) -> Link
     }
     parts.into_par_iter().for_each(|(lo, hi, other, weight, direction, bucket)| {
         let base = offsets[lo];
+        // Each row's ends lie by bucket, in spans the counts give: the
+        // buckets are written span by span, in order, and the scatter
+        // below writes three columns, not four.
+        for (q, row) in count[lo * nb..hi * nb].chunks_exact(nb).enumerate() {
+            let mut at = (offsets[lo + q] - base) as usize;
+            for (k, &c) in row.iter().enumerate() {
+                bucket[at..at + c as usize].fill(k as u8);
+                at += c as usize;
+            }
+        }
         let mut cursor: Vec<u64> = cursor[lo * nb..hi * nb].to_vec();
         for bundle in bundles {
             for i in 0..bundle.a.len() {
@@ -103,7 +113,6 @@ pub fn assemble(bundles: &[Bundle], patch_count: usize, max_bucket: u32) -> Link
                     other[e] = them;
                     weight[e] = bundle.w[i] as f32;
                     direction[e] = dir;
-                    bucket[e] = k;
                     *slot += 1;
                 }
             }
