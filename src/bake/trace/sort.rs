@@ -6,8 +6,9 @@
 //! Where a build's keys fit 64 bits they are packed into words first
 //! ([`Packing`]): 1.11–1.19× the top rung's shard trace, the same bytes
 //! (`docs/notebook/2026-12-08-spill-and-merge.md`), and sorted in digits
-//! of up to 11 bits rather than bytes: 0.92–0.93× the CPU time of the
-//! Cornell box's build and of that shard (`docs/notebook/2026-12-08-render-rays.md`).
+//! of up to 11 bits rather than bytes (fewer passes over the keys; its
+//! gain, 1–10% of a shard's trace, is within this machine's noise:
+//! `docs/notebook/2026-12-08-render-rays.md`).
 //! The second buffer is
 //! the tracer's own, kept from pair to pair and counted in a bounded
 //! build's scratch (16 bytes a key either way).
