@@ -19,10 +19,10 @@
 //! and 1 mm and the top ladder rung. The scan-converting tracer becoming
 //! the default (issue 41) re-pinned both: its archives differ from the BVH
 //! tracer's in rays at edges (`tests/tracer.rs` bounds the difference).
-//! The render's eight-wide BVH, whose closest hit among primitives met at
-//! one distance is the first primitive (it was whichever the traversal met
-//! first), re-pinned the fan room's frame 41: pixels whose rays meet two
-//! primitives at one distance. A change that means to change the numbers
+//! Closest hits that break ties by primitive order (of primitives met at
+//! one distance, the first; it was whichever the traversal met first)
+//! re-pinned the fan room's frame 41, with the binary BVH as with the
+//! render's eight-wide one. A change that means to change the numbers
 //! re-pins them: run this test with `ILLUMNET_PIN=1` and copy the printed
 //! hashes, and say why in the commit.
 

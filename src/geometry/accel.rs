@@ -49,7 +49,8 @@ pub struct PrimitiveBvh {
     strips: Vec<Strip>,
     /// The same references in an eight-wide BVH, for single rays in no
     /// particular direction (the render's closest hits and shadow rays),
-    /// with the position in `ordered` of each of its leaves' references.
+    /// with the position in `ordered` of each of its leaves' references
+    /// (traversed as [`wide_ray`] says).
     wide: Option<(Vec<u32>, CwBvh)>,
 }
 
@@ -178,6 +179,9 @@ impl PrimitiveBvh {
             }
             (cw.primitive_indices.iter().map(|&r| at[r as usize]).collect(), cw)
         });
+        // obvhs traverses it with a stack of 32 groups, and past that
+        // would skip subtrees: a deeper one (degenerate input) is not used.
+        let wide = wide.filter(|(_, cw)| wide_depth(cw) < WIDE_STACK);
         Self { bvh, ordered, filters, original, boxes, strips, wide }
     }
 
@@ -228,9 +232,9 @@ impl PrimitiveBvh {
         }
         let mut found = None;
         if let Some((slots, cw)) = &self.wide {
-            cw.ray_traverse_miss(ray, |r, slot| {
+            cw.ray_traverse_miss(wide_ray(origin, dir, t_max), |_, slot| {
                 let id = slots[slot] as usize;
-                match self.ordered[id].intersect_filtered(&self.filters[id], origin, dir, r.tmin, r.tmax) {
+                match self.ordered[id].intersect_filtered(&self.filters[id], origin, dir, t_min, t_max) {
                     Some(_) => {
                         found = Some(id as u32);
                         f32::NEG_INFINITY
@@ -273,29 +277,71 @@ impl PrimitiveBvh {
     /// order the traversal meets them in.
     #[inline]
     pub fn closest_hit_within(&self, origin: Vec3, dir: Vec3, t_min: f32, t_max: f32) -> Option<PrimitiveHit> {
-        let ray = Ray::new(origin.into(), dir.into(), t_min, t_max);
         let mut best: Option<PrimitiveHit> = None;
-        let mut visit = |r: &Ray, id: usize| {
-            // Once there is a best hit (`r.tmax` is its distance), one
-            // ulp further, so that a hit tied with it is seen; returning
-            // that distance leaves the ray's bound as it is.
-            let bound = if best.is_some() { r.tmax.next_up() } else { r.tmax };
-            let Some(hit) = self.ordered[id].intersect_filtered(&self.filters[id], origin, dir, r.tmin, bound) else {
+        // Distances the traversal's ray counts from its origin: 0 for the
+        // binary BVH, `WIDE_SHIFT` for the wide one (`wide_ray`).
+        let mut visit = |id: usize, shift: f32| {
+            // Once there is a best hit, up to its distance inclusive, so
+            // that a hit tied with it is seen.
+            let bound = best.map_or(t_max, |b| b.hit.t.next_up());
+            let Some(hit) = self.ordered[id].intersect_filtered(&self.filters[id], origin, dir, t_min, bound) else {
                 return f32::INFINITY;
             };
             let primitive = self.original[id];
             if best.is_none_or(|b| hit.t < b.hit.t || (hit.t == b.hit.t && primitive < b.primitive)) {
                 best = Some(PrimitiveHit { primitive, hit });
             }
-            hit.t
+            // The traversal's bound: never below the hit (rounded up when
+            // shifted), so that nothing as near is passed over.
+            if shift == 0.0 { hit.t } else { (hit.t + shift).next_up() }
         };
         let mut rh = RayHit::none();
         match &self.wide {
-            Some((slots, cw)) => cw.ray_traverse(ray, &mut rh, |r, slot| visit(r, slots[slot] as usize)),
-            None => self.bvh.ray_traverse(ray, &mut rh, visit),
+            Some((slots, cw)) => cw
+                .ray_traverse(wide_ray(origin, dir, t_max), &mut rh, |_, slot| visit(slots[slot] as usize, WIDE_SHIFT)),
+            None => self
+                .bvh
+                .ray_traverse(Ray::new(origin.into(), dir.into(), t_min, t_max), &mut rh, |_, id| visit(id, 0.0)),
         };
         best
     }
+}
+
+/// Stack entries obvhs's eight-wide traversal holds.
+const WIDE_STACK: u32 = 32;
+
+/// How far back along the ray (in its own distance) the wide BVH's
+/// traversal starts: obvhs's node test counts from 10⁻⁴ whatever the
+/// ray's `t_min`, so a box the ray leaves nearer than that (a wall 0.05
+/// mm ahead) would be passed over; started this far back, every box from
+/// the true origin on is tested.
+const WIDE_SHIFT: f32 = 2e-4;
+
+/// The ray the wide BVH is traversed with for a query from `origin` along
+/// `dir` up to `t_max`: started [`WIDE_SHIFT`] back, and with each `-0.0`
+/// of the direction made `+0.0` (obvhs picks a box's near face by
+/// `dir < 0` but inverts `-0.0` to `-1/ε`, which culls every box the ray
+/// starts inside). Primitives are still tested along the query's own ray.
+#[inline]
+fn wide_ray(origin: Vec3, dir: Vec3, t_max: f32) -> Ray {
+    let d = dir + Vec3::ZERO;
+    Ray::new((origin - d * WIDE_SHIFT).into(), d.into(), 0.0, t_max + WIDE_SHIFT)
+}
+
+/// Levels of the eight-wide BVH `cw` (1 for a root of leaves alone).
+fn wide_depth(cw: &CwBvh) -> u32 {
+    if cw.nodes.is_empty() {
+        return 0;
+    }
+    let (mut deepest, mut stack) = (0, vec![(0u32, 1u32)]);
+    while let Some((node, depth)) = stack.pop() {
+        deepest = deepest.max(depth);
+        let n = &cw.nodes[node as usize];
+        for child in (0..8).filter(|&c| !n.is_child_empty(c) && !n.is_leaf(c)) {
+            stack.push((n.child_node_index(child), depth + 1));
+        }
+    }
+    deepest
 }
 
 #[cfg(test)]
@@ -368,6 +414,40 @@ mod tests {
             assert_eq!(binary.occluded(o, d, 0.0, 1.0), bvh.occluded(o, d, 0.0, 1.0), "ray {i}");
         }
         assert!(hits > 20_000 && through_blades > 2_000, "{hits} hits, {through_blades} on blades");
+    }
+
+    #[test]
+    fn the_wide_bvh_meets_what_lies_within_its_epsilon_and_along_negative_zeros() {
+        // A floor, and a wall standing on it: queries from points 0.05 mm
+        // off them (obvhs's node test counts from 0.1 mm), and along
+        // directions with -0.0 components (which its node test took as
+        // culling every box the ray starts inside).
+        let v = |x: f32, y: f32, z: f32| Vec3::new(x, y, z);
+        let floor = Primitive::quad([v(0., 0., 0.), v(0., 0., 1.), v(1., 0., 1.), v(1., 0., 0.)]);
+        let wall = Primitive::quad([v(0.5, 0., 0.), v(0.5, 1., 0.), v(0.5, 1., 1.), v(0.5, 0., 1.)]);
+        for prims in [vec![floor], vec![floor, wall]] {
+            let (wide, binary) = (PrimitiveBvh::new(&prims), PrimitiveBvh::for_bundles(&prims));
+            assert!(wide.wide.is_some());
+            let queries = [
+                (v(0.25, 5e-5, 0.5), v(0.0, -1.0, 0.0), 5e-5),
+                (v(0.25, 5e-5, 0.5), v(-0.0, -1.0, -0.0), 5e-5),
+                (v(0.25, 1.0, 0.5), -Vec3::Y, 1.0),
+                (v(0.45, 0.5, 0.5), v(-0.6, -0.8, 0.0), 0.625),
+                (v(0.5 - 5e-5, 0.5, 0.5), v(1.0, 0.0, -0.0), 5e-5),
+            ];
+            for (i, &(o, d, t)) in queries.iter().enumerate() {
+                let want = binary.closest_hit(o, d, 0.0).map(|h| h.hit.t);
+                let (len, t_got) = (prims.len(), wide.closest_hit(o, d, 0.0).map(|h| h.hit.t));
+                if len == 1 && i == 4 {
+                    assert_eq!(t_got, None, "no wall, query {i}");
+                    continue;
+                }
+                assert!(want.is_some_and(|w| (w - t).abs() < 1e-6), "{len} primitives, query {i}: binary {want:?}");
+                assert_eq!(t_got, want, "{len} primitives, query {i}");
+                assert!(wide.occluded(o, d, 0.0, 2.0 * t), "{len} primitives, query {i}");
+                assert!(!wide.occluded(o, d, 0.0, 0.5 * t), "{len} primitives, query {i}");
+            }
+        }
     }
 
     #[test]
