@@ -8,10 +8,9 @@
 //! (`docs/notebook/2026-12-08-spill-and-merge.md`), and sorted in digits
 //! of up to 11 bits rather than bytes (fewer passes over the keys; its
 //! gain, 1–10% of a shard's trace, is within this machine's noise:
-//! `docs/notebook/2026-12-08-render-rays.md`).
-//! The second buffer is
-//! the tracer's own, kept from pair to pair and counted in a bounded
-//! build's scratch (16 bytes a key either way).
+//! `docs/notebook/2026-12-08-render-rays.md`). The second buffer is the
+//! tracer's own, kept from pair to pair and counted in a bounded build's
+//! scratch (16 bytes a key either way).
 
 use super::LinkKey;
 use crate::bake::bundle::Bundle;
