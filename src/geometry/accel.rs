@@ -231,31 +231,24 @@ impl PrimitiveBvh {
             return true;
         }
         let mut found = None;
-        if let Some((slots, cw)) = &self.wide {
-            cw.ray_traverse_miss(wide_ray(origin, dir, t_max), |_, slot| {
-                let id = slots[slot] as usize;
-                match self.ordered[id].intersect_filtered(&self.filters[id], origin, dir, t_min, t_max) {
-                    Some(_) => {
-                        found = Some(id as u32);
-                        f32::NEG_INFINITY
-                    }
-                    None => f32::INFINITY,
+        // The first hit found ends the traversal (the binary BVH's leaf
+        // loop still calls on: every call after it answers at once).
+        let mut test = |id: usize| {
+            if found.is_none() {
+                if self.ordered[id].intersect_filtered(&self.filters[id], origin, dir, t_min, t_max).is_none() {
+                    return f32::INFINITY;
                 }
-            });
-        } else {
-            let mut rh = RayHit::none();
-            self.bvh.ray_traverse(ray, &mut rh, |r, id| {
-                if found.is_some() {
-                    return f32::NEG_INFINITY;
-                }
-                match self.ordered[id].intersect_filtered(&self.filters[id], origin, dir, r.tmin, r.tmax) {
-                    Some(_) => {
-                        found = Some(id as u32);
-                        f32::NEG_INFINITY
-                    }
-                    None => f32::INFINITY,
-                }
-            });
+                found = Some(id as u32);
+            }
+            f32::NEG_INFINITY
+        };
+        match &self.wide {
+            Some((slots, cw)) => {
+                cw.ray_traverse_miss(wide_ray(origin, dir, t_max), |_, slot| test(slots[slot] as usize));
+            }
+            None => {
+                self.bvh.ray_traverse(ray, &mut RayHit::none(), |_, id| test(id));
+            }
         }
         if let Some(id) = found {
             *hint = id;
